@@ -1,0 +1,154 @@
+"""Evaluation over labelled sequences, reported in the layout of the paper's Tables 1-4."""
+
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Any
+
+from .errors import ArtclassError
+from .pipeline import Config, Pipeline
+from .plugins import Registry
+from .types import DECISIONS, LABELS, Sequence
+
+
+@dataclass
+class SequenceOutcome:
+    name: str
+    object: str
+    truth: str
+    accepted: tuple[str, ...]
+    predicted: str | None               # None when the run failed
+    error: str | None = None
+    fractions: dict[str, float] = field(default_factory=dict)
+    pair_correct: int = 0
+    pair_total: int = 0
+    n_pairs: int = 0
+    seconds: float = 0.0
+
+    @property
+    def correct(self) -> bool:
+        return self.predicted in self.accepted
+
+    @property
+    def effective_truth(self) -> str:
+        """The truth this prediction is scored against: the prediction itself when it is accepted."""
+        return self.predicted if self.correct else self.truth
+
+
+@dataclass
+class Evaluation:
+    rule: str
+    outcomes: list[SequenceOutcome]
+    config: dict[str, Any]
+
+    def metrics(self) -> dict[str, Any]:
+        outs = self.outcomes
+        n = len(outs)
+        per_object: dict[str, list[SequenceOutcome]] = defaultdict(list)
+        for o in outs:
+            per_object[o.object].append(o)
+        classes = [c for c in LABELS if any(o.truth == c for o in outs)]
+        confusion = {t: {p: 0 for p in (*LABELS, "error")} for t in LABELS}
+        for o in outs:
+            confusion[o.effective_truth][o.predicted or "error"] += 1
+        f1s, per_class = {}, {}
+        for c in classes:
+            tp = confusion[c][c]
+            fp = sum(confusion[t][c] for t in LABELS if t != c)
+            fn = sum(confusion[c].values()) - tp
+            f1s[c] = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else 0.0
+            members = [o for o in outs if o.truth == c]
+            per_class[c] = sum(o.correct for o in members) / len(members)
+        pair_total = sum(o.pair_total for o in outs)
+        return dict(
+            n_sequences=n,
+            accuracy=sum(o.correct for o in outs) / n if n else 0.0,
+            per_class_accuracy=per_class,
+            macro_f1=sum(f1s.values()) / len(f1s) if f1s else 0.0,
+            f1=f1s,
+            pair_accuracy=(sum(o.pair_correct for o in outs) / pair_total) if pair_total else None,
+            pair_total=pair_total,
+            confusion=confusion,
+            per_object={obj: dict(truth=os_[0].truth, n=len(os_), accuracy=sum(o.correct for o in os_) / len(os_),
+                                  fractions={d: _mean([o.fractions.get(d, 0.0) for o in os_ if o.fractions]) for d in DECISIONS})
+                        for obj, os_ in sorted(per_object.items(), key=lambda kv: (kv[1][0].truth, kv[0]))},
+            errors=sum(o.predicted is None for o in outs),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(rule=self.rule, config=self.config, metrics=self.metrics(),
+                    sequences=[dict(o.__dict__, correct=o.correct) for o in self.outcomes])
+
+
+def _mean(values: list[float]) -> float:
+    return sum(values) / len(values) if values else 0.0
+
+
+def evaluate(registry: Registry, sequences: list[Sequence], config: Config, *, progress=None) -> Evaluation:
+    """Run every sequence; a sequence that fails is recorded with its error, not fatal."""
+    pipeline = Pipeline(registry, config)
+    outcomes = []
+    for n, seq in enumerate(sequences):
+        o = SequenceOutcome(seq.name, seq.object_name, seq.label, tuple(seq.accepted_labels), None)
+        t0 = time.perf_counter()
+        try:
+            result = pipeline.run(seq)
+        except ArtclassError as exc:
+            o.error = str(exc)
+        else:
+            o.predicted, o.fractions = result.label, result.fractions
+            truthful = [p for p in result.pairs if p.truth and p.decision != "skipped"]
+            o.pair_total = len(truthful)
+            o.pair_correct = sum(p.decision == p.truth for p in truthful)
+            o.n_pairs = len(result.pairs)
+        o.seconds = time.perf_counter() - t0
+        outcomes.append(o)
+        if progress:
+            progress("sequences", n + 1, len(sequences))
+    return Evaluation(config.rule, outcomes, dict(plugins={k: getattr(config, k) for k in
+                                                            ("segmenter", "preprocessor", "registrar", "rule")}))
+
+
+def _pct(x: float | None) -> str:
+    return "–" if x is None else f"{100 * x:.2f}"
+
+
+def markdown(evals: list[Evaluation]) -> str:
+    """A Markdown report; with several evaluations (e.g. the default rule and ``paper``) side by side."""
+    ms = [e.metrics() for e in evals]
+    rules = [e.rule for e in evals]
+    lines = ["# artclass evaluation", ""]
+    lines += ["## Sequences", "", "| sequence | object | truth | " + " | ".join(f"{r}" for r in rules) + " |",
+              "|---|---|---|" + "---|" * len(rules)]
+    for row in zip(*(e.outcomes for e in evals)):
+        o = row[0]
+        cells = [(x.predicted or f"error: {x.error}") + ("" if x.correct else " ✗") for x in row]
+        lines.append(f"| {o.name} | {o.object} | {o.truth} | " + " | ".join(cells) + " |")
+    lines += ["", "## Accuracy per object (Tables 1-2)", "",
+              "| object | truth | n | " + " | ".join(f"{r} accuracy %" for r in rules) + " |",
+              "|---|---|---|" + "---|" * len(rules)]
+    for obj, info in ms[0]["per_object"].items():
+        lines.append(f"| {obj} | {info['truth']} | {info['n']} | "
+                     + " | ".join(_pct(m["per_object"][obj]["accuracy"]) for m in ms) + " |")
+    lines += ["", "## Pair fractions per object (Tables 3-4)", "",
+              "| object | " + " | ".join(f"{r} {d}" for r in rules for d in DECISIONS) + " |",
+              "|---|" + "---|" * (len(rules) * len(DECISIONS))]
+    for obj in ms[0]["per_object"]:
+        lines.append(f"| {obj} | " + " | ".join(f"{m['per_object'][obj]['fractions'][d]:.3f}"
+                                              for m in ms for d in DECISIONS) + " |")
+    lines += ["", "## Summary", "", "| metric | " + " | ".join(rules) + " |", "|---|" + "---|" * len(rules)]
+    for key, label in (("accuracy", "sequence accuracy %"), ("macro_f1", "macro-F1 %"),
+                       ("pair_accuracy", "pair accuracy %")):
+        lines.append(f"| {label} | " + " | ".join(_pct(m[key]) for m in ms) + " |")
+    for c in LABELS:
+        if c in ms[0]["per_class_accuracy"]:
+            lines.append(f"| {c} accuracy % | " + " | ".join(_pct(m["per_class_accuracy"].get(c)) for m in ms) + " |")
+    lines.append("| sequences / errors | " + " | ".join(f"{m['n_sequences']} / {m['errors']}" for m in ms) + " |")
+    for e, m in zip(evals, ms):
+        lines += ["", f"## Confusion matrix ({e.rule}; rows truth, columns predicted)", "",
+                  "| truth \\ predicted | " + " | ".join((*LABELS, "error")) + " |", "|---|" + "---|" * 4]
+        for t in LABELS:
+            lines.append(f"| {t} | " + " | ".join(str(m["confusion"][t][p]) for p in (*LABELS, "error")) + " |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,82 @@
+"""Base classes for plugin implementations, with the exact signatures the pipeline calls.
+
+Subclassing is optional (the registry checks for the method, not the base class), but it gives a
+plugin the constructor, the defaults and the documentation for free.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .params import Params
+from .types import CellMotion, Cloud, Decision, Frame, Intrinsics, Registration, Sequence
+
+
+class Plugin:
+    """Common part: a unique lowercase ``name``, a one-line ``description`` and a ``Params`` dataclass."""
+
+    name: ClassVar[str] = ""
+    description: ClassVar[str] = ""
+    Params: ClassVar[type[Params]] = Params
+
+    def __init__(self, params: Params | None = None):
+        self.params = params if params is not None else self.Params()
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.params!r})"
+
+
+class Reader(Plugin):
+    def sequences(self, path: Path) -> list[Sequence]:
+        """The sequences stored at ``path``; ``[]`` if the path is not in this reader's layout."""
+        raise NotImplementedError
+
+
+class Segmenter(Plugin):
+    def segment(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
+        """Boolean mask (H, W) of the handled object in ``frame``, or ``None`` when there is none."""
+        raise NotImplementedError
+
+
+class Preprocessor(Plugin):
+    def process(self, frame: Frame, mask: np.ndarray, *, intrinsics: Intrinsics) -> Cloud:
+        """The object's filtered point cloud (metres, camera frame) from the masked depth."""
+        raise NotImplementedError
+
+
+class Registrar(Plugin):
+    def register(self, source: np.ndarray, target: np.ndarray, *, source_normals: np.ndarray | None,
+                 target_normals: np.ndarray | None, cell_size_m: float) -> Registration:
+        """Register the source points of one cell onto the target points, starting from identity."""
+        raise NotImplementedError
+
+
+@dataclass
+class RuleDecision:
+    """What a decision rule says about one pair. ``clusters`` has one entry per cell (None = none)."""
+
+    decision: Decision
+    clusters: list[int | None]
+    keys: list[str] = field(default_factory=list)   # readable name of each cluster, by cluster index
+    reason: str = ""
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class DecisionRule(Plugin):
+    def decide(self, cells: list[CellMotion], *, source: Cloud, target: Cloud) -> RuleDecision:
+        """Decide AM / RM / NM (or skipped) for a pair from its registered cells."""
+        raise NotImplementedError
+
+
+KINDS: dict[str, tuple[str, str]] = {
+    # kind: (hook name, method every class of that kind must have)
+    "reader": ("register_readers", "sequences"),
+    "segmenter": ("register_segmenters", "segment"),
+    "preprocessor": ("register_preprocessors", "process"),
+    "registrar": ("register_registrars", "register"),
+    "rule": ("register_rules", "decide"),
+}

@@ -1,0 +1,70 @@
+"""Image loading shared by the readers: every failure names the file and the problem."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .errors import InputError
+
+
+def _read(path: Path, flags: int) -> np.ndarray:
+    if not path.is_file():
+        raise InputError("file not found", path=path)
+    data = np.fromfile(str(path), dtype=np.uint8)
+    image = cv2.imdecode(data, flags) if data.size else None
+    if image is None:
+        raise InputError("unreadable or truncated image", path=path)
+    return image
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    """8-bit colour image as (H, W, 3) uint8 in RGB order."""
+    image = _read(Path(path), cv2.IMREAD_COLOR)
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def read_depth(path: Path, *, units_per_metre: float) -> np.ndarray:
+    """16-bit depth image as (H, W) float32 metres (0 = no reading)."""
+    path = Path(path)
+    image = _read(path, cv2.IMREAD_UNCHANGED)
+    if image.dtype != np.uint16 or image.ndim != 2:
+        raise InputError(f"depth must be a single-channel 16-bit image, got {image.dtype} with "
+                         f"{1 if image.ndim == 2 else image.shape[2]} channel(s)", path=path)
+    return image.astype(np.float32) / np.float32(units_per_metre)
+
+
+def read_mask(path: Path) -> np.ndarray:
+    """Mask image as (H, W) bool: non-zero = object."""
+    image = _read(Path(path), cv2.IMREAD_UNCHANGED)
+    return (image if image.ndim == 2 else image.max(axis=2)) > 0
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError("file not found", path=path) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"not valid JSON ({exc})", path=path) from None
+    if not isinstance(data, dict):
+        raise InputError("expected a JSON object", path=path)
+    return data
+
+
+def require_number(data: dict, key: str, *, path: Path, positive: bool = True) -> float:
+    """``data[key]`` as a finite float, or an InputError naming the file and the key."""
+    try:
+        value = float(data[key])
+    except KeyError:
+        raise InputError(f"missing {key!r} (camera intrinsics and depth scale are required)", path=path) from None
+    except (TypeError, ValueError):
+        raise InputError(f"{key!r} is not a number: {data[key]!r}", path=path) from None
+    if not np.isfinite(value) or (positive and value <= 0):
+        raise InputError(f"{key!r} must be a positive finite number, got {value}", path=path)
+    return value

@@ -1,0 +1,238 @@
+"""The data that flows through the pipeline. Units: metres, radians, seconds."""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from .errors import InputError
+
+Label = Literal["articulated", "rigid", "static"]
+Decision = Literal["AM", "RM", "NM", "skipped"]
+LABELS: tuple[str, ...] = ("articulated", "rigid", "static")
+DECISIONS: tuple[str, ...] = ("AM", "RM", "NM")
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics of the depth camera, in pixels (depth registered to the colour image)."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def __post_init__(self):
+        if not all(np.isfinite([self.fx, self.fy, self.cx, self.cy])) or self.fx <= 0 or self.fy <= 0:
+            raise InputError(f"invalid intrinsics fx={self.fx} fy={self.fy} cx={self.cx} cy={self.cy}")
+
+    def backproject(self, depth_m: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+        """Points of the valid (and masked) depth pixels.
+
+        Parameters
+        ----------
+        depth_m : ndarray, shape (H, W), metres; 0 or NaN = no reading
+        mask : ndarray of bool, shape (H, W), optional
+
+        Returns
+        -------
+        points : ndarray, shape (N, 3), metres, camera frame (x right, y down, z forward)
+        """
+        valid = np.isfinite(depth_m) & (depth_m > 0)
+        if mask is not None:
+            valid &= mask
+        v, u = np.nonzero(valid)
+        z = depth_m[v, u].astype(np.float64)
+        return np.column_stack(((u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z))
+
+
+@dataclass
+class Frame:
+    """One RGB-D frame. ``mask`` is the sequence's own object mask (ground truth or precomputed), if any."""
+
+    index: int
+    name: str
+    rgb: np.ndarray            # (H, W, 3) uint8, RGB order
+    depth_m: np.ndarray        # (H, W) float32, metres, 0 = no reading
+    mask: np.ndarray | None = None   # (H, W) bool
+    time_s: float | None = None
+
+
+class Sequence:
+    """A lazily read RGB-D sequence. Readers subclass it and implement :meth:`load`.
+
+    Frames are read on demand and only the last few are kept (``cache_frames``), so a long sequence
+    is never held in memory at once.
+    """
+
+    cache_frames = 8
+
+    def __init__(self, *, name: str, path: str | Path, intrinsics: Intrinsics, n_frames: int,
+                 label: str | None = None, object_name: str | None = None, has_masks: bool = False,
+                 accepted_labels: tuple[str, ...] | None = None, meta: dict[str, Any] | None = None):
+        self.name = name
+        self.path = Path(path)
+        self.intrinsics = intrinsics
+        self.n_frames = n_frames
+        self.label = label
+        self.object_name = object_name or name
+        self.has_masks = has_masks
+        # Labels counted as correct in evaluation (e.g. a rigid object the camera barely moves around
+        # may rightly be called static); the first is the ground-truth label.
+        self.accepted_labels = accepted_labels or ((label,) if label else ())
+        self.meta = dict(meta or {})
+        self.frame = functools.lru_cache(maxsize=self.cache_frames)(self._checked_load)
+
+    def __len__(self) -> int:
+        return self.n_frames
+
+    def __getitem__(self, i: int) -> Frame:
+        return self.frame(i)
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.name!r}: {self.n_frames} frames from {self.path}>"
+
+    def load(self, i: int) -> Frame:
+        """Read frame ``i`` from disk. Raise :class:`InputError` naming the file on bad data."""
+        raise NotImplementedError
+
+    def pair_truth(self, i: int, j: int) -> Decision | None:
+        """Ground-truth motion between frames i and j (``AM``, ``RM``, ``NM``), or None if unknown."""
+        return None
+
+    def _checked_load(self, i: int) -> Frame:
+        if not 0 <= i < self.n_frames:
+            raise IndexError(f"frame {i} out of range 0..{self.n_frames - 1}")
+        frame = self.load(i)
+        shape = (self.intrinsics.height, self.intrinsics.width)
+        for what, image in (("depth", frame.depth_m), ("colour", frame.rgb), ("mask", frame.mask)):
+            if image is not None and image.shape[:2] != shape:
+                raise InputError(f"{what} image of frame {frame.name} is {image.shape[1]}x{image.shape[0]}, "
+                                 f"expected {shape[1]}x{shape[0]} (depth and RGB must have the same size)",
+                                 path=self.path)
+        return frame
+
+
+@dataclass
+class Cloud:
+    """A preprocessed object point cloud of one frame."""
+
+    frame_index: int
+    points: np.ndarray                 # (N, 3) float64, metres, camera frame
+    normals: np.ndarray | None = None  # (N, 3) unit vectors towards the camera
+    info: dict[str, Any] = field(default_factory=dict)  # resolved v, r, diameter, counts ...
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+@dataclass
+class Registration:
+    """Result of registering one cell: ``T_target_from_source`` maps source points onto the target."""
+
+    T_target_from_source: np.ndarray   # (4, 4)
+    fitness: float                     # fraction of source points with a correspondence
+    rmse_m: float                      # RMS distance of the correspondences
+    n_correspondences: int
+
+
+@dataclass
+class CellMotion:
+    """One grid cell of a frame pair and what happened to it."""
+
+    cell: tuple[int, int, int]
+    centre_m: np.ndarray               # (3,) cell centre
+    source_idx: np.ndarray             # indices into the source cloud
+    target_idx: np.ndarray             # indices into the target cloud
+    registration: Registration | None = None
+    skipped: str | None = None         # why the cell does not take part, or None
+    cluster: int | None = None         # motion cluster / hash key index the rule put it in
+    key: str | None = None             # the rule's readable key of that cluster
+
+    @property
+    def matched(self) -> bool:
+        return self.registration is not None and self.skipped is None
+
+    def to_dict(self) -> dict[str, Any]:
+        from .geometry import rotation_angle_rad, quaternion_wxyz
+        d: dict[str, Any] = dict(cell=list(self.cell), centre_m=_floats(self.centre_m),
+                                 n_source=int(len(self.source_idx)), n_target=int(len(self.target_idx)),
+                                 skipped=self.skipped, cluster=self.cluster, key=self.key)
+        reg = self.registration
+        if reg is not None:
+            T = reg.T_target_from_source
+            d.update(fitness=float(reg.fitness), rmse_m=float(reg.rmse_m),
+                     n_correspondences=int(reg.n_correspondences),
+                     quaternion_wxyz=_floats(quaternion_wxyz(T[:3, :3])), translation_m=_floats(T[:3, 3]),
+                     rotation_deg=float(np.degrees(rotation_angle_rad(T[:3, :3]))),
+                     centre_displacement_m=_floats(T[:3, :3] @ self.centre_m + T[:3, 3] - self.centre_m))
+        return d
+
+
+@dataclass
+class PairResult:
+    """The decision for the frame pair (i, j = i + k) and the cells behind it."""
+
+    i: int
+    j: int
+    decision: Decision
+    reason: str = ""                   # why a pair was skipped, or the rule's short explanation
+    cells: list[CellMotion] = field(default_factory=list)
+    cell_size_m: float | None = None
+    info: dict[str, Any] = field(default_factory=dict)  # rule-specific evidence (JSON-ready)
+    truth: Decision | None = None
+
+    def to_dict(self, *, cells: bool = True) -> dict[str, Any]:
+        d = dict(i=self.i, j=self.j, decision=self.decision, reason=self.reason, truth=self.truth,
+                 cell_size_m=self.cell_size_m, n_cells=len(self.cells),
+                 n_matched=sum(c.matched for c in self.cells), info=self.info)
+        if cells:
+            d["cells"] = [c.to_dict() for c in self.cells]
+        return d
+
+
+@dataclass
+class FrameResult:
+    """What segmentation and preprocessing made of one frame."""
+
+    index: int
+    name: str
+    cloud: Cloud | None                # dropped after use in a streaming run; ``info`` stays
+    skipped: str | None = None
+    mask_pixels: int = 0
+    info: dict[str, Any] = field(default_factory=dict)   # the preprocessor's resolved values and counts
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(index=self.index, name=self.name, skipped=self.skipped, mask_pixels=self.mask_pixels,
+                    **self.info)
+
+
+@dataclass
+class RunResult:
+    """Everything one run produced, with the parameters and plugins that produced it."""
+
+    sequence: dict[str, Any]           # name, path, object, n_frames, truth label
+    label: Label
+    fractions: dict[str, float]        # share of decided pairs that are AM / RM / NM
+    pairs: list[PairResult]
+    filtered: list[Decision]           # decisions after the moving max-count filter (decided pairs only)
+    frames: list[FrameResult]
+    params: dict[str, dict[str, Any]]  # kind -> {name: value}
+    plugins: dict[str, str]            # kind -> plugin name
+    timing_s: dict[str, float]
+    version: str = ""
+
+    def to_dict(self, *, cells: bool = True) -> dict[str, Any]:
+        return dict(version=self.version, sequence=self.sequence, label=self.label, fractions=self.fractions,
+                    filtered=self.filtered, params=self.params, plugins=self.plugins, timing_s=self.timing_s,
+                    frames=[f.to_dict() for f in self.frames], pairs=[p.to_dict(cells=cells) for p in self.pairs])
+
+
+def _floats(a) -> list[float]:
+    return [float(v) for v in np.asarray(a).ravel()]

@@ -1,0 +1,102 @@
+"""The native folder format.
+
+::
+
+    SEQ/meta.json     {"fx", "fy", "cx", "cy", "depth_scale" (depth units per metre),
+                       optional "label" (articulated | rigid | static), "object", ...}
+    SEQ/rgb/*.png     8-bit colour
+    SEQ/depth/*.png   16-bit depth, matched to rgb/ by sorted file name
+    SEQ/mask/*.png    optional, non-zero = object
+    SEQ/truth.json    optional per-frame ground truth: "joint_positions" (rad or m, per frame) and
+                      "object_poses" (4x4 camera_from_object, per frame), for per-pair truth
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from artclass_core import Frame, InputError, Intrinsics, Reader, Sequence
+from artclass_core.geometry import rotation_angle_rad
+from artclass_core.io import read_depth, read_json, read_mask, read_rgb, require_number
+from artclass_core.types import LABELS
+
+IMAGE_SUFFIXES = (".png",)
+
+
+def _images(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) if folder.is_dir() else []
+
+
+def pair_truth_from_states(joint_a, joint_b, pose_a, pose_b, *, joint_eps: float, move_eps_m: float,
+                           turn_eps_rad: float) -> str | None:
+    """AM when the joint moved by more than ``joint_eps``, else RM when the object moved, else NM.
+
+    ``pose_*`` are 4x4 camera_from_object. The object "moved" when its points (taken 10 cm from the
+    origin, a typical object radius) moved by more than ``move_eps_m`` or it turned more than
+    ``turn_eps_rad``. Returns None where the states are unknown.
+    """
+    if joint_a is not None and joint_b is not None and abs(joint_b - joint_a) > joint_eps:
+        return "AM"
+    if pose_a is None or pose_b is None:
+        return None if joint_a is None or joint_b is None else "NM"
+    A, B = np.asarray(pose_a, float), np.asarray(pose_b, float)
+    delta = B @ np.linalg.inv(A)
+    moved = np.linalg.norm(delta[:3, 3] + (delta[:3, :3] - np.eye(3)) @ A[:3, 3]) > move_eps_m
+    turned = rotation_angle_rad(delta[:3, :3]) > turn_eps_rad
+    return "RM" if moved or turned else "NM"
+
+
+class FolderSequence(Sequence):
+    def __init__(self, path: Path, meta: dict, rgb: list[Path], depth: list[Path], masks: list[Path],
+                 truth: dict | None, width: int, height: int):
+        meta_path = path / "meta.json"
+        intr = Intrinsics(*(require_number(meta, k, path=meta_path) for k in ("fx", "fy", "cx", "cy")),
+                          width=width, height=height)
+        self.depth_scale = require_number(meta, "depth_scale", path=meta_path)
+        label = meta.get("label")
+        if label is not None and label not in LABELS:
+            raise InputError(f"label {label!r} is not one of {', '.join(LABELS)}", path=meta_path)
+        super().__init__(name=path.name, path=path, intrinsics=intr, n_frames=len(rgb), label=label,
+                         object_name=meta.get("object"), has_masks=bool(masks), meta=meta)
+        self.rgb_files, self.depth_files, self.mask_files, self.truth = rgb, depth, masks, truth
+
+    def load(self, i: int) -> Frame:
+        rgb = read_rgb(self.rgb_files[i])
+        depth = read_depth(self.depth_files[i], units_per_metre=self.depth_scale)
+        mask = read_mask(self.mask_files[i]) if self.mask_files else None
+        return Frame(i, self.rgb_files[i].stem, rgb, depth, mask)
+
+    def pair_truth(self, i: int, j: int) -> str | None:
+        if not self.truth:
+            return None
+        joints = self.truth.get("joint_positions") or [None] * len(self)
+        poses = self.truth.get("object_poses") or [None] * len(self)
+        revolute = self.truth.get("joint_type") != "prismatic"
+        return pair_truth_from_states(joints[i], joints[j], poses[i], poses[j],
+                                      joint_eps=np.radians(1.0) if revolute else 0.003,
+                                      move_eps_m=0.002, turn_eps_rad=np.radians(0.5))
+
+
+class FolderReader(Reader):
+    """Reads the native folder format (see module docstring)."""
+
+    name = "folder"
+    description = "native format: meta.json + rgb/, depth/ (16-bit), optional mask/ and truth.json"
+
+    def sequences(self, path: Path) -> list[Sequence]:
+        path = Path(path)
+        if not (path.is_dir() and (path / "meta.json").is_file() and (path / "depth").is_dir()):
+            return []
+        meta = read_json(path / "meta.json")
+        rgb, depth, masks = _images(path / "rgb"), _images(path / "depth"), _images(path / "mask")
+        if not rgb:
+            raise InputError("no colour images in rgb/", path=path)
+        if len(rgb) != len(depth):
+            raise InputError(f"{len(rgb)} colour images but {len(depth)} depth images", path=path)
+        if masks and len(masks) != len(rgb):
+            raise InputError(f"{len(masks)} masks for {len(rgb)} frames", path=path / "mask")
+        truth = read_json(path / "truth.json") if (path / "truth.json").is_file() else None
+        first = read_depth(depth[0], units_per_metre=1.0)
+        return [FolderSequence(path, meta, rgb, depth, masks, truth, width=first.shape[1], height=first.shape[0])]

@@ -1,0 +1,10 @@
+"""Decision rules: per-cell registrations of a pair -> AM / RM / NM."""
+
+from artclass_core import hookimpl
+
+from .paper import PaperRule
+
+
+@hookimpl
+def register_rules(register):
+    register(PaperRule)

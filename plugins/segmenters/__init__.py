@@ -1,0 +1,10 @@
+"""Segmenters: masks of the handled object."""
+
+from artclass_core import hookimpl
+
+from .mask import MaskSegmenter
+
+
+@hookimpl
+def register_segmenters(register):
+    register(MaskSegmenter)
