@@ -3,8 +3,10 @@
 from artclass_core import hookimpl
 
 from .paper import PaperRule
+from .robust import RobustRule
 
 
 @hookimpl
 def register_rules(register):
     register(PaperRule)
+    register(RobustRule)
