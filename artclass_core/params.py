@@ -14,6 +14,9 @@ from typing import Any, get_type_hints
 
 from .errors import ParamError
 
+#: The unit of a pure number (SI writes the unit of a dimensionless quantity as 1).
+DIMENSIONLESS = "1"
+
 
 def param(default: Any, *, help: str, symbol: str = "", unit: str = "", bounds: tuple = (None, None),
           auto: str = "", choices: tuple = ()) -> Any:
@@ -24,7 +27,8 @@ def param(default: Any, *, help: str, symbol: str = "", unit: str = "", bounds: 
     default : the default value (``None`` for "auto", which then needs ``auto``)
     help : one sentence saying what the parameter does, physically
     symbol : the paper's symbol (``v``, ``r``, ``s``, ``x``, ``q_bar``, ``t_bar``, ``k``, ``w``, ``alpha``)
-    unit : SI unit (``m``, ``rad``), ``frames``, ``fraction`` ... or ``""`` for dimensionless
+    unit : SI unit (``m``, ``rad``), ``frames``, ``fraction`` ..., or ``"1"`` (:data:`DIMENSIONLESS`) for a
+        pure number; a numeric parameter always names one (``""`` is for strings and booleans)
     bounds : inclusive (low, high); ``None`` for an open end
     auto : how the value is derived when left as ``None``
     choices : allowed values of a string parameter

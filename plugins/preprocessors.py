@@ -40,7 +40,7 @@ def camera_facing_normals(points: np.ndarray, *, radius_m: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PaperPreprocessParams(Params):
-    std_ratio: float = param(0.5, symbol="s", bounds=(0.05, 10.0),
+    std_ratio: float = param(0.5, symbol="s", unit="sigma", bounds=(0.05, 10.0),
                              help="Statistical outlier removal: drop points whose mean neighbour distance is "
                                   "more than s standard deviations above the average.")
     sor_neighbours: int = param(20, unit="points", bounds=(2, 500),
@@ -52,7 +52,7 @@ class PaperPreprocessParams(Params):
                                        help="Voxel size of the downsampling.")
     smoothing_radius_m: float | None = param(None, symbol="r", unit="m", bounds=(0.0, 1.0), auto="5 v",
                                              help="Radius of the mean smoothing (0 = no smoothing).")
-    voxels_per_diameter: float = param(20.0, unit="", bounds=(2.0, 500.0),
+    voxels_per_diameter: float = param(20.0, unit="1", bounds=(2.0, 500.0),
                                        help="The automatic v is the object diameter divided by this.")
     smoothing_voxels: float = param(5.0, unit="v", bounds=(0.0, 20.0),
                                     help="The automatic r is this many v.")

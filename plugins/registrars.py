@@ -20,7 +20,7 @@ class ICPParams(Params):
                                             help="ICP's maximum correspondence distance, as a fraction of the "
                                                  "cell size x: the largest motion a cell can register.")
     max_iterations: int = param(30, unit="iterations", bounds=(1, 1000), help="ICP iteration limit.")
-    tolerance: float = param(1e-6, bounds=(0.0, 1.0),
+    tolerance: float = param(1e-6, unit="1", bounds=(0.0, 1.0),
                              help="ICP stops when fitness and RMSE change by less than this between iterations.")
 
 

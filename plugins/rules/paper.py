@@ -16,7 +16,7 @@ _NUDGE = 1e-9
 
 @dataclass(frozen=True)
 class PaperRuleParams(Params):
-    q_bar: float = param(0.1, symbol="q_bar", bounds=(1e-4, 2.0),
+    q_bar: float = param(0.1, symbol="q_bar", unit="1", bounds=(1e-4, 2.0),
                          help="Quantisation step of the quaternion components.")
     t_bar: float = param(0.1, symbol="t_bar", unit="m", bounds=(1e-5, 10.0),
                          help="Quantisation step of the translation components.")
