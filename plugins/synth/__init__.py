@@ -1,0 +1,47 @@
+"""Synthetic RGB-D sequences of handled objects, with ground truth.
+
+Renders articulated, rigid and static scenes on the CPU with Open3D's
+``RaycastingScene``, adds structured-light sensor noise and writes artclass's
+native sequence folder (``meta.json``, ``truth.json``, ``rgb/``, ``depth/``,
+``mask/``). Everything is reproducible from a seed.
+
+Public API
+----------
+generate_sequence(out_dir, *, object_name, motion, noise, n_frames, seed, ...)
+generate_set(out_root, *, preset, seed=0, overwrite=False)
+plan_sequence(...)  -- the same sequence in memory, frame by frame
+OBJECTS, MOTIONS, NOISE_LEVELS, PRESETS
+
+The command ``artclass sample`` lives in ``artclass_plugins.synth.commands``
+(registered by the core as an entry point); this package does not import the core.
+"""
+
+from .generate import GENERATOR_VERSION, SynthFrame, SynthSequence, generate_sequence, plan_sequence
+from .motion import MOTIONS, MotionSpec
+from .objects import OBJECTS, Joint, ObjectSpec, T_object_from_child
+from .presets import PRESETS, SequencePlan, generate_set, preset_plans, read_index
+from .render import NOISE_LEVELS, Intrinsics, NoiseLevel
+
+__version__ = GENERATOR_VERSION
+
+__all__ = [
+    "GENERATOR_VERSION",
+    "Intrinsics",
+    "Joint",
+    "MOTIONS",
+    "MotionSpec",
+    "NOISE_LEVELS",
+    "NoiseLevel",
+    "OBJECTS",
+    "ObjectSpec",
+    "PRESETS",
+    "SequencePlan",
+    "SynthFrame",
+    "SynthSequence",
+    "T_object_from_child",
+    "generate_sequence",
+    "generate_set",
+    "plan_sequence",
+    "preset_plans",
+    "read_index",
+]

@@ -1,0 +1,156 @@
+"""Named sets of sequences: ``sample``, ``benchmark`` and ``smoke``."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from .generate import GENERATOR_VERSION, generate_sequence
+from .motion import MOTIONS
+from .objects import OBJECTS
+from .write import write_json
+
+__all__ = ["PRESETS", "SequencePlan", "generate_set", "preset_plans"]
+
+
+@dataclass(frozen=True)
+class SequencePlan:
+    """One sequence of a preset (its seed is derived from the set's seed)."""
+
+    name: str
+    object_name: str
+    motion: str
+    noise: str
+    n_frames: int
+    width: int
+    height: int
+
+    def __post_init__(self):
+        if self.object_name not in OBJECTS:
+            raise ValueError(f"plan {self.name!r}: unknown object {self.object_name!r}")
+        if self.motion not in MOTIONS:
+            raise ValueError(f"plan {self.name!r}: unknown motion {self.motion!r}")
+
+
+def _sample() -> list[SequencePlan]:
+    kw = dict(noise="low", n_frames=16, width=320, height=240)
+    return [
+        SequencePlan("laptop_articulate", "laptop", "articulate", **kw),
+        SequencePlan("drawer_carry_articulate", "drawer", "carry_articulate", **kw),
+        SequencePlan("mug_carry", "mug", "carry", **kw),
+        SequencePlan("cereal_box_static", "cereal_box", "static", **kw),
+    ]
+
+
+_ARTICULATED = ("laptop", "drawer", "box_lid", "pliers", "globe", "microwave", "matchbox")
+_CARRIED_ARTICULATING = ("laptop", "drawer", "box_lid", "pliers", "matchbox")
+_RIGID = ("mug", "cereal_box", "can", "bottle", "drill", "banana")
+_CARRIED_FIXED_JOINT = (("laptop", "low"), ("pliers", "high"), ("box_lid", "low"),
+                        ("matchbox", "high"))
+_STATIC = (("mug", "low"), ("drill", "high"), ("cereal_box", "high"), ("bottle", "low"),
+           ("laptop", "low"), ("microwave", "high"), ("globe", "low"), ("drawer", "high"))
+
+
+def _benchmark() -> list[SequencePlan]:
+    rows = []
+    for obj in _ARTICULATED:
+        for noise in ("low", "high"):
+            rows.append((obj, "articulate", noise))
+    for obj in _CARRIED_ARTICULATING:
+        for noise in ("low", "high"):
+            rows.append((obj, "carry_articulate", noise))
+    for obj in _RIGID:
+        for noise in ("low", "high"):
+            rows.append((obj, "carry", noise))
+    rows += [(obj, "carry", noise) for obj, noise in _CARRIED_FIXED_JOINT]
+    rows += [(obj, "static", noise) for obj, noise in _STATIC]
+    return [SequencePlan(f"{i:02d}_{obj}_{motion}_{noise}", obj, motion, noise, 24, 320, 240)
+            for i, (obj, motion, noise) in enumerate(rows)]
+
+
+def _smoke() -> list[SequencePlan]:
+    kw = dict(noise="low", n_frames=8, width=160, height=120)
+    return [
+        SequencePlan("laptop_articulate", "laptop", "articulate", **kw),
+        SequencePlan("drawer_carry_articulate", "drawer", "carry_articulate", **kw),
+        SequencePlan("mug_carry", "mug", "carry", **kw),
+        SequencePlan("box_static", "cereal_box", "static", **kw),
+    ]
+
+
+#: Preset name -> one-line description.
+PRESETS: dict[str, str] = {
+    "sample": "4 sequences, 320x240, 16 frames, low noise: what sample_data/ holds",
+    "benchmark": "48 sequences, 320x240, 24 frames, 13 objects, low and high noise: "
+                 "24 articulated, 16 rigid, 8 static",
+    "smoke": "4 tiny sequences, 160x120, 8 frames, for tests",
+}
+_PLANS = {"sample": _sample, "benchmark": _benchmark, "smoke": _smoke}
+
+
+def preset_plans(preset: str) -> list[SequencePlan]:
+    """The sequences of ``preset``, in order."""
+    if preset not in _PLANS:
+        raise ValueError(f"preset={preset!r} is not one of {sorted(_PLANS)}")
+    return _PLANS[preset]()
+
+
+def generate_set(out_root: str | Path, *, preset: str, seed: int = 0,
+                 overwrite: bool = False) -> list[Path]:
+    """Generate every sequence of a preset into ``out_root/<name>/``.
+
+    Parameters
+    ----------
+    out_root : str or Path
+        Created if missing. Files in it other than the preset's sequence
+        folders and ``index.json`` are left alone.
+    preset : {"sample", "benchmark", "smoke"}
+    seed : int
+        Set seed; sequence ``i`` gets seed ``seed * 1000 + i`` (recorded in its meta.json).
+    overwrite : bool
+        Replace existing sequences of the same names (otherwise a non-empty
+        sequence folder or an existing ``index.json`` is refused).
+
+    Returns
+    -------
+    list of Path
+        The sequence folders, in preset order. ``out_root/index.json`` lists them.
+    """
+    plans = preset_plans(preset)
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"seed={seed!r} must be a non-negative integer")
+    root = Path(out_root)
+    root.mkdir(parents=True, exist_ok=True)
+    index_path = root / "index.json"
+    if index_path.exists() and not overwrite:
+        raise FileExistsError(f"{index_path} exists; refusing to overwrite it "
+                              "(pass overwrite=True or --overwrite)")
+    # Refuse before writing anything, not half-way through the set.
+    if not overwrite:
+        for plan in plans:
+            d = root / plan.name
+            if d.exists() and (not d.is_dir() or any(d.iterdir())):
+                raise FileExistsError(f"{d} is not empty; refusing to overwrite it "
+                                      "(pass overwrite=True or --overwrite)")
+    out, entries = [], []
+    for i, plan in enumerate(plans):
+        seq_seed = seed * 1000 + i
+        p = generate_sequence(root / plan.name, object_name=plan.object_name,
+                              motion=plan.motion, noise=plan.noise, n_frames=plan.n_frames,
+                              seed=seq_seed, width=plan.width, height=plan.height,
+                              overwrite=overwrite)
+        out.append(p)
+        entry = asdict(plan)
+        entry.update(seed=seq_seed, label=MOTIONS[plan.motion].label,
+                     joint_type=OBJECTS[plan.object_name].joint_type)
+        entries.append(entry)
+    write_json(index_path, {"preset": preset, "seed": seed,
+                            "generator": f"artclass synth {GENERATOR_VERSION}",
+                            "sequences": entries})
+    return out
+
+
+def read_index(out_root: str | Path) -> dict:
+    """Read ``out_root/index.json`` written by ``generate_set``."""
+    return json.loads((Path(out_root) / "index.json").read_text())

@@ -1,0 +1,452 @@
+"""Ray-casting renderer (Open3D ``RaycastingScene``) and a structured-light sensor model.
+
+Conventions
+-----------
+* World frame: metres, z up, the table top is the plane z = 0, the wall behind
+  the object is the plane y = ``WALL_Y_M``.
+* Camera frame: OpenCV (x right, y down, z forward). ``T_camera_from_world``
+  maps world points into the camera frame (Open3D's "extrinsic").
+* Depth images hold z-depth in metres (not ray length); 0 means no reading.
+* Pixel (u, v) looks through ``x = (u - cx) / fx``, ``y = (v - cy) / fy``:
+  integer pixel coordinates are pixel centres, as in Open3D and OpenCV.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import open3d as o3d
+from scipy import ndimage
+
+from .objects import ObjectSpec, Piece, T_object_from_child
+from .objects import box as _box
+
+__all__ = [
+    "CleanFrame",
+    "Intrinsics",
+    "NOISE_LEVELS",
+    "NoiseLevel",
+    "SceneMesh",
+    "add_sensor_noise",
+    "object_meshes",
+    "render_clean",
+    "room_meshes",
+]
+
+#: Reference resolution of the simulated sensor.
+REFERENCE_WIDTH_PX = 640
+REFERENCE_HEIGHT_PX = 480
+#: Focal length at the reference resolution (between Kinect v1's 525 and a RealSense's 615).
+REFERENCE_FOCAL_PX = 570.0
+#: Distance between the IR camera and the pattern projector, along camera +x (Kinect v1: 7.5 cm).
+PROJECTOR_BASELINE_M = 0.075
+#: The wall behind the object.
+WALL_Y_M = 0.62
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics.
+
+    Attributes
+    ----------
+    width_px, height_px : int
+    fx_px, fy_px, cx_px, cy_px : float
+        Focal lengths and principal point, pixels.
+    """
+
+    width_px: int
+    height_px: int
+    fx_px: float
+    fy_px: float
+    cx_px: float
+    cy_px: float
+
+    def __post_init__(self):
+        if self.width_px < 8 or self.height_px < 8:
+            raise ValueError(
+                f"image size {self.width_px}x{self.height_px} px is too small (need >= 8x8)"
+            )
+
+    @classmethod
+    def for_resolution(cls, width_px: int = 640, height_px: int = 480) -> "Intrinsics":
+        """The simulated sensor scaled to ``width_px`` x ``height_px``.
+
+        640x480 gives fx = fy = 570, cx = 319.5, cy = 239.5; 320x240 halves
+        the focal length and keeps the same field of view.
+        """
+        sx = width_px / REFERENCE_WIDTH_PX
+        sy = height_px / REFERENCE_HEIGHT_PX
+        return cls(
+            int(width_px),
+            int(height_px),
+            REFERENCE_FOCAL_PX * sx,
+            REFERENCE_FOCAL_PX * sy,
+            (width_px - 1) / 2.0,
+            (height_px - 1) / 2.0,
+        )
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The 3x3 intrinsic matrix K."""
+        return np.array(
+            [[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]]
+        )
+
+
+@dataclass(frozen=True)
+class NoiseLevel:
+    """Parameters of the simulated structured-light depth sensor and colour camera.
+
+    Axial noise follows Nguyen, Izadi & Lovell (3DIMPVT 2012):
+    ``sigma_z(z) = axial_a_m + axial_b_per_m * (z - 0.4 m)**2``.
+    """
+
+    name: str
+    axial_a_m: float = field(metadata={"help": "axial noise at 0.4 m, metres"})
+    axial_b_per_m: float = field(metadata={"help": "growth of axial noise, 1/m"})
+    disparity_subpixel: float = field(
+        metadata={"help": "disparity quantisation step, pixels of the 570 px reference focal"}
+    )
+    grazing_start_deg: float = field(metadata={"help": "incidence angle where dropouts begin"})
+    grazing_end_deg: float = field(metadata={"help": "incidence angle of full dropout rate"})
+    grazing_drop_prob: float = field(metadata={"help": "dropout probability at grazing_end_deg"})
+    edge_drop_prob: float = field(metadata={"help": "dropout probability next to depth jumps"})
+    lateral_fraction: float = field(
+        metadata={"help": "fraction of edge pixels taking a neighbour's depth"}
+    )
+    random_drop_fraction: float = field(metadata={"help": "fraction of pixels lost at random"})
+    speckle_fraction: float = field(metadata={"help": "fraction of outlier (flying) pixels"})
+    projector_shadow: bool = field(metadata={"help": "drop pixels the projector cannot see"})
+    rgb_sigma: float = field(metadata={"help": "colour noise std, 8-bit levels"})
+    min_range_m: float = 0.3
+    max_range_m: float = 4.5
+
+    def axial_sigma_m(self, depth_m: np.ndarray) -> np.ndarray:
+        """Axial noise standard deviation at z-depth ``depth_m``, metres."""
+        return self.axial_a_m + self.axial_b_per_m * (np.asarray(depth_m) - 0.4) ** 2
+
+
+#: Sensor noise levels. ``none`` is an ideal sensor (used by tests and ground truth);
+#: ``low`` is a good structured-light sensor; ``high`` about 2.5x worse everywhere.
+NOISE_LEVELS: dict[str, NoiseLevel] = {
+    "none": NoiseLevel("none", 0.0, 0.0, 0.0, 90.0, 90.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, 0.0,
+                       min_range_m=0.0, max_range_m=math.inf),
+    "low": NoiseLevel("low", 0.0012, 0.0019, 1 / 8, 72.0, 82.0, 0.9, 0.25, 0.25, 0.002, 2e-4,
+                      True, 0.4),
+    "high": NoiseLevel("high", 0.003, 0.0048, 1 / 4, 65.0, 78.0, 0.95, 0.55, 0.5, 0.01, 1e-3,
+                       True, 2.5),
+}
+
+
+@dataclass
+class SceneMesh:
+    """A triangle mesh placed in the world, with what is needed to colour it.
+
+    Attributes
+    ----------
+    vertices_m : ndarray, shape (V, 3), metres, world frame
+    triangles : ndarray, shape (F, 3), uint32
+    part : int
+        Object part index (0 base, 1 moving part) or -1 for the room.
+    piece : Piece
+        Colours and texture pattern.
+    T_local_from_world : ndarray, shape (4, 4)
+        Maps world points into the frame in which the texture is defined.
+    """
+
+    vertices_m: np.ndarray
+    triangles: np.ndarray
+    part: int
+    piece: Piece
+    T_local_from_world: np.ndarray
+
+
+def _transform(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def _invert(T: np.ndarray) -> np.ndarray:
+    Ti = np.eye(4)
+    Ti[:3, :3] = T[:3, :3].T
+    Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return Ti
+
+
+def object_meshes(spec: ObjectSpec, q: float | None, T_world_from_object: np.ndarray) -> list[SceneMesh]:
+    """The pieces of ``spec`` at joint position ``q`` placed by ``T_world_from_object``."""
+    out = []
+    for part_index, part in enumerate(spec.parts):
+        T_obj_part = T_object_from_child(spec.joint, q) if part_index == 1 else np.eye(4)
+        T_world_part = T_world_from_object @ T_obj_part
+        T_part_world = _invert(T_world_part)
+        for piece in part.pieces:
+            out.append(SceneMesh(_transform(T_world_part, piece.vertices_m), piece.triangles,
+                                 part_index, piece, T_part_world))
+    return out
+
+
+def room_meshes() -> list[SceneMesh]:
+    """Table (top at z = 0), back wall and floor, world frame."""
+    pieces = [
+        _box((1.8, 1.45, 0.04), (0.0, WALL_Y_M - 0.725, -0.02), (0.58, 0.42, 0.26),
+             pattern="stripes", cell_m=0.025, contrast=0.12),
+        _box((6.0, 0.02, 3.0), (0.0, WALL_Y_M + 0.01, 0.75), (0.80, 0.80, 0.76),
+             pattern="blobs", cell_m=0.12, contrast=0.10),
+        _box((6.0, 6.0, 0.02), (0.0, 0.0, -0.76), (0.45, 0.45, 0.50),
+             pattern="checker", cell_m=0.3, contrast=0.2),
+    ]
+    return [SceneMesh(p.vertices_m, p.triangles, -1, p, np.eye(4)) for p in pieces]
+
+
+def _pattern(points_local: np.ndarray, pattern: str, cell_m: float) -> np.ndarray:
+    """Texture weight in [0, 1] of the second colour, shape (N,)."""
+    if pattern == "plain" or len(points_local) == 0:
+        return np.zeros(len(points_local))
+    p = points_local / cell_m
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    if pattern == "checker":
+        k = np.floor(x + 0.137) + np.floor(y + 0.311) + np.floor(z + 0.529)
+        return np.mod(k, 2.0)
+    if pattern == "stripes":
+        return np.mod(np.floor(x + 0.6 * y + 0.35 * z + 0.137), 2.0)
+    if pattern == "blobs":
+        v = np.sin(2.1 * x + 0.3) * np.sin(1.7 * y + 1.1) * np.sin(2.9 * z + 0.7)
+        v = v + 0.5 * np.sin(1.3 * (x + y - z) + 0.2)
+        return (v > 0.1).astype(float)
+    raise ValueError(f"unknown pattern {pattern!r}")
+
+
+@dataclass
+class CleanFrame:
+    """A noise-free rendering.
+
+    Attributes
+    ----------
+    depth_m : ndarray, shape (H, W), float32, metres
+        z-depth; 0 where the ray hit nothing.
+    rgb : ndarray, shape (H, W, 3), float32 in [0, 1]
+        Lambertian-shaded, textured colour, RGB order.
+    part_ids : ndarray, shape (H, W), int8
+        Object part seen in each pixel (0 base, 1 moving part), -1 elsewhere.
+    cos_incidence : ndarray, shape (H, W), float32
+        |cos| of the angle between the viewing ray and the surface normal.
+    shadowed : ndarray, shape (H, W), bool
+        Surface points the pattern projector cannot see.
+    """
+
+    depth_m: np.ndarray
+    rgb: np.ndarray
+    part_ids: np.ndarray
+    cos_incidence: np.ndarray
+    shadowed: np.ndarray
+
+    @property
+    def mask(self) -> np.ndarray:
+        """Object pixels (all parts), bool, shape (H, W)."""
+        return self.part_ids >= 0
+
+
+def render_clean(
+    meshes: list[SceneMesh],
+    *,
+    T_camera_from_world: np.ndarray,
+    intrinsics: Intrinsics,
+    projector_baseline_m: float = PROJECTOR_BASELINE_M,
+    ambient: float = 0.35,
+) -> CleanFrame:
+    """Ray-cast ``meshes`` through a pinhole camera.
+
+    Parameters
+    ----------
+    meshes : list of SceneMesh
+        World-frame geometry.
+    T_camera_from_world : ndarray, shape (4, 4)
+    intrinsics : Intrinsics
+    projector_baseline_m : float
+        Projector offset along camera +x used for the shadow map; 0 disables it.
+    ambient : float
+        Ambient share of the lighting (the rest is a directional light near the camera).
+
+    Returns
+    -------
+    CleanFrame
+    """
+    scene = o3d.t.geometry.RaycastingScene()
+    n = len(meshes)
+    part_of = np.full(n + 1, -1, dtype=np.int8)
+    for m in meshes:
+        gid = scene.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(m.vertices_m, dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(m.triangles, dtype=np.uint32)),
+        )
+        part_of[gid] = m.part
+    ids_to_mesh = list(range(n))  # add_triangles numbers geometries 0, 1, ... in order
+
+    h, w = intrinsics.height_px, intrinsics.width_px
+    # create_rays_pinhole shoots pixel (u, v) through (u + 0.5, v + 0.5) (pixel corners at
+    # integers); shift the principal point so that integer coordinates are pixel centres.
+    K_o3d = intrinsics.matrix
+    K_o3d[0, 2] += 0.5
+    K_o3d[1, 2] += 0.5
+    rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
+        o3d.core.Tensor(K_o3d),
+        o3d.core.Tensor(np.asarray(T_camera_from_world, dtype=np.float64)),
+        w,
+        h,
+    )
+    ans = scene.cast_rays(rays)
+    rays_np = rays.numpy()
+    t_hit = ans["t_hit"].numpy()
+    gids = ans["geometry_ids"].numpy()
+    normals = ans["primitive_normals"].numpy()
+
+    origin = rays_np[..., :3]
+    dirs = rays_np[..., 3:]
+    hit = np.isfinite(t_hit)
+    # t_hit is in units of the (unnormalised) ray direction: z-depth = t * (R d)_z.
+    R_cw = np.asarray(T_camera_from_world)[:3, :3]
+    dir_z = dirs @ R_cw[2]
+    depth = np.where(hit, t_hit * dir_z, 0.0).astype(np.float32)
+
+    gsafe = np.where(hit, gids, n).astype(np.int64)
+    part_ids = part_of[gsafe]
+
+    dir_unit = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
+    ndotd = np.sum(normals * dir_unit, axis=-1)
+    cos_inc = np.where(hit, np.abs(ndotd), 0.0).astype(np.float32)
+    n_front = normals * -np.sign(ndotd)[..., None]  # normals facing the camera
+
+    R_wc = R_cw.T
+    light_dir = R_wc @ (np.array([-0.35, -0.55, -1.0]) / np.linalg.norm([-0.35, -0.55, -1.0]))
+    diffuse = np.clip(n_front @ light_dir, 0.0, 1.0)
+    shade = ambient + (1.0 - ambient) * diffuse
+
+    points = origin + dirs * np.where(hit, t_hit, 0.0)[..., None]
+    rgb = np.zeros((h, w, 3), dtype=np.float64)
+    for gid in np.unique(gids[hit]):
+        m = meshes[ids_to_mesh[int(gid)]]
+        sel = hit & (gids == gid)
+        local = _transform(m.T_local_from_world, points[sel])
+        wgt = _pattern(local, m.piece.pattern, m.piece.cell_m)[:, None]
+        base = np.asarray(m.piece.colour) * (1 - wgt) + np.asarray(m.piece.colour2) * wgt
+        rgb[sel] = base * shade[sel][:, None]
+
+    shadowed = np.zeros((h, w), dtype=bool)
+    if projector_baseline_m > 0 and np.any(hit):
+        T_wc = _invert(np.asarray(T_camera_from_world, dtype=float))
+        projector = T_wc[:3, :3] @ np.array([projector_baseline_m, 0.0, 0.0]) + T_wc[:3, 3]
+        p_hit = points[hit]
+        d = p_hit - projector
+        length = np.linalg.norm(d, axis=-1)
+        prays = np.concatenate([np.broadcast_to(projector, d.shape), d], axis=-1)
+        pt = scene.cast_rays(o3d.core.Tensor(prays.astype(np.float32)))["t_hit"].numpy()
+        # Occluded when something is hit more than 3 mm before the surface point itself.
+        shadowed[hit] = pt < 1.0 - 0.003 / length
+
+    return CleanFrame(depth, rgb.astype(np.float32), part_ids, cos_inc, shadowed)
+
+
+def _depth_edges(depth_m: np.ndarray) -> np.ndarray:
+    """Pixels next to a depth discontinuity (or next to a pixel without depth)."""
+    z = depth_m
+    valid = z > 0
+    jump = np.zeros(z.shape, dtype=bool)
+    thr = 0.015 + 0.02 * z
+    for axis in (0, 1):
+        a = np.diff(z, axis=axis)
+        va = valid.take(range(1, z.shape[axis]), axis=axis) & valid.take(
+            range(0, z.shape[axis] - 1), axis=axis
+        )
+        t = np.minimum(thr.take(range(1, z.shape[axis]), axis=axis),
+                       thr.take(range(0, z.shape[axis] - 1), axis=axis))
+        big = (np.abs(a) > t) | (~va & (valid.take(range(1, z.shape[axis]), axis=axis)
+                                         | valid.take(range(0, z.shape[axis] - 1), axis=axis)))
+        if axis == 0:
+            jump[1:, :] |= big
+            jump[:-1, :] |= big
+        else:
+            jump[:, 1:] |= big
+            jump[:, :-1] |= big
+    return jump & valid
+
+
+def add_sensor_noise(
+    frame: CleanFrame,
+    *,
+    noise: NoiseLevel,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Turn a clean rendering into what a structured-light RGB-D sensor would deliver.
+
+    Steps, in order: grazing-angle dropouts, projector shadows, lateral jitter
+    and dropouts next to depth discontinuities, axial Gaussian noise
+    ``sigma(z)``, disparity quantisation (step grows with z**2), random
+    dropouts, speckle outliers, range limits; colour gets Gaussian noise.
+
+    Parameters
+    ----------
+    frame : CleanFrame
+    noise : NoiseLevel
+    rng : numpy.random.Generator
+        The only source of randomness: the same state gives the same output.
+
+    Returns
+    -------
+    depth_m : ndarray, shape (H, W), float32
+        z-depth in metres, 0 = no reading.
+    rgb : ndarray, shape (H, W, 3), uint8
+        RGB order.
+    """
+    z = frame.depth_m.astype(np.float64).copy()
+    h, w = z.shape
+    valid = z > 0
+
+    rgb = frame.rgb.astype(np.float64) * 255.0
+    if noise.rgb_sigma > 0:
+        rgb = rgb + rng.normal(0.0, noise.rgb_sigma, size=rgb.shape)
+    rgb8 = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+
+    if noise.name == "none":
+        return np.where(valid, z, 0.0).astype(np.float32), rgb8
+
+    keep = valid.copy()
+
+    # Grazing incidence: the projected pattern is too stretched to be decoded.
+    angle = np.degrees(np.arccos(np.clip(frame.cos_incidence, 0.0, 1.0)))
+    ramp = np.clip((angle - noise.grazing_start_deg)
+                   / max(noise.grazing_end_deg - noise.grazing_start_deg, 1e-6), 0.0, 1.0)
+    keep &= ~(rng.random((h, w)) < noise.grazing_drop_prob * ramp)
+
+    if noise.projector_shadow:
+        keep &= ~frame.shadowed
+
+    # Depth discontinuities: lateral jitter (take a neighbour's depth), then dropouts.
+    edges = ndimage.binary_dilation(_depth_edges(z), iterations=1) & valid
+    jitter = edges & (rng.random((h, w)) < noise.lateral_fraction)
+    dv = rng.integers(-1, 2, size=(h, w))
+    du = rng.integers(-1, 2, size=(h, w))
+    vv, uu = np.nonzero(jitter)
+    v2 = np.clip(vv + dv[vv, uu], 0, h - 1)
+    u2 = np.clip(uu + du[vv, uu], 0, w - 1)
+    z_src = z.copy()
+    keep_src = keep.copy()
+    z[vv, uu] = z_src[v2, u2]
+    keep[vv, uu] = keep_src[v2, u2]
+    keep &= ~(edges & (rng.random((h, w)) < noise.edge_drop_prob))
+
+    # Axial noise (Nguyen et al. 2012) and disparity quantisation.
+    z = z + rng.normal(0.0, 1.0, size=(h, w)) * noise.axial_sigma_m(z)
+    if noise.disparity_subpixel > 0:
+        step_inv_m = noise.disparity_subpixel / (REFERENCE_FOCAL_PX * PROJECTOR_BASELINE_M)
+        zz = np.where(z > 1e-3, z, 1.0)
+        z = np.where(z > 1e-3, 1.0 / (np.rint((1.0 / zz) / step_inv_m) * step_inv_m), z)
+
+    keep &= ~(rng.random((h, w)) < noise.random_drop_fraction)
+    speckle = keep & (rng.random((h, w)) < noise.speckle_fraction)
+    z = np.where(speckle, z * rng.uniform(0.8, 1.25, size=(h, w)), z)
+
+    keep &= (z >= noise.min_range_m) & (z <= noise.max_range_m)
+    return np.where(keep, z, 0.0).astype(np.float32), rgb8

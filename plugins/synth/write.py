@@ -1,0 +1,126 @@
+"""Writer for artclass's native sequence folder.
+
+Layout (read by the rest of artclass)::
+
+    SEQ/meta.json          intrinsics, depth_scale, label, object, motion, noise, seed, ...
+    SEQ/truth.json         joint_type, joint_positions, object_poses (camera_from_object)
+    SEQ/rgb/000000.png     8-bit colour (stored BGR by OpenCV, i.e. a normal colour PNG)
+    SEQ/depth/000000.png   uint16 depth, depth_scale units per metre, 0 = no reading
+    SEQ/mask/000000.png    uint8, 255 = object, 0 = anything else
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "DEPTH_SCALE",
+    "depth_to_uint16",
+    "prepare_sequence_dir",
+    "write_frame",
+    "write_json",
+]
+
+#: Depth units per metre in the depth PNGs (1000: millimetres).
+DEPTH_SCALE = 1000
+#: Entries a sequence folder consists of; ``overwrite=True`` removes only these.
+SEQUENCE_ENTRIES = ("rgb", "depth", "mask", "meta.json", "truth.json")
+_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 6]
+
+
+def prepare_sequence_dir(out_dir: str | Path, *, overwrite: bool = False) -> Path:
+    """Create ``out_dir`` with empty ``rgb/``, ``depth/`` and ``mask/`` folders.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+    overwrite : bool
+        If False, a non-empty ``out_dir`` is refused. If True, the sequence
+        entries (``rgb/``, ``depth/``, ``mask/``, ``meta.json``,
+        ``truth.json``) are removed first; other files are left alone.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    FileExistsError
+        ``out_dir`` is a non-empty folder and ``overwrite`` is False, or it is a file.
+    """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"{out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise FileExistsError(
+                f"{out} is not empty; refusing to overwrite it (pass overwrite=True "
+                "or --overwrite to replace the sequence in it)"
+            )
+        for name in SEQUENCE_ENTRIES:
+            p = out / name
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p)
+            elif p.exists() or p.is_symlink():
+                p.unlink()
+    for sub in ("rgb", "depth", "mask"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def depth_to_uint16(depth_m: np.ndarray, *, depth_scale: int = DEPTH_SCALE) -> np.ndarray:
+    """Metres to uint16 depth units (rounded); invalid, negative or out-of-range -> 0."""
+    d = np.asarray(depth_m, dtype=np.float64) * depth_scale
+    d = np.where(np.isfinite(d) & (d > 0), np.rint(d), 0.0)
+    d = np.where(d > 65535, 0.0, d)
+    return d.astype(np.uint16)
+
+
+def _imwrite(path: Path, image: np.ndarray) -> None:
+    if not cv2.imwrite(str(path), image, _PNG_PARAMS):
+        raise OSError(f"could not write {path}")
+
+
+def write_frame(
+    seq_dir: str | Path,
+    index: int,
+    *,
+    rgb: np.ndarray,
+    depth_m: np.ndarray,
+    mask: np.ndarray,
+    depth_scale: int = DEPTH_SCALE,
+) -> None:
+    """Write frame ``index`` of a sequence.
+
+    Parameters
+    ----------
+    seq_dir : str or Path
+        A folder made by ``prepare_sequence_dir``.
+    index : int
+        Frame number; files are named ``%06d.png``.
+    rgb : ndarray, shape (H, W, 3), uint8, RGB order
+    depth_m : ndarray, shape (H, W), metres, 0 = no reading
+    mask : ndarray, shape (H, W), bool
+    """
+    seq = Path(seq_dir)
+    name = f"{index:06d}.png"
+    rgb = np.asarray(rgb)
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"rgb must be uint8 of shape (H, W, 3), got {rgb.dtype} {rgb.shape}")
+    if depth_m.shape != rgb.shape[:2] or mask.shape != rgb.shape[:2]:
+        raise ValueError(
+            f"depth {depth_m.shape} and mask {mask.shape} must match rgb {rgb.shape[:2]}"
+        )
+    _imwrite(seq / "rgb" / name, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    _imwrite(seq / "depth" / name, depth_to_uint16(depth_m, depth_scale=depth_scale))
+    _imwrite(seq / "mask" / name, np.where(np.asarray(mask, dtype=bool), 255, 0).astype(np.uint8))
+
+
+def write_json(path: str | Path, obj) -> None:
+    """Write ``obj`` as indented JSON with a trailing newline."""
+    Path(path).write_text(json.dumps(obj, indent=1) + "\n")
