@@ -16,7 +16,13 @@ def _read(path: Path, flags: int) -> np.ndarray:
     if not path.is_file():
         raise InputError("file not found", path=path)
     data = np.fromfile(str(path), dtype=np.uint8)
-    image = cv2.imdecode(data, flags) if data.size else None
+    # OpenCV logs its own warning for a truncated file; the InputError below is the one message shown.
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    try:
+        image = cv2.imdecode(data, flags) if data.size else None
+    finally:
+        cv2.utils.logging.setLogLevel(level)
     if image is None:
         raise InputError("unreadable or truncated image", path=path)
     return image
@@ -42,6 +48,16 @@ def read_mask(path: Path) -> np.ndarray:
     """Mask image as (H, W) bool: non-zero = object."""
     image = _read(Path(path), cv2.IMREAD_UNCHANGED)
     return (image if image.ndim == 2 else image.max(axis=2)) > 0
+
+
+def read_label(path: Path) -> np.ndarray:
+    """Single-channel integer label image (e.g. per-pixel object ids) as (H, W), dtype as stored."""
+    path = Path(path)
+    image = _read(path, cv2.IMREAD_UNCHANGED)
+    if image.ndim != 2 or image.dtype.kind not in "ui":
+        raise InputError(f"label image must be a single-channel integer image, got {image.dtype} with "
+                         f"{1 if image.ndim == 2 else image.shape[2]} channel(s)", path=path)
+    return image
 
 
 def read_json(path: Path) -> dict[str, Any]:
