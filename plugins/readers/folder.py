@@ -66,6 +66,11 @@ class FolderSequence(Sequence):
         rgb = read_rgb(self.rgb_files[i])
         depth = read_depth(self.depth_files[i], units_per_metre=self.depth_scale)
         mask = read_mask(self.mask_files[i]) if self.mask_files else None
+        for what, image, path in (("colour", rgb, self.rgb_files[i]),
+                                  ("mask", mask, self.mask_files[i] if self.mask_files else None)):
+            if image is not None and image.shape[:2] != depth.shape:
+                raise InputError(f"{what} image is {image.shape[1]}x{image.shape[0]} but its depth image "
+                                 f"{self.depth_files[i].name} is {depth.shape[1]}x{depth.shape[0]}", path=path)
         return Frame(i, self.rgb_files[i].stem, rgb, depth, mask)
 
     def pair_truth(self, i: int, j: int) -> str | None:
@@ -89,6 +94,8 @@ class FolderReader(Reader):
         path = Path(path)
         if not (path.is_dir() and (path / "meta.json").is_file() and (path / "depth").is_dir()):
             return []
+        if (path / "rgb.txt").is_file() and (path / "depth.txt").is_file():
+            return []   # a TUM RGB-D folder whose meta.json only gives intrinsics: the tum reader's
         meta = read_json(path / "meta.json")
         rgb, depth, masks = _images(path / "rgb"), _images(path / "depth"), _images(path / "mask")
         if not rgb:
