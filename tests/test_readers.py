@@ -1,0 +1,385 @@
+"""Dataset readers: each on a fixture in its own layout, the reader contract for every registered
+reader, and the YCB-Video reader on the real recordings in ../shared/data/ycbv."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from artclass_core import InputError, find_sequences, load_registry, open_sequences
+from artclass_core.cli import main
+from artclass_plugins.readers import folder as folder_mod
+from artclass_plugins.readers import rbo as rbo_mod
+from artclass_plugins.readers import tum as tum_mod
+from artclass_plugins.readers import ycbv as ycbv_mod
+from artclass_plugins.readers.tum import associate
+from fixtures_layouts import (CAMERA_STEP_M, CX, CY, FX, FY, HEIGHT, RBO_RATE_HZ, WIDTH, YCBV_IDS, angles,
+                              layout_root, render, snapshot, write_camera_info, write_folder, write_rbo,
+                              write_tum, write_ycbv)
+
+REGISTRY = load_registry()
+READERS = REGISTRY.names("reader")
+LAYOUTS = ("folder", "ycbv", "rbo", "tum")
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+YCBV = DATA / "ycbv"
+needs_ycbv = pytest.mark.skipif(not YCBV.is_dir(), reason=f"real data folder {YCBV} is absent")
+
+# The depth of each layout is quantised by its storage: 1 mm (folder, 1000/m), 0.1 mm (YCB-Video),
+# 0.2 mm (TUM, 5000/m); the RBO text matrix keeps 1 um.
+DEPTH_TOL_M = dict(folder=6e-4, ycbv=6e-5, tum=1.1e-4, rbo=2e-6)
+# The functions each reader module calls to read one frame's files (patched to count file reads).
+FRAME_READERS = dict(folder=(folder_mod, ("read_rgb", "read_depth", "read_mask")),
+                     ycbv=(ycbv_mod, ("read_rgb", "read_depth", "read_label")),
+                     rbo=(rbo_mod, ("read_rgb", "read_depth_txt")),
+                     tum=(tum_mod, ("read_rgb", "read_depth")))
+
+
+@pytest.fixture(scope="module")
+def layouts(tmp_path_factory) -> dict[str, Path]:
+    return layout_root(tmp_path_factory.mktemp("layouts"))
+
+
+def first_sequence(path, name=None):
+    seqs = REGISTRY.create("reader", name).sequences(path) if name else open_sequences(REGISTRY, path)
+    assert seqs, f"no sequence read from {path}"
+    return seqs[0]
+
+
+# -- the reader contract, for every registered reader -----------------------------------------------
+def test_builtin_readers_are_registered():
+    assert set(LAYOUTS) <= set(READERS)
+    for name in LAYOUTS:
+        cls = REGISTRY.get("reader", name)
+        assert cls.description and "\n" not in cls.description
+        cls.Params()   # defaults within bounds
+
+
+@pytest.mark.parametrize("reader", READERS)
+def test_reader_returns_nothing_for_foreign_folders(reader, layouts, tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    plain_file = tmp_path / "notes.txt"
+    plain_file.write_text("not a dataset\n")
+    r = REGISTRY.create("reader", reader)
+    for path in (empty, plain_file, tmp_path / "missing", *(p for name, p in layouts.items() if name != reader)):
+        assert r.sequences(path) == [], f"reader {reader!r} claimed {path}"
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_exactly_one_reader_claims_each_layout(layout, layouts):
+    claims = [name for name in READERS if REGISTRY.create("reader", name).sequences(layouts[layout])]
+    assert claims == [layout]
+
+
+# -- frames: lazy, right types and sizes, exact metres ------------------------------------------------
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_frames_are_read_lazily(layout, layouts, monkeypatch):
+    module, names = FRAME_READERS[layout]
+    calls: list[str] = []
+    for fname in names:
+        original = getattr(module, fname)
+        monkeypatch.setattr(module, fname,
+                            lambda path, *a, _f=original, **kw: (calls.append(str(path)), _f(path, *a, **kw))[1])
+    seq = first_sequence(layouts[layout], layout)
+    assert len(calls) <= 1, f"sequences() read frame files up front: {calls}"   # at most one, for the size
+    calls.clear()
+    frame = seq[5]
+    assert frame.index == 5
+    assert len(calls) == len(names) and len(set(calls)) == len(names), calls
+    assert any(frame.name in Path(c).name for c in calls)
+    calls.clear()
+    seq[5]                    # cached
+    assert calls == []
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_frames_have_the_documented_types_and_exact_depth(layout, layouts):
+    seqs = REGISTRY.create("reader", layout).sequences(layouts[layout])
+    moving = layout != "ycbv"
+    for seq in seqs:
+        assert (seq.intrinsics.width, seq.intrinsics.height) == (WIDTH, HEIGHT)
+        assert len(seq) == 8
+        for i in range(len(seq)):
+            f = seq[i]
+            truth = render(angles(8, moving=moving)[i], seed=i)
+            assert f.rgb.dtype == np.uint8 and f.rgb.shape == (HEIGHT, WIDTH, 3)
+            assert f.depth_m.dtype == np.float32 and f.depth_m.shape == (HEIGHT, WIDTH)
+            np.testing.assert_array_equal(f.rgb, truth.rgb)          # RGB order, lossless
+            valid = f.depth_m > 0
+            assert valid.mean() > 0.99
+            np.testing.assert_allclose(f.depth_m[valid], truth.depth_m[valid], atol=DEPTH_TOL_M[layout])
+        with pytest.raises(IndexError):
+            seq[len(seq)]
+
+
+def test_folder_reader(layouts, tmp_path):
+    seq = first_sequence(layouts["folder"], "folder")
+    assert (seq.label, seq.object_name, seq.has_masks) == ("articulated", "flap_box", True)
+    assert (seq.intrinsics.fx, seq.intrinsics.fy, seq.intrinsics.cx, seq.intrinsics.cy) == (FX, FY, CX, CY)
+    for i in (0, 7):
+        np.testing.assert_array_equal(seq[i].mask, render(angles(8)[i]).mask)
+    assert seq.pair_truth(0, 5) == "AM"          # the flap turns 0.43 rad over 5 frames
+    still = first_sequence(write_folder(tmp_path, "still", moving=False, label="static", masks=False), "folder")
+    assert still.has_masks is False and still[0].mask is None
+    assert still.pair_truth(0, 5) == "NM"
+    # Masks that do not match the frames are bad input, named.
+    bad = write_folder(tmp_path, "bad_masks")
+    (bad / "mask" / "000003.png").unlink()
+    with pytest.raises(InputError, match="7 masks for 8 frames") as exc:
+        REGISTRY.create("reader", "folder").sequences(bad)
+    assert exc.value.path == str(bad / "mask")
+
+
+def test_ycbv_reader_on_fixture(layouts):
+    seqs = REGISTRY.create("reader", "ycbv").sequences(layouts["ycbv"])
+    assert [s.name for s in seqs] == ["0000/025_mug", "0000/061_foam_brick"]
+    assert [s.object_name for s in seqs] == ["025_mug", "061_foam_brick"]
+    mug, brick = seqs
+    assert mug.label == "rigid" and mug.accepted_labels == ("rigid", "static") and mug.has_masks
+    truth = render(angles(8, moving=False)[2], seed=2)
+    np.testing.assert_array_equal(mug[2].mask, truth.box)
+    np.testing.assert_array_equal(brick[2].mask, truth.flap)
+    # The camera drifts 0.6 mm per frame: 0.6 mm between neighbours is no motion, 3 mm over 5 frames is.
+    assert CAMERA_STEP_M * 5 > 0.002 > CAMERA_STEP_M
+    assert [mug.pair_truth(i, i + 1) for i in range(7)] == ["NM"] * 7
+    assert [mug.pair_truth(i, i + 5) for i in range(3)] == ["RM"] * 3
+    assert mug.meta["object_id"] == YCBV_IDS[0]
+
+
+def test_ycbv_meta_without_intrinsics_is_named(tmp_path):
+    scene = write_ycbv(tmp_path, n_frames=3, drop=("intrinsic_matrix",))
+    with pytest.raises(InputError, match="missing 'intrinsic_matrix'") as exc:
+        REGISTRY.create("reader", "ycbv").sequences(scene)
+    assert exc.value.path == str(scene / "000001-meta.mat")
+
+
+def test_ycbv_missing_frame_file_is_named(tmp_path):
+    scene = write_ycbv(tmp_path, n_frames=3)
+    (scene / "000002-label.png").unlink()
+    with pytest.raises(InputError, match="frame 000002 has no 000002-label.png") as exc:
+        REGISTRY.create("reader", "ycbv").sequences(scene)
+    assert exc.value.path == str(scene / "000002-label.png")
+
+
+def test_rbo_reader(layouts, tmp_path):
+    seq = first_sequence(layouts["rbo"], "rbo")
+    assert (seq.name, seq.object_name, seq.label, seq.has_masks) == ("flapbox01_o", "flapbox", "articulated", False)
+    assert (seq.intrinsics.fx, seq.intrinsics.cy) == (FX, CY)
+    assert len(seq) == 8 and seq.meta["n_rgb"] == 9          # the colour frame without depth is dropped
+    times = [seq[i].time_s for i in range(8)]
+    np.testing.assert_allclose(np.diff(times), 1 / RBO_RATE_HZ, atol=1e-5)
+    assert seq[0].depth_m[0, 0] == 0.0                         # NaN = no reading -> 0
+    np.testing.assert_allclose([seq.joint_positions(i)["j_0_1"] for i in range(8)], angles(8), atol=1e-5)
+    assert [seq.pair_truth(i, i + 5) for i in range(3)] == ["AM"] * 3
+
+    still = first_sequence(write_rbo(tmp_path, "still01_o", moving=False), "rbo")
+    assert still.label == "static" and still.accepted_labels == ("static", "rigid")
+    assert still.pair_truth(0, 7) == "NM"
+    # A re-export in millimetres is recognised per frame and gives the same metres.
+    mm = first_sequence(write_rbo(tmp_path, "mm01_o", depth_unit_per_metre=1000.0), "rbo")
+    np.testing.assert_allclose(mm[3].depth_m, seq[3].depth_m, atol=1e-5)
+
+
+def test_rbo_camera_info_is_required_and_checked(tmp_path):
+    seq = write_rbo(tmp_path, "nocam01_o", camera_info=False)
+    with pytest.raises(InputError, match="no camera intrinsics") as exc:
+        REGISTRY.create("reader", "rbo").sequences(seq)
+    assert exc.value.path == str(seq)
+    write_camera_info(seq / "camera_rgb_camera_info.csv", fx=0.0)
+    with pytest.raises(InputError, match="'field.K0' must be a positive") as exc:
+        REGISTRY.create("reader", "rbo").sequences(seq)
+    assert exc.value.path == str(seq / "camera_rgb_camera_info.csv")
+
+
+def test_rbo_without_joint_states_has_no_truth(tmp_path):
+    seq = write_rbo(tmp_path, "nojs01_o")
+    (seq / "flapbox_joint_states.csv").unlink()
+    s = first_sequence(seq, "rbo")
+    assert s.label is None and s.pair_truth(0, 5) is None and len(s) == 8
+
+
+def test_tum_reader(layouts, tmp_path):
+    seq = first_sequence(layouts["tum"], "tum")
+    assert seq.label is None and seq.has_masks is False
+    assert len(seq) == 8 and seq.meta["n_associated"] == 8     # the unpaired depth frame is left out
+    assert seq.meta["intrinsics_source"] == "freiburg1"
+    assert (seq.intrinsics.fx, seq.intrinsics.fy, seq.intrinsics.cx, seq.intrinsics.cy) == (517.3, 516.5, 318.6, 255.3)
+    assert seq.pair_truth(0, 5) is None
+    np.testing.assert_allclose(seq.world_from_camera(3)[:3, 3], [0.003, 0, 0])
+    # No calibration in the folder name: the ROS default.
+    plain = shutil.copytree(layouts["tum"], tmp_path / "my_recording")
+    s = first_sequence(plain, "tum")
+    assert s.meta["intrinsics_source"] == "ros_default" and s.intrinsics.fx == 525.0
+    # meta.json gives intrinsics and a label.
+    own = write_tum(tmp_path, "rgbd_dataset_freiburg2_labelled",
+                    config=dict(fx=FX, fy=FY, cx=CX, cy=CY, label="articulated", object="flap_box"))
+    s = first_sequence(own)          # through open_sequences: the folder reader must not claim it
+    assert type(s).__name__ == "TumSequence"
+    assert (s.intrinsics.fx, s.label, s.object_name, s.meta["intrinsics_source"]) == (FX, "articulated", "flap_box",
+                                                                                       "meta.json")
+
+
+def test_tum_bad_list_line_is_named(tmp_path):
+    seq = write_tum(tmp_path)
+    (seq / "rgb.txt").write_text("# fine\n1305031102.0 rgb/a.png\nnot-a-time rgb/b.png\n")
+    with pytest.raises(InputError, match="line 3") as exc:
+        REGISTRY.create("reader", "tum").sequences(seq)
+    assert exc.value.path == str(seq / "rgb.txt")
+
+
+def test_associate_is_greedy_one_to_one():
+    # Depth 0.010 is 0.002 from colour 0.012 and 0.010 from colour 0.0: it goes to the closer one.
+    assert associate([0.0, 0.012], [0.010], max_diff_s=0.02) == [(1, 0)]
+    assert associate([0.0, 1.0], [0.019, 1.02], max_diff_s=0.02) == [(0, 0)]     # 0.02 is not < 0.02
+    assert associate([2.0, 1.0], [1.001, 2.001], max_diff_s=0.02) == [(0, 1), (1, 0)]
+    assert associate([], [1.0], max_diff_s=0.02) == []
+
+
+# -- finding sequences under a root that holds every layout -------------------------------------------
+def test_find_sequences_over_mixed_layouts(tmp_path):
+    paths = layout_root(tmp_path)
+    bad = write_folder(tmp_path / "broken", "no_fx")
+    meta = json.loads((bad / "meta.json").read_text())
+    del meta["fx"]
+    (bad / "meta.json").write_text(json.dumps(meta))
+    before = snapshot(tmp_path)
+
+    found, errors = find_sequences(REGISTRY, tmp_path, labelled_only=False)
+    assert sorted(s.name for s in found) == sorted(["folder_seq", "0000/025_mug", "0000/061_foam_brick",
+                                                    "flapbox01_o", "rgbd_dataset_freiburg1_flapbox"])
+    assert {type(s).__name__ for s in found} == {"FolderSequence", "YcbvSequence", "RboSequence", "TumSequence"}
+    assert len(errors) == 1 and errors[0].path == str(bad / "meta.json") and "'fx'" in errors[0].problem
+    labelled, _ = find_sequences(REGISTRY, tmp_path)
+    assert "rgbd_dataset_freiburg1_flapbox" not in {s.name for s in labelled} and len(labelled) == 4
+    only_rbo, _ = find_sequences(REGISTRY, tmp_path, reader="rbo")
+    assert [s.name for s in only_rbo] == ["flapbox01_o"]
+    assert snapshot(tmp_path) == before
+    assert paths["tum"].is_dir()
+
+
+def test_open_sequences_selects_by_name(layouts):
+    scene = layouts["ycbv"]
+    assert [s.name for s in open_sequences(REGISTRY, f"{scene}#025_mug")] == ["0000/025_mug"]
+    assert [s.name for s in open_sequences(REGISTRY, f"{scene}#0000/061_foam_brick")] == ["0000/061_foam_brick"]
+    with pytest.raises(InputError, match="no sequence named 'banana'; found: 0000/025_mug, 0000/061_foam_brick"):
+        open_sequences(REGISTRY, f"{scene}#banana")
+
+
+# -- YCB-Video reader on the real recordings -----------------------------------------------------------
+@needs_ycbv
+def test_ycbv_real_scenes_list_their_objects():
+    r = REGISTRY.create("reader", "ycbv")
+    assert [s.name for s in r.sequences(YCBV / "0000")] == ["0000/009_gelatin_box", "0000/025_mug",
+                                                             "0000/061_foam_brick"]
+    s1 = r.sequences(YCBV / "0001")
+    assert [s.object_name for s in s1] == ["002_master_chef_can", "003_cracker_box", "004_sugar_box",
+                                           "006_mustard_bottle"]
+    assert [len(s) for s in s1] == [5] * 4
+    assert r.sequences(YCBV) == []           # the dataset root is not a scene
+
+
+@needs_ycbv
+def test_ycbv_real_frames(monkeypatch):
+    calls = []
+    original = ycbv_mod.read_rgb
+    monkeypatch.setattr(ycbv_mod, "read_rgb", lambda p: (calls.append(p), original(p))[1])
+    seqs = REGISTRY.create("reader", "ycbv").sequences(YCBV / "0000")
+    assert calls == []                       # nothing but the first depth and a few meta.mat read up front
+    for seq in seqs:
+        K = seq.intrinsics
+        np.testing.assert_allclose([K.fx, K.fy, K.cx, K.cy], [1066.778, 1067.487, 312.9869, 241.3109])
+        assert (K.width, K.height, seq.meta["depth_units_per_metre"]) == (640, 480, 10000)
+        assert seq.label == "rigid" and set(seq.accepted_labels) == {"rigid", "static"}
+        for i in (0, 9):
+            f = seq[i]
+            assert f.rgb.shape == (480, 640, 3) and f.rgb.dtype == np.uint8
+            assert f.depth_m.shape == (480, 640) and f.depth_m.dtype == np.float32
+            assert f.mask.dtype == bool and f.mask.sum() > 2000
+            z = f.depth_m[f.mask & (f.depth_m > 0)]
+            assert 0.3 < np.median(z) < 3.0
+            # The annotated pose, the intrinsics, the mask and the depth agree: the object's origin
+            # projects near the mask's centroid, at about the depth seen there.
+            T = seq.scene.pose(i, seq.meta["object_id"])
+            u, v = K.fx * T[0, 3] / T[2, 3] + K.cx, K.fy * T[1, 3] / T[2, 3] + K.cy
+            rows, cols = np.nonzero(f.mask)
+            assert np.hypot(u - cols.mean(), v - rows.mean()) < 40
+            assert abs(T[2, 3] - np.median(z)) < 0.1
+    assert len(calls) == 2 * len(seqs)
+
+
+@needs_ycbv
+def test_ycbv_real_pair_truth_follows_the_camera():
+    mug = open_sequences(REGISTRY, f"{YCBV / '0000'}#025_mug")[0]
+    truths = {(i, j): mug.pair_truth(i, j) for i in range(10) for j in range(i + 1, 10)}
+    assert "AM" not in truths.values()
+    assert truths[(0, 1)] == "NM"                 # under a millimetre between neighbours
+    assert truths[(0, 9)] == "RM"                 # the camera moved about 5 mm over the ten frames
+
+
+@needs_ycbv
+def test_cli_classifies_a_real_ycbv_object(capsys):
+    assert main(["classify", f"{YCBV / '0000'}#025_mug", "--json", "--no-cells"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["sequence"]["name"] == "0000/025_mug" and out["sequence"]["truth"] == "rigid"
+    assert out["sequence"]["n_frames"] == 10 and out["plugins"]["segmenter"] == "mask"
+    assert [p["truth"] for p in out["pairs"]] == ["RM"] * 5
+    assert out["label"] in ("articulated", "rigid", "static")
+
+
+@needs_ycbv
+def test_cli_classify_asks_to_choose_in_a_scene(capsys):
+    assert main(["classify", str(YCBV / "0000")]) == 2
+    err = capsys.readouterr().err
+    assert "holds 3 sequences (0000/009_gelatin_box, 0000/025_mug, 0000/061_foam_brick)" in err
+
+
+# -- a third-party reader registers through the same hook ---------------------------------------------
+class _NpzPlugin:
+    """A plugin object providing a reader of ``sequence.npz`` (arrays rgb (N,H,W,3), depth_m (N,H,W), K)."""
+
+    from artclass_core import hookimpl as _hookimpl
+
+    @staticmethod
+    @_hookimpl
+    def register_readers(register):
+        from artclass_core import Frame, Intrinsics, Reader, Sequence
+
+        class NpzSequence(Sequence):
+            def __init__(self, path):
+                self.data = np.load(path)
+                n, h, w = self.data["depth_m"].shape
+                fx, fy, cx, cy = self.data["K"]
+                super().__init__(name=path.parent.name, path=path, n_frames=n,
+                                 intrinsics=Intrinsics(fx, fy, cx, cy, width=w, height=h))
+
+            def load(self, i):
+                return Frame(i, str(i), self.data["rgb"][i], self.data["depth_m"][i])
+
+        class NpzReader(Reader):
+            name = "npz"
+            description = "one sequence.npz holding rgb, depth_m and K"
+
+            def sequences(self, path):
+                path = Path(path)
+                return [NpzSequence(path / "sequence.npz")] if (path / "sequence.npz").is_file() else []
+
+        register(NpzReader)
+
+
+def test_hook_register_readers(tmp_path, layouts):
+    registry = load_registry(extra_plugins=(_NpzPlugin,))
+    assert "npz" in registry.names("reader") and set(LAYOUTS) <= set(registry.names("reader"))
+    seq_dir = tmp_path / "npz_seq"
+    seq_dir.mkdir()
+    truth = render(0.3)
+    np.savez(seq_dir / "sequence.npz", rgb=truth.rgb[None].repeat(3, 0),
+             depth_m=truth.depth_m[None].repeat(3, 0).astype(np.float32), K=np.array([FX, FY, CX, CY]))
+    (seq,) = open_sequences(registry, seq_dir)
+    assert type(seq).__name__ == "NpzSequence" and len(seq) == 3
+    np.testing.assert_array_equal(seq[2].depth_m, truth.depth_m.astype(np.float32))
+    assert registry.create("reader", "npz").sequences(layouts["tum"]) == []
+    assert [type(s).__name__ for s in open_sequences(registry, layouts["tum"])] == ["TumSequence"]
