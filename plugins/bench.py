@@ -1,0 +1,425 @@
+"""``artclass bench``: throughput and memory of the pipeline, printed as numbers (never pass/fail).
+
+What it measures, on a synthetic 640x480 sequence of an articulated object that is carried
+(``artclass_plugins.synth.generate_sequence(..., motion="carry_articulate")``, rendered once and
+cached under ``$XDG_CACHE_HOME/artclass/bench`` keyed by the generator's version and parameters):
+
+- per stage (read, segment, preprocess, register, decide) and in total: seconds, frames/s, pairs/s,
+  ms per frame and per pair, for each segmenter (``mask``, ``depth_threshold``) x each registrar x
+  each worker count; and the peak resident memory of the run;
+- the time to re-decide the sequence after a decision-rule parameter changes (reusing the cached
+  registrations through :class:`artclass_core.pipeline.StageCache`), next to a full re-run;
+- a long sequence (default 1000 frames, the rendered frames played back and forth by
+  :class:`CycledSequence`, so nothing long has to be rendered): peak resident memory and the
+  resident memory after 10 % of the pairs and at the end (it must not grow with the length).
+
+Every measurement runs in a fresh (spawned) process so that its peak memory is its own. Stage times
+are summed over the worker threads; with more than one worker they add up to more than the wall
+time, and the throughput that counts is the ``total`` row (wall clock).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import inspect
+import json
+import multiprocessing
+import os
+import resource
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from artclass_core import Frame, Sequence, hookimpl
+
+STAGES = ("read", "segment", "preprocess", "register", "decide")
+FRAME_STAGES = ("read", "segment", "preprocess")
+DEFAULT_SEQUENCE = dict(object_name="drawer", motion="carry_articulate", noise="low", n_frames=60, seed=0,
+                        width=640, height=480)
+
+
+# -- the benchmark sequence ------------------------------------------------------------------------
+def cache_root() -> Path:
+    """Where rendered benchmark sequences are kept (``$XDG_CACHE_HOME/artclass/bench``)."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "artclass" / "bench"
+
+
+def bench_sequence(*, cache_dir: Path | None = None, **spec: Any) -> Path:
+    """The benchmark sequence folder, rendered with the synthetic generator on first use.
+
+    Parameters
+    ----------
+    cache_dir : folder holding rendered sequences (default :func:`cache_root`)
+    **spec : arguments of ``generate_sequence`` (object_name, motion, noise, n_frames, seed, width,
+        height); missing ones take :data:`DEFAULT_SEQUENCE`
+
+    Returns
+    -------
+    Path : ``cache_dir/<object>_<motion>_<w>x<h>_<n>f_<hash>``, where the hash covers the generator
+    version and every parameter, so a new generator renders anew.
+    """
+    from artclass_plugins.synth import GENERATOR_VERSION, generate_sequence
+
+    spec = {**DEFAULT_SEQUENCE, **spec}
+    digest = hashlib.sha256(json.dumps(dict(spec, generator=GENERATOR_VERSION), sort_keys=True).encode())
+    name = (f"{spec['object_name']}_{spec['motion']}_{spec['width']}x{spec['height']}_{spec['n_frames']}f_"
+            f"{digest.hexdigest()[:10]}")
+    root = Path(cache_dir) if cache_dir else cache_root()
+    out = root / name
+    if (out / "meta.json").is_file():
+        return out
+    root.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=root))
+    try:
+        generate_sequence(tmp / name, **spec)
+        os.replace(tmp / name, out)   # atomic: a half-rendered sequence is never taken from the cache
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return out
+
+
+class CycledSequence(Sequence):
+    """A long sequence made of a short one played back and forth (0, 1, ..., n-1, n-2, ..., 0, 1, ...).
+
+    Memory-light: each frame is read from the base sequence when asked for (the base keeps its own
+    small cache) and copied, so a long run holds no more frames than a short one. Consecutive frames
+    stay consecutive in the base, so pairs (i, i + k) see the same small motions everywhere.
+    """
+
+    def __init__(self, base: Sequence, n_frames: int):
+        super().__init__(name=f"{base.name}_x{n_frames}", path=base.path, intrinsics=base.intrinsics,
+                         n_frames=n_frames, label=base.label, object_name=base.object_name,
+                         has_masks=base.has_masks, accepted_labels=base.accepted_labels, meta=base.meta)
+        self.base = base
+
+    def base_index(self, i: int) -> int:
+        n = len(self.base)
+        if n == 1:
+            return 0
+        t = i % (2 * n - 2)
+        return t if t < n else 2 * n - 2 - t
+
+    def load(self, i: int) -> Frame:
+        f = self.base[self.base_index(i)]
+        return Frame(i, f"{i:06d}", f.rgb.copy(), f.depth_m.copy(), None if f.mask is None else f.mask.copy(),
+                     f.time_s)
+
+    def pair_truth(self, i: int, j: int):
+        return self.base.pair_truth(self.base_index(i), self.base_index(j))
+
+
+# -- measurements (each in a fresh process) ---------------------------------------------------------
+def rss_mb() -> float:
+    """Current resident memory of this process, MB (from /proc/self/status; 0 where unavailable)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return 0.0
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far, MB (``ru_maxrss``; KB on Linux)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def _supports(fn, name: str) -> bool:
+    return name in inspect.signature(fn).parameters
+
+
+def _config(registry, spec: dict):
+    from artclass_core import Config
+    cfg = Config(segmenter=spec["segmenter"], registrar=spec["registrar"],
+                 **({"rule": spec["rule"]} if spec.get("rule") else {}))
+    overrides = dict(spec.get("params") or {})
+    return cfg.with_overrides(registry, overrides) if overrides else cfg
+
+
+def _open(registry, spec: dict) -> Sequence:
+    from artclass_core import open_sequences
+    seq = open_sequences(registry, spec["path"])[0]
+    if spec.get("long_frames"):
+        seq = CycledSequence(seq, spec["long_frames"])
+    return seq
+
+
+def _run_kwargs(pipeline, spec: dict) -> dict:
+    kw = {}
+    if _supports(pipeline.run, "workers"):
+        kw["workers"] = spec.get("workers", 1)
+    elif spec.get("workers", 1) != 1:
+        raise RuntimeError("this Pipeline.run has no `workers` option")
+    if spec.get("long_frames") and _supports(pipeline.run, "keep_cells"):
+        kw["keep_cells"] = spec.get("keep_cells", "summary")
+    return kw
+
+
+def measure_run(spec: dict) -> dict:
+    """Run one configuration on one sequence and report times and memory (called in a child)."""
+    from artclass_core import Pipeline, load_registry
+
+    registry = load_registry()
+    seq = _open(registry, spec)
+    pipe = Pipeline(registry, _config(registry, spec))
+    kw = _run_kwargs(pipe, spec)
+    n_pairs = max(len(seq) - pipe.params.k, 0)
+    rss_base = rss_mb()
+    samples: dict[int, float] = {}
+    marks = {max(1, n_pairs // 10), n_pairs // 2, n_pairs}
+
+    def progress(stage, done, total):
+        if done in marks:
+            samples[done] = rss_mb()
+
+    cpu0 = time.process_time()
+    t0 = time.perf_counter()
+    result = pipe.run(seq, progress=progress, **kw)
+    wall = time.perf_counter() - t0
+    cpu = time.process_time() - cpu0
+    return dict(spec=spec, n_frames=len(seq), n_pairs=len(result.pairs),
+                n_decided=sum(p.decision != "skipped" for p in result.pairs), label=result.label,
+                timing_s=dict(result.timing_s), wall_s=wall, cpu_s=cpu, rss_base_mb=rss_base,
+                rss_samples_mb={str(k): v for k, v in sorted(samples.items())}, peak_rss_mb=peak_rss_mb(),
+                run_kwargs=kw, load=os.getloadavg()[0])
+
+
+def _nudged_rule_params(registry, config):
+    """The rule's params with its first float parameter changed by 10 % (within bounds)."""
+    from artclass_core import describe
+    params = config.plugin_params(registry, "rule")
+    for spec in describe(type(params)):
+        value = getattr(params, spec.name)
+        if spec.type is float and isinstance(value, float):
+            new = value * 1.1
+            low, high = spec.bounds
+            if high is not None and new > high:
+                new = value * 0.9
+            if low is not None and new < low:
+                continue
+            return dataclasses.replace(params, **{spec.name: new}), f"{spec.name}: {value:g} -> {new:g}"
+    return params, "(no float parameter to change)"
+
+
+def measure_redecide(spec: dict) -> dict:
+    """Time a decision-parameter change: cached re-decide (when available) and a full re-run."""
+    from artclass_core import Pipeline, load_registry
+    from artclass_core import pipeline as pipeline_module
+
+    registry = load_registry()
+    seq = _open(registry, spec)
+    config = _config(registry, spec)
+    pipe = Pipeline(registry, config)
+    kw = _run_kwargs(pipe, spec)
+    new_params, change = _nudged_rule_params(registry, config)
+    new_config = dataclasses.replace(config, rule_params=new_params)
+    out: dict[str, Any] = dict(spec=spec, change=change, n_frames=len(seq))
+    cache_cls = getattr(pipeline_module, "StageCache", None)
+    t0 = time.perf_counter()
+    if cache_cls is not None:
+        cache = cache_cls()
+        first = pipe.run(seq, cache=cache, **kw)
+    else:
+        first = pipe.run(seq, **kw)
+    out["first_run_s"] = time.perf_counter() - t0
+    if cache_cls is not None:
+        # the app's path: the same run call, with a cache that already holds clouds and registrations
+        t0 = time.perf_counter()
+        again = Pipeline(registry, new_config).run(seq, cache=cache, **kw)
+        out["cached_rerun_s"] = time.perf_counter() - t0
+        out["cache_stats"] = cache.stats()
+        if hasattr(Pipeline, "redecide"):
+            t0 = time.perf_counter()
+            redecided = Pipeline(registry, new_config).redecide(first, cache=cache)
+            out["redecide_s"] = time.perf_counter() - t0
+            out["redecide_equals_cached_rerun"] = (
+                [p.decision for p in redecided.pairs] == [p.decision for p in again.pairs])
+    t0 = time.perf_counter()
+    full = Pipeline(registry, new_config).run(_open(registry, spec), **kw)
+    out["full_rerun_s"] = time.perf_counter() - t0
+    out["label_before"], out["label_after"] = first.label, full.label
+    out["peak_rss_mb"] = peak_rss_mb()
+    return out
+
+
+_TASKS = {"run": measure_run, "redecide": measure_redecide}
+
+
+def _child(task: str, spec: dict, conn) -> None:
+    try:
+        conn.send(("ok", _TASKS[task](spec)))
+    except BaseException as exc:  # reported by the parent, one line
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    finally:
+        conn.close()
+
+
+def in_child(task: str, spec: dict) -> dict:
+    """Run a measurement in a fresh spawned process (so its peak memory is its own)."""
+    ctx = multiprocessing.get_context("spawn")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(task, spec, child))
+    proc.start()
+    child.close()
+    try:
+        status, value = parent.recv()
+    except EOFError:
+        status, value = "error", f"the measuring process died (exit code {proc.join() or proc.exitcode})"
+    proc.join()
+    if status != "ok":
+        return dict(spec=spec, error=value)
+    return value
+
+
+# -- report ------------------------------------------------------------------------------------------
+def stage_rows(m: dict) -> list[tuple[str, float, float | None, float | None, float | None, float | None]]:
+    """(stage, seconds, frames/s, pairs/s, ms/frame, ms/pair) per stage, then ``total`` (wall)."""
+    n_f, n_p = m["n_frames"], max(m["n_pairs"], 1)
+    rows = []
+    for stage in (*STAGES, "total"):
+        s = m["wall_s"] if stage == "total" else m["timing_s"].get(stage, 0.0)
+        per_frame = stage in FRAME_STAGES or stage == "total"
+        per_pair = stage not in FRAME_STAGES
+        rows.append((stage, s, (n_f / s if s and per_frame else None), (n_p / s if s and per_pair else None),
+                     (1e3 * s / n_f if per_frame else None), (1e3 * s / n_p if per_pair else None)))
+    return rows
+
+
+def _f(x, fmt="{:.1f}") -> str:
+    return "-" if x is None else fmt.format(x)
+
+
+def format_run(m: dict) -> str:
+    spec = m["spec"]
+    head = (f"segmenter={spec['segmenter']} registrar={spec['registrar']} workers={spec.get('workers', 1)}"
+            + (f" rule={spec['rule']}" if spec.get("rule") else ""))
+    if "error" in m:
+        return f"{head}\n  error: {m['error']}\n"
+    lines = [f"{head}: {m['n_frames']} frames, {m['n_pairs']} pairs ({m['n_decided']} decided), "
+             f"label {m['label']}; wall {m['wall_s']:.2f} s, CPU {m['cpu_s']:.2f} s, "
+             f"peak RSS {m['peak_rss_mb']:.0f} MB (after imports {m['rss_base_mb']:.0f} MB), load {m['load']:.1f}",
+             f"  {'stage':<11}{'seconds':>9}{'frames/s':>10}{'pairs/s':>10}{'ms/frame':>10}{'ms/pair':>10}"]
+    for stage, s, fps, pps, mspf, mspp in stage_rows(m):
+        lines.append(f"  {stage:<11}{s:>9.3f}{_f(fps):>10}{_f(pps):>10}{_f(mspf, '{:.2f}'):>10}"
+                     f"{_f(mspp, '{:.2f}'):>10}")
+    return "\n".join(lines) + "\n"
+
+
+def format_long(m: dict) -> str:
+    if "error" in m:
+        return f"long sequence: error: {m['error']}\n"
+    samples = ", ".join(f"after {k} pairs {v:.0f} MB" for k, v in m["rss_samples_mb"].items())
+    return (f"long sequence ({m['n_frames']} frames, segmenter={m['spec']['segmenter']}, "
+            f"registrar={m['spec']['registrar']}, workers={m['spec'].get('workers', 1)}, "
+            f"options {m['run_kwargs']}): peak RSS {m['peak_rss_mb']:.0f} MB (after imports "
+            f"{m['rss_base_mb']:.0f} MB); RSS {samples}; {m['n_pairs'] / m['wall_s']:.1f} pairs/s, "
+            f"wall {m['wall_s']:.1f} s, load {m['load']:.1f}\n")
+
+
+def format_redecide(m: dict) -> str:
+    if "error" in m:
+        return f"re-decide: error: {m['error']}\n"
+    lines = [f"re-decide after a rule change ({m['change']}; {m['n_frames']} frames, "
+             f"segmenter={m['spec']['segmenter']}, registrar={m['spec']['registrar']}):"]
+    if "cached_rerun_s" in m:
+        lines.append(f"  run() with a StageCache holding the clouds and registrations: {m['cached_rerun_s']:.3f} s "
+                     f"(cache {m['cache_stats']})")
+    if "redecide_s" in m:
+        lines.append(f"  Pipeline.redecide(result): {m['redecide_s']:.3f} s "
+                     f"(same decisions as the cached run: {m['redecide_equals_cached_rerun']})")
+    if "cached_rerun_s" not in m:
+        lines.append("  no StageCache in this version: a change means a full re-run")
+    lines.append(f"  full re-run: {m['full_rerun_s']:.3f} s (first run {m['first_run_s']:.3f} s); "
+                 f"label {m['label_before']} -> {m['label_after']}")
+    return "\n".join(lines) + "\n"
+
+
+def _csv(text: str) -> list[str]:
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def run_bench(args) -> int:
+    from artclass_core import load_registry
+
+    registry = load_registry()
+    out = sys.stdout
+    if args.sequence:
+        path = str(args.sequence)
+    else:
+        t0 = time.perf_counter()
+        try:
+            path = str(bench_sequence(cache_dir=args.cache_dir, width=args.width, height=args.height,
+                                      n_frames=args.frames, seed=args.seed))
+        except ImportError as exc:
+            print(f"artclass bench: the synthetic generator is not available ({exc}); "
+                  f"pass --sequence PATH", file=sys.stderr)
+            return 2
+        out.write(f"benchmark sequence: {path} (ready in {time.perf_counter() - t0:.1f} s)\n")
+    segmenters = [s for s in _csv(args.segmenters) if s in registry.names("segmenter")]
+    missing = [s for s in _csv(args.segmenters) if s not in registry.names("segmenter")]
+    registrars = _csv(args.registrars) if args.registrars != "all" else registry.names("registrar")
+    workers = [int(w) for w in _csv(args.workers)]
+    rev = os.popen("git -C {} rev-parse --short HEAD 2>/dev/null".format(Path(__file__).resolve().parent)).read().strip()
+    out.write(f"artclass bench: commit {rev or 'unknown'}, {os.cpu_count()} CPUs, Python {sys.version.split()[0]}, "
+              f"load average {os.getloadavg()[0]:.1f}\n\n")
+    for name in missing:
+        out.write(f"segmenter {name!r} is not registered: skipped\n\n")
+    results: dict[str, Any] = dict(sequence=path, runs=[], commit=rev)
+    base = dict(path=path, rule=args.rule, params=dict(p.split("=", 1) for p in args.param))
+    for seg in segmenters:
+        for regname in registrars:
+            for w in workers:
+                m = in_child("run", dict(base, segmenter=seg, registrar=regname, workers=w))
+                results["runs"].append(m)
+                out.write(format_run(m) + "\n")
+                out.flush()
+    if not args.skip_redecide and segmenters:
+        m = in_child("redecide", dict(base, segmenter=segmenters[0], registrar=registrars[0], workers=max(workers)))
+        results["redecide"] = m
+        out.write(format_redecide(m) + "\n")
+        out.flush()
+    if args.long_frames and segmenters:
+        m = in_child("run", dict(base, segmenter=segmenters[0], registrar=registrars[0], workers=max(workers),
+                                 long_frames=args.long_frames))
+        results["long"] = m
+        out.write(format_long(m))
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1, default=str))
+        out.write(f"\nwrote {args.json}\n")
+    return 0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sequence", help="benchmark this sequence instead of the rendered synthetic one")
+    p.add_argument("--frames", type=int, default=DEFAULT_SEQUENCE["n_frames"],
+                   help="frames of the synthetic sequence (default 60)")
+    p.add_argument("--width", type=int, default=DEFAULT_SEQUENCE["width"])
+    p.add_argument("--height", type=int, default=DEFAULT_SEQUENCE["height"])
+    p.add_argument("--seed", type=int, default=DEFAULT_SEQUENCE["seed"])
+    p.add_argument("--cache-dir", type=Path, help=f"where rendered sequences are kept (default {cache_root()})")
+    p.add_argument("--segmenters", default="mask,depth_threshold", help="comma-separated (default mask,depth_threshold)")
+    p.add_argument("--registrars", default="all", help="comma-separated, or all (default)")
+    p.add_argument("--rule", help="decision rule (default: the pipeline's default)")
+    p.add_argument("--workers", default=f"1,{max(os.cpu_count() or 1, 1)}" if (os.cpu_count() or 1) > 1 else "1",
+                   help="comma-separated worker counts to measure (default 1 and the number of CPUs)")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="set a parameter by name or paper symbol, as in `artclass classify`")
+    p.add_argument("--long-frames", type=int, default=1000,
+                   help="length of the memory test sequence (0 = skip; default 1000)")
+    p.add_argument("--skip-redecide", action="store_true", help="skip the re-decide measurement")
+    p.add_argument("--json", metavar="FILE", help="also write every number to this JSON file")
+
+
+@hookimpl
+def register_commands(subparsers):
+    p = subparsers.add_parser("bench", help="measure throughput and memory (prints numbers, never fails)",
+                              description=__doc__.split("\n\n")[0])
+    add_arguments(p)
+    p.set_defaults(func=run_bench)
