@@ -162,9 +162,9 @@ class YcbvSequence(Sequence):
         rgb = read_rgb(scene.file(i, "color"))
         depth = read_depth(scene.file(i, "depth"), units_per_metre=factor)
         label = read_label(scene.file(i, "label"))
-        for part, image in (("color", rgb), ("label", label)):
+        for part, what, image in (("color", "colour", rgb), ("label", "label", label)):
             if image.shape[:2] != depth.shape:
-                raise InputError(f"{part} image is {image.shape[1]}x{image.shape[0]} but the depth image is "
+                raise InputError(f"{what} image is {image.shape[1]}x{image.shape[0]} but the depth image is "
                                  f"{depth.shape[1]}x{depth.shape[0]}", path=scene.file(i, part))
         return Frame(i, scene.stems[i], rgb, depth, label == self.object_id)
 
