@@ -33,10 +33,23 @@ def largest_distance(points: np.ndarray) -> float:
         return 0.0
     try:
         hull = points[ConvexHull(points).vertices]
-    except (QhullError, ValueError):   # flat or degenerate cloud: fall back to all points (few of them)
-        hull = points if len(points) <= 2000 else points[np.linspace(0, len(points) - 1, 2000).astype(int)]
+    except (QhullError, ValueError):   # flat or collinear cloud: the hull within its plane, or its two ends
+        hull = _flat_hull(points)
     d2 = ((hull[:, None, :] - hull[None, :, :]) ** 2).sum(-1)
     return float(np.sqrt(d2.max()))
+
+
+def _flat_hull(points: np.ndarray) -> np.ndarray:
+    """Hull vertices of a cloud that spans fewer than three dimensions (exact, like the 3-D hull)."""
+    centred = points - points.mean(0)
+    _, s, vt = np.linalg.svd(centred, full_matrices=False)
+    if s[0] == 0 or s[1] <= s[0] * 1e-9:            # all points on one line (or one point)
+        along = centred @ vt[0]
+        return points[[int(along.argmin()), int(along.argmax())]]
+    try:
+        return points[ConvexHull(centred @ vt[:2].T).vertices]
+    except (QhullError, ValueError):
+        return points if len(points) <= 2000 else points[np.linspace(0, len(points) - 1, 2000).astype(int)]
 
 
 def grid_cells(source: np.ndarray, target: np.ndarray, *, cell_size_m: float):
