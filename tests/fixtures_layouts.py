@@ -109,10 +109,12 @@ def ycbv_pose(i: int, k: int) -> np.ndarray:
     return T
 
 
-def write_ycbv(root: Path, name: str = "0000", *, n_frames: int = 8, drop: tuple[str, ...] = ()) -> Path:
+def write_ycbv(root: Path, name: str = "0000", *, n_frames: int = 8, drop: tuple[str, ...] = (),
+               n_objects: int = 2) -> Path:
     """A YCB-Video scene folder: NNNNNN-{color,depth,label}.png, -meta.mat, -box.txt.
 
-    ``drop`` names meta.mat variables to leave out (e.g. ``("intrinsic_matrix",)``).
+    ``drop`` names meta.mat variables to leave out (e.g. ``("intrinsic_matrix",)``); with
+    ``n_objects=1`` only the box is annotated (the flap's pixels are background).
     """
     scene = Path(root) / name
     scene.mkdir(parents=True, exist_ok=True)
@@ -123,11 +125,13 @@ def write_ycbv(root: Path, name: str = "0000", *, n_frames: int = 8, drop: tuple
         write_png(Path(f"{stem}-color.png"), r.rgb)
         write_png(Path(f"{stem}-depth.png"), np.round(r.depth_m * YCBV_FACTOR).astype(np.uint16))
         label = np.zeros((HEIGHT, WIDTH), np.uint8)
-        label[r.box], label[r.flap] = YCBV_IDS
+        label[r.box] = YCBV_IDS[0]
+        if n_objects > 1:
+            label[r.flap] = YCBV_IDS[1]
         write_png(Path(f"{stem}-label.png"), label)
         meta = dict(intrinsic_matrix=K, factor_depth=np.array([[YCBV_FACTOR]], np.uint16),
-                    cls_indexes=np.array(YCBV_IDS, np.uint8).reshape(-1, 1),
-                    poses=np.stack([ycbv_pose(i, 0), ycbv_pose(i, 1)], axis=2),
+                    cls_indexes=np.array(YCBV_IDS[:n_objects], np.uint8).reshape(-1, 1),
+                    poses=np.stack([ycbv_pose(i, k) for k in range(n_objects)], axis=2),
                     rotation_translation_matrix=np.hstack([np.eye(3), [[CAMERA_STEP_M * i], [0], [0]]]))
         for key in drop:
             meta.pop(key)

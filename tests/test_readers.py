@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.io
 
 from artclass_core import InputError, find_sequences, load_registry, open_sequences
 from artclass_core.cli import main
@@ -155,6 +156,24 @@ def test_ycbv_meta_without_intrinsics_is_named(tmp_path):
     with pytest.raises(InputError, match="missing 'intrinsic_matrix'") as exc:
         REGISTRY.create("reader", "ycbv").sequences(scene)
     assert exc.value.path == str(scene / "000001-meta.mat")
+
+
+def test_ycbv_single_object_scene(tmp_path):
+    (mug,) = REGISTRY.create("reader", "ycbv").sequences(write_ycbv(tmp_path, n_objects=1))
+    assert mug.name == "0000/025_mug"
+    assert (mug.pair_truth(0, 1), mug.pair_truth(0, 5)) == ("NM", "RM")
+
+
+def test_ycbv_intrinsics_are_checked_on_every_frame(tmp_path):
+    scene = write_ycbv(tmp_path)
+    meta = scipy.io.loadmat(scene / "000004-meta.mat")
+    meta["intrinsic_matrix"][0, 0] = 2 * FX
+    scipy.io.savemat(scene / "000004-meta.mat", {k: v for k, v in meta.items() if not k.startswith("__")})
+    mug = REGISTRY.create("reader", "ycbv").sequences(scene)[0]
+    assert mug[2].mask.any()
+    with pytest.raises(InputError, match="intrinsic_matrix differs from the first frame's") as exc:
+        mug[3]
+    assert exc.value.path == str(scene / "000004-meta.mat")
 
 
 def test_ycbv_missing_frame_file_is_named(tmp_path):
