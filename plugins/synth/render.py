@@ -165,7 +165,17 @@ class SceneMesh:
 
 
 def _transform(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    return points @ T[:3, :3].T + T[:3, 3]
+    """``T`` applied to ``points`` (N, 3); written out (no BLAS call, which is slow for 3x3)."""
+    p = np.asarray(points)
+    out = np.empty(p.shape, dtype=np.result_type(p.dtype, np.float32))
+    for r in range(3):
+        out[:, r] = p[:, 0] * T[r, 0] + p[:, 1] * T[r, 1] + p[:, 2] * T[r, 2] + T[r, 3]
+    return out
+
+
+def _dot3(a: np.ndarray, v) -> np.ndarray:
+    """Dot product of the last axis of ``a`` (..., 3) with the 3-vector ``v``."""
+    return a[..., 0] * v[0] + a[..., 1] * v[1] + a[..., 2] * v[2]
 
 
 def _invert(T: np.ndarray) -> np.ndarray:
@@ -308,31 +318,40 @@ def render_clean(
     hit = np.isfinite(t_hit)
     # t_hit is in units of the (unnormalised) ray direction: z-depth = t * (R d)_z.
     R_cw = np.asarray(T_camera_from_world)[:3, :3]
-    dir_z = dirs @ R_cw[2]
+    dir_z = _dot3(dirs, R_cw[2].astype(np.float32))
     depth = np.where(hit, t_hit * dir_z, 0.0).astype(np.float32)
 
     gsafe = np.where(hit, gids, n).astype(np.int64)
     part_ids = part_of[gsafe]
 
-    dir_unit = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
-    ndotd = np.sum(normals * dir_unit, axis=-1)
+    dir_len = np.sqrt(_dot3(dirs, dirs.transpose(2, 0, 1)))
+    ndotd = _dot3(normals, dirs.transpose(2, 0, 1)) / dir_len
     cos_inc = np.where(hit, np.abs(ndotd), 0.0).astype(np.float32)
-    n_front = normals * -np.sign(ndotd)[..., None]  # normals facing the camera
+    facing = -np.sign(ndotd)  # flips normals to face the camera
 
     R_wc = R_cw.T
     light_dir = R_wc @ (np.array([-0.35, -0.55, -1.0]) / np.linalg.norm([-0.35, -0.55, -1.0]))
-    diffuse = np.clip(n_front @ light_dir, 0.0, 1.0)
+    diffuse = np.clip(facing * _dot3(normals, light_dir.astype(np.float32)), 0.0, 1.0)
     shade = ambient + (1.0 - ambient) * diffuse
 
-    points = origin + dirs * np.where(hit, t_hit, 0.0)[..., None]
-    rgb = np.zeros((h, w, 3), dtype=np.float64)
-    for gid in np.unique(gids[hit]):
-        m = meshes[ids_to_mesh[int(gid)]]
-        sel = hit & (gids == gid)
-        local = _transform(m.T_local_from_world, points[sel])
+    points = origin + dirs * np.where(hit, t_hit, np.float32(0.0))[..., None]
+    # Colour: group the hit pixels by geometry once, then texture each group in its own frame.
+    flat_hit = np.flatnonzero(hit)
+    flat_gid = gids.reshape(-1)[flat_hit]
+    order = np.argsort(flat_gid, kind="stable")
+    pix = flat_hit[order]
+    gid_sorted = flat_gid[order]
+    starts = np.flatnonzero(np.r_[True, gid_sorted[1:] != gid_sorted[:-1]])
+    ends = np.r_[starts[1:], len(pix)]
+    pts_flat = points.reshape(-1, 3)
+    base = np.zeros((h * w, 3), dtype=np.float32)
+    for a, b in zip(starts, ends):
+        m = meshes[ids_to_mesh[int(gid_sorted[a])]]
+        sel = pix[a:b]
+        local = _transform(m.T_local_from_world, pts_flat[sel])
         wgt = _pattern(local, m.piece.pattern, m.piece.cell_m)[:, None]
-        base = np.asarray(m.piece.colour) * (1 - wgt) + np.asarray(m.piece.colour2) * wgt
-        rgb[sel] = base * shade[sel][:, None]
+        base[sel] = np.asarray(m.piece.colour) * (1 - wgt) + np.asarray(m.piece.colour2) * wgt
+    rgb = base.reshape(h, w, 3) * shade[..., None]
 
     shadowed = np.zeros((h, w), dtype=bool)
     if projector_baseline_m > 0 and np.any(hit):
