@@ -1,0 +1,203 @@
+"""Scene background from depth alone: the depth range and the large planes (table, floor, wall).
+
+Shared by the ``depth_threshold`` and ``u2net`` segmenters. A pixel is *background* when its depth
+is outside ``[near_m, far_m]``, or when it lies on, or behind (seen from the camera), one of the
+large planes of the scene: the support plane the objects stand on (points below the table, such as
+the floor beyond its edge, are behind it) and a second large plane such as a wall behind the table.
+
+Planes are found by RANSAC on the valid depth back-projected on a coarse pixel grid (every
+``stride``-th pixel), with a seeded generator, then refitted by least squares on their inliers; the
+full-resolution test is one multiply-add per pixel against precomputed camera rays.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+from artclass_core import Intrinsics, Params, param
+
+__all__ = ["BackgroundParams", "Plane", "fit_planes", "background_mask", "range_mask", "ransac_plane"]
+
+
+@dataclass(frozen=True)
+class Plane:
+    """A plane ``normal . p + offset_m = 0`` in the camera frame, oriented towards the camera.
+
+    ``normal`` is a unit vector and ``offset_m`` > 0 is the camera's distance to the plane, so the
+    signed distance of a point is positive on the camera's side and negative behind the plane.
+    """
+
+    normal: tuple[float, float, float]
+    offset_m: float
+    inlier_fraction: float   # share of the sampled valid points on the plane
+
+    def signed_distance_m(self, points: np.ndarray) -> np.ndarray:
+        """Signed distance (metres) of points (N, 3): > 0 on the camera's side."""
+        return points @ np.asarray(self.normal) + self.offset_m
+
+
+@dataclass(frozen=True)
+class BackgroundParams(Params):
+    """Depth range and large-plane removal (shared by the depth-based segmenters)."""
+
+    near_m: float = param(0.2, unit="m", bounds=(0.0, 20.0),
+                          help="Depth readings nearer than this are ignored (sensor minimum range).")
+    far_m: float = param(2.0, unit="m", bounds=(0.05, 50.0),
+                         help="Depth readings farther than this are background (room, far wall).")
+    max_planes: int = param(2, unit="planes", bounds=(0, 4),
+                            help="Large planes removed as background: the support plane first, then e.g. "
+                                 "a wall or the floor.")
+    plane_distance_m: float = param(0.012, unit="m", bounds=(0.001, 0.2),
+                                    help="Points closer than this to a background plane belong to it; "
+                                         "about 3-4 times the depth noise at the working distance.")
+    min_plane_fraction: float = param(0.15, unit="fraction", bounds=(0.01, 1.0),
+                                      help="A plane is background only if it holds at least this share of "
+                                           "the valid depth pixels (a handled object's face is smaller).")
+    plane_stride_px: int = param(4, unit="px", bounds=(1, 32),
+                                 help="The plane fit uses every n-th pixel in x and y (speed).")
+    plane_iterations: int = param(150, unit="iterations", bounds=(10, 5000),
+                                  help="RANSAC hypotheses tried per plane.")
+    plane_seed: int = param(0, unit="1", bounds=(0, 2**31 - 1), help="Seed of the RANSAC sampling (reproducible masks).")
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.far_m <= self.near_m:
+            from artclass_core import ParamError
+            raise ParamError(f"parameter far_m = {self.far_m} must be greater than near_m = {self.near_m}")
+
+
+@functools.lru_cache(maxsize=8)
+def _rays(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel ray slopes ((u - cx) / fx, (v - cy) / fy), float32, shapes (1, W) and (H, 1)."""
+    rx = ((np.arange(width, dtype=np.float32) - cx) / fx)[None, :]
+    ry = ((np.arange(height, dtype=np.float32) - cy) / fy)[:, None]
+    return rx, ry
+
+
+def range_mask(depth_m: np.ndarray, *, near_m: float, far_m: float) -> np.ndarray:
+    """Pixels with a depth reading inside ``[near_m, far_m]``: ndarray of bool, shape (H, W)."""
+    d = np.nan_to_num(depth_m, nan=0.0)
+    return (d >= near_m) & (d <= far_m) & (d > 0)
+
+
+def ransac_plane(points: np.ndarray, *, distance_m: float, iterations: int, rng: np.random.Generator,
+                 max_scored: int = 1000) -> tuple[np.ndarray, float, np.ndarray] | None:
+    """The plane with the most inliers among ``points`` (N, 3), refined by least squares.
+
+    Hypotheses from random point triplets are scored on at most ``max_scored`` points, all at once.
+
+    Returns
+    -------
+    (normal (3,), offset_m, inliers (N,) bool) with the normal oriented towards the origin
+    (``offset_m`` >= 0), or None when fewer than 3 points or only degenerate triplets.
+    """
+    n = len(points)
+    if n < 3:
+        return None
+    tri = points[rng.integers(0, n, size=(iterations, 3))]
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norms = np.linalg.norm(normals, axis=1)
+    ok = norms > 1e-12
+    if not ok.any():
+        return None
+    normals = normals[ok] / norms[ok, None]
+    offsets = -np.einsum("ij,ij->i", normals, tri[ok, 0])
+    scored = points if n <= max_scored else points[rng.choice(n, max_scored, replace=False)]
+    distances = scored @ normals.T   # (max_scored, hypotheses), reused in place
+    distances += offsets
+    np.abs(distances, out=distances)
+    counts = np.count_nonzero(distances < distance_m, axis=0)
+    best = int(np.argmax(counts))
+    normal, offset = normals[best], offsets[best]
+    for _ in range(2):   # least-squares refit on the inliers, then re-select them
+        inliers = np.abs(points @ normal + offset) < distance_m
+        if inliers.sum() < 3:
+            break
+        centre = points[inliers].mean(axis=0)
+        normal = np.linalg.svd(points[inliers] - centre, full_matrices=False)[2][2]
+        offset = -float(normal @ centre)
+    inliers = np.abs(points @ normal + offset) < distance_m
+    if offset < 0:
+        normal, offset = -normal, -offset
+    return normal, float(offset), inliers
+
+
+def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: BackgroundParams) -> list[Plane]:
+    """The large background planes of a depth image, largest first.
+
+    The first (largest) plane is the support plane. Each plane found removes its inliers and the
+    points behind it before the next is sought. A further plane is background (a wall, the floor)
+    only if the support plane lies in front of it (95 % of the support's inliers on its camera side);
+    a plane with the support partly behind it is an object's face or a slice through the objects,
+    and ends the search. The search also stops at ``max_planes`` or when a plane holds fewer than
+    ``min_plane_fraction`` of the sampled valid points.
+
+    Parameters
+    ----------
+    depth_m : ndarray, shape (H, W), metres (0 or NaN = no reading)
+    intrinsics : the depth camera's pinhole intrinsics
+    params : range and plane settings
+
+    Returns
+    -------
+    list of Plane, oriented towards the camera
+    """
+    s = params.plane_stride_px
+    d = np.nan_to_num(np.asarray(depth_m, dtype=np.float32)[::s, ::s], nan=0.0)
+    rx, ry = _rays(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height)
+    valid = (d >= params.near_m) & (d <= params.far_m) & (d > 0)
+    z = d[valid].astype(np.float64)
+    vv, uu = np.nonzero(valid)
+    pts = np.column_stack((rx[0, ::s][uu] * z, ry[::s, 0][vv] * z, z))
+    total = len(pts)
+    rng = np.random.default_rng(params.plane_seed)
+    planes: list[Plane] = []
+    for _ in range(params.max_planes):
+        if total == 0 or len(pts) < max(3, params.min_plane_fraction * total):
+            break
+        found = ransac_plane(pts, distance_m=params.plane_distance_m, iterations=params.plane_iterations, rng=rng)
+        if found is None:
+            break
+        normal, offset, inliers = found
+        fraction = inliers.sum() / total
+        if fraction < params.min_plane_fraction:
+            break
+        if planes and np.mean(support @ normal + offset > -params.plane_distance_m) < 0.95:
+            break   # the support plane is (partly) behind it: an object's face or a slice, not background
+        if not planes:
+            support = pts[inliers]
+        planes.append(Plane(tuple(float(v) for v in normal), offset, float(fraction)))
+        pts = pts[~inliers & (pts @ normal + offset >= -params.plane_distance_m)]
+    return planes
+
+
+def background_mask(depth_m: np.ndarray, intrinsics: Intrinsics, planes: list[Plane], *,
+                    params: BackgroundParams) -> tuple[np.ndarray, np.ndarray]:
+    """Which pixels are known background, and which have a usable depth reading.
+
+    Parameters
+    ----------
+    depth_m : ndarray, shape (H, W), metres
+    intrinsics : pinhole intrinsics of the depth image
+    planes : background planes from :func:`fit_planes`
+    params : range and plane settings
+
+    Returns
+    -------
+    background : ndarray of bool, shape (H, W)
+        valid readings out of ``[near_m, far_m]``, or within ``plane_distance_m`` of a plane or behind it
+    valid : ndarray of bool, shape (H, W)
+        pixels with a depth reading (> 0, finite)
+    """
+    d = np.nan_to_num(np.asarray(depth_m, dtype=np.float32), nan=0.0)
+    valid = d > 0
+    background = valid & ((d < params.near_m) | (d > params.far_m))
+    rx, ry = _rays(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height)
+    for plane in planes:
+        nx, ny, nz = (np.float32(v) for v in plane.normal)
+        signed = d * (nx * rx + ny * ry + nz) + np.float32(plane.offset_m)
+        background |= valid & (signed < params.plane_distance_m)
+    return background, valid
