@@ -384,3 +384,33 @@ def test_sample_data_matches_the_sample_preset():
         meta = json.loads((root / e["name"] / "meta.json").read_text())
         assert meta["label"] == e["label"] and meta["seed"] == e["seed"]
         assert len(list((root / e["name"] / "depth").iterdir())) == e["n_frames"]
+        # The committed files are what the current generator makes (re-run the command in
+        # sample_data/README.md after changing it).
+        seq = plan_sequence(object_name=e["object_name"], motion=e["motion"], noise=e["noise"],
+                            n_frames=e["n_frames"], seed=e["seed"], width=e["width"],
+                            height=e["height"])
+        assert json.loads((root / e["name"] / "truth.json").read_text()) == json.loads(
+            json.dumps(seq.truth))
+        assert meta == seq.meta
+        frame = seq.render(e["n_frames"] - 1)
+        mask = cv2.imread(str(root / e["name"] / "mask" / f"{e['n_frames'] - 1:06d}.png"),
+                          cv2.IMREAD_UNCHANGED) > 0
+        assert (mask == frame.mask).mean() > 0.999
+
+
+# ---------------------------------------------------------------- command line
+
+
+def test_hook_register_commands_sample(tmp_path, capsys):
+    """``artclass sample OUT --preset smoke`` through the real command line (plugin registry)."""
+    from artclass_core.cli import main
+
+    out = tmp_path / "smoke"
+    assert main(["sample", str(out), "--preset", "smoke", "--seed", "3"]) == 0
+    names = [p.name for p in preset_plans("smoke")]
+    assert sorted(p.name for p in out.iterdir()) == sorted(names + ["index.json"])
+    first = _digest(out)
+    assert main(["sample", str(out), "--preset", "smoke", "--seed", "3"]) == 2
+    assert "refusing to overwrite" in capsys.readouterr().err
+    assert main(["sample", str(out), "--preset", "smoke", "--seed", "3", "--overwrite"]) == 0
+    assert _digest(out) == first

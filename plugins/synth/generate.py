@@ -61,15 +61,17 @@ class SynthSequence:
         Contents of ``truth.json``.
     trajectory : Trajectory
     intrinsics : Intrinsics
+    object_name, noise : str
+    seed : int
     """
 
     meta: dict
     truth: dict
     trajectory: Trajectory
     intrinsics: Intrinsics
-    _object_name: str
-    _noise: str
-    _seed: int
+    object_name: str
+    noise: str
+    seed: int
 
     @property
     def n_frames(self) -> int:
@@ -77,14 +79,14 @@ class SynthSequence:
 
     def render(self, index: int) -> SynthFrame:
         """Render frame ``index`` (noise drawn from a generator seeded by (seed, 1, index))."""
-        spec = OBJECTS[self._object_name]
+        spec = OBJECTS[self.object_name]
         traj = self.trajectory
         q = None if traj.joint_positions is None else float(traj.joint_positions[index])
         meshes = room_meshes() + object_meshes(spec, q, traj.T_world_from_object[index])
         clean = render_clean(meshes, T_camera_from_world=traj.T_camera_from_world[index],
                              intrinsics=self.intrinsics)
-        rng = np.random.default_rng([self._seed, 1, index])
-        depth_m, rgb = add_sensor_noise(clean, noise=NOISE_LEVELS[self._noise], rng=rng)
+        rng = np.random.default_rng([self.seed, 1, index])
+        depth_m, rgb = add_sensor_noise(clean, noise=NOISE_LEVELS[self.noise], rng=rng)
         return SynthFrame(index, rgb, depth_m, clean.mask, clean)
 
     def frames(self) -> Iterator[SynthFrame]:

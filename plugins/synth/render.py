@@ -124,6 +124,20 @@ class NoiseLevel:
     min_range_m: float = 0.3
     max_range_m: float = 4.5
 
+    def __post_init__(self):
+        for name in ("grazing_drop_prob", "edge_drop_prob", "lateral_fraction",
+                     "random_drop_fraction", "speckle_fraction"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"NoiseLevel {self.name!r}: {name}={value} is not in [0, 1]")
+        for name in ("axial_a_m", "axial_b_per_m", "disparity_subpixel", "rgb_sigma"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"NoiseLevel {self.name!r}: {name}={getattr(self, name)} < 0")
+        if not 0 <= self.grazing_start_deg <= self.grazing_end_deg <= 90:
+            raise ValueError(f"NoiseLevel {self.name!r}: need 0 <= grazing_start_deg "
+                             f"({self.grazing_start_deg}) <= grazing_end_deg "
+                             f"({self.grazing_end_deg}) <= 90")
+
     def axial_sigma_m(self, depth_m: np.ndarray) -> np.ndarray:
         """Axial noise standard deviation at z-depth ``depth_m``, metres."""
         return self.axial_a_m + self.axial_b_per_m * (np.asarray(depth_m) - 0.4) ** 2
@@ -285,15 +299,17 @@ def render_clean(
     CleanFrame
     """
     scene = o3d.t.geometry.RaycastingScene()
-    n = len(meshes)
-    part_of = np.full(n + 1, -1, dtype=np.int8)
+    mesh_of_gid: dict[int, SceneMesh] = {}
     for m in meshes:
         gid = scene.add_triangles(
             o3d.core.Tensor(np.ascontiguousarray(m.vertices_m, dtype=np.float32)),
             o3d.core.Tensor(np.ascontiguousarray(m.triangles, dtype=np.uint32)),
         )
+        mesh_of_gid[int(gid)] = m
+    no_hit = max(mesh_of_gid, default=-1) + 1
+    part_of = np.full(no_hit + 1, -1, dtype=np.int8)
+    for gid, m in mesh_of_gid.items():
         part_of[gid] = m.part
-    ids_to_mesh = list(range(n))  # add_triangles numbers geometries 0, 1, ... in order
 
     h, w = intrinsics.height_px, intrinsics.width_px
     # create_rays_pinhole shoots pixel (u, v) through (u + 0.5, v + 0.5) (pixel corners at
@@ -321,7 +337,7 @@ def render_clean(
     dir_z = _dot3(dirs, R_cw[2].astype(np.float32))
     depth = np.where(hit, t_hit * dir_z, 0.0).astype(np.float32)
 
-    gsafe = np.where(hit, gids, n).astype(np.int64)
+    gsafe = np.where(hit, gids, no_hit).astype(np.int64)
     part_ids = part_of[gsafe]
 
     dir_len = np.sqrt(_dot3(dirs, dirs.transpose(2, 0, 1)))
@@ -346,7 +362,7 @@ def render_clean(
     pts_flat = points.reshape(-1, 3)
     base = np.zeros((h * w, 3), dtype=np.float32)
     for a, b in zip(starts, ends):
-        m = meshes[ids_to_mesh[int(gid_sorted[a])]]
+        m = mesh_of_gid[int(gid_sorted[a])]
         sel = pix[a:b]
         local = _transform(m.T_local_from_world, pts_flat[sel])
         wgt = _pattern(local, m.piece.pattern, m.piece.cell_m)[:, None]
