@@ -1,0 +1,131 @@
+"""A whole-sequence run assembled from the pipeline's stage methods, so each stage can be cached.
+
+:meth:`artclass_core.Pipeline.run` streams a sequence in one pass. The app instead calls the stages
+one by one through caches (``frame`` -> ``register`` -> ``decide`` -> ``summarise``), so that moving
+a decision slider re-decides without re-running ICP. This module holds that composition and the
+*cache keys* of each stage; it has no Streamlit in it and no algorithm of its own: the result equals
+``Pipeline.run`` on the same configuration (checked by ``tests/test_app.py``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections import Counter
+from collections.abc import Callable
+
+from artclass_core import (CellMotion, Config, FrameResult, InputError, PairResult, Pipeline, PipelineParams,
+                           RunResult, Sequence)
+
+# Pipeline parameters a stage's output does NOT depend on. Everything else is part of the stage's
+# key, so a parameter added to PipelineParams later invalidates every stage (safe, if slower).
+_NOT_FRAME = ("k", "w", "alpha", "cell_size_m", "min_fitness")
+_NOT_REGISTER = ("k", "w", "alpha")
+_NOT_DECIDE = ("k", "w")
+
+Progress = Callable[[str, int, int], None]
+
+
+def _reset(params: PipelineParams, names: tuple[str, ...]) -> PipelineParams:
+    defaults = PipelineParams()
+    return dataclasses.replace(params, **{n: getattr(defaults, n) for n in names if hasattr(params, n)})
+
+
+def stage_config(config: Config, stage: str) -> Config:
+    """The part of ``config`` the output of ``stage`` depends on; the rest is set to defaults.
+
+    Parameters
+    ----------
+    config : the full configuration
+    stage : ``"frame"`` (segment + preprocess one frame), ``"register"`` (one pair's cells) or
+        ``"decide"`` (one pair's decision)
+
+    Returns
+    -------
+    Config : frozen and hashable; ``repr`` of it is a stable cache key. Two configurations that
+    differ only in what a stage ignores give the same key for that stage.
+    """
+    base = Config()
+    keep = dict(segmenter=config.segmenter, segmenter_params=config.segmenter_params,
+                preprocessor=config.preprocessor, preprocessor_params=config.preprocessor_params)
+    if stage == "frame":
+        return dataclasses.replace(base, **keep, pipeline=_reset(config.pipeline, _NOT_FRAME))
+    keep.update(registrar=config.registrar, registrar_params=config.registrar_params)
+    if stage == "register":
+        return dataclasses.replace(base, **keep, pipeline=_reset(config.pipeline, _NOT_REGISTER))
+    keep.update(rule=config.rule, rule_params=config.rule_params)
+    if stage == "decide":
+        return dataclasses.replace(base, **keep, pipeline=_reset(config.pipeline, _NOT_DECIDE))
+    raise ValueError(f"unknown stage {stage!r}; expected frame, register or decide")
+
+
+def stage_key(config: Config, stage: str) -> str:
+    """A string cache key of :func:`stage_config` (``repr`` names the Params classes, so two plugins
+    whose params happen to have the same fields never share a key)."""
+    return repr(stage_config(config, stage))
+
+
+def run_staged(sequence: Sequence, config: Config, summary: Pipeline, *,
+               frame: Callable[[int], FrameResult],
+               register: Callable[[FrameResult, FrameResult], tuple[list[CellMotion], float]],
+               decide: Callable[[FrameResult, FrameResult, list[CellMotion], float], PairResult],
+               progress: Progress | None = None) -> RunResult:
+    """Classify ``sequence`` stage by stage through the given (cached) stage functions.
+
+    Parameters
+    ----------
+    sequence : the sequence
+    config : the configuration (its ``pipeline.k`` chooses the pairs (i, i + k))
+    summary : a :class:`Pipeline` built on ``config``, used for :meth:`Pipeline.summarise`
+    frame : ``i -> FrameResult`` with its cloud (``Pipeline.frame``)
+    register : ``(frame_i, frame_j) -> (cells, x)`` (``Pipeline.register`` on the two clouds)
+    decide : ``(frame_i, frame_j, cells, x) -> PairResult`` (``Pipeline.decide``); it may mutate
+        ``cells``, so ``register`` must hand out a copy each time
+    progress : called as ``progress(stage, done, total)`` for stages ``frames``, ``registration``
+        and ``decision``
+
+    Returns
+    -------
+    RunResult : as ``Pipeline.run`` gives it, except that the frames keep their clouds (the app
+    shows them) and ``timing_s`` holds the wall time of each stage *including cache hits*.
+
+    Raises
+    ------
+    InputError : fewer than k + 1 frames, or no object in any frame
+    """
+    k = config.pipeline.k
+    n = len(sequence)
+    if n < k + 1:
+        raise InputError(f"sequence has {n} frames; k = {k} needs at least {k + 1}", path=sequence.path)
+    t0 = time.perf_counter()
+    frames: list[FrameResult] = []
+    for i in range(n):
+        frames.append(frame(i))
+        if progress:
+            progress("frames", i + 1, n)
+    if all(f.skipped for f in frames):
+        reason = Counter(f.skipped for f in frames).most_common(1)[0][0]
+        raise InputError(f"no object in any of the {n} frames (segmenter "
+                         f"{summary.segmenter_name(sequence)!r}: {reason})", path=sequence.path)
+    t1 = time.perf_counter()
+    pairs = [(frames[i], frames[i + k]) for i in range(n - k)]
+    registered: list[tuple[list[CellMotion], float] | None] = []
+    for done, (a, b) in enumerate(pairs, 1):
+        registered.append(None if a.cloud is None or b.cloud is None else register(a, b))
+        if progress:
+            progress("registration", done, len(pairs))
+    t2 = time.perf_counter()
+    results: list[PairResult] = []
+    for done, ((a, b), reg) in enumerate(zip(pairs, registered), 1):
+        if reg is None:
+            skipped = a if a.cloud is None else b
+            pair = PairResult(a.index, b.index, "skipped", reason=f"frame {skipped.index} skipped: {skipped.skipped}")
+        else:
+            pair = decide(a, b, *reg)
+        pair.truth = sequence.pair_truth(a.index, b.index)
+        results.append(pair)
+        if progress:
+            progress("decision", done, len(pairs))
+    t3 = time.perf_counter()
+    timing = dict(frames=t1 - t0, register=t2 - t1, decide=t3 - t2, total=t3 - t0)
+    return summary.summarise(sequence, frames, results, timing)

@@ -1,0 +1,154 @@
+"""The app in a real browser: ``streamlit run`` as a subprocess, driven by Debian's Chromium.
+
+Loads the app, waits for the 3D motion plot (a WebGL scene) to render, moves the k slider with the
+keyboard and checks that the decision timeline follows, and saves screenshots to ``artefacts/``.
+Prints how long the first run and the slider re-run took (numbers, not pass/fail).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+APP = ROOT / "app" / "streamlit_app.py"
+ARTEFACTS = ROOT / "artefacts"
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--disable-quic"]
+N_FRAMES = 12
+
+pytestmark = pytest.mark.browser
+
+TIMELINE_JS = """() => {
+    for (const gd of document.querySelectorAll('.js-plotly-plot')) {
+        const t = (gd.data || []).find(t => t.name === 'pair decision');
+        if (t) return Array.from(t.y);
+    }
+    return null;
+}"""
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def data_root(tmp_path_factory) -> Path:
+    from artclass_plugins.synth import generate_sequence
+    root = tmp_path_factory.mktemp("browser_data")
+    generate_sequence(root / "laptop_articulate", object_name="laptop", motion="articulate", noise="low",
+                      n_frames=N_FRAMES, seed=0, width=320, height=240)
+    generate_sequence(root / "mug_carry", object_name="mug", motion="carry", noise="low", n_frames=N_FRAMES,
+                      seed=1, width=320, height=240)
+    return root
+
+
+@pytest.fixture(scope="module")
+def server(data_root, tmp_path_factory):
+    """``streamlit run app/streamlit_app.py`` on a free port; always stopped at the end."""
+    assert Path(CHROMIUM).exists(), f"{CHROMIUM} is missing: install the Debian package chromium (make setup)"
+    port = _free_port()
+    log = tmp_path_factory.mktemp("streamlit") / "server.log"
+    env = dict(os.environ, ARTCLASS_SAMPLE_DATA=str(data_root), ARTCLASS_UPLOAD_DIR=str(log.parent / "uploads"))
+    env.pop("ARTCLASS_DATA_ROOTS", None)
+    with open(log, "w") as out:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "streamlit", "run", str(APP), "--server.headless", "true", "--server.port", str(port),
+             "--server.address", "127.0.0.1", "--browser.gatherUsageStats", "false",
+             "--server.fileWatcherType", "none"], cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT)
+    try:
+        url = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 90
+        while True:
+            try:
+                with urllib.request.urlopen(f"{url}/_stcore/health", timeout=2) as r:
+                    if r.status == 200:
+                        break
+            except OSError:
+                pass
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise AssertionError(f"streamlit did not start:\n{log.read_text()[-3000:]}")
+            time.sleep(0.3)
+        yield url
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture
+def page(server):
+    from playwright.sync_api import sync_playwright
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1440, "height": 2400})
+            yield page
+        finally:
+            browser.close()
+
+
+def _no_errors(page) -> None:
+    assert page.locator('[data-testid="stException"]').count() == 0
+    alerts = page.locator('[data-testid="stAlertContentError"]')
+    assert alerts.count() == 0, alerts.all_inner_texts()
+
+
+def test_app_renders_3d_and_follows_a_slider(server, page):
+    ARTEFACTS.mkdir(exist_ok=True)
+    t0 = time.perf_counter()
+    page.goto(server)
+    # The 3D motion plot: a Plotly chart holding a WebGL scene.
+    page.wait_for_selector(".js-plotly-plot .gl-container canvas", timeout=120_000)
+    page.wait_for_function(TIMELINE_JS, timeout=60_000)
+    t_first = time.perf_counter() - t0
+    _no_errors(page)
+    assert page.get_by_role("heading", name="laptop_articulate").count() == 1
+    before = page.evaluate(TIMELINE_JS)
+    assert len(before) == N_FRAMES - 5          # pairs (i, i + 5)
+    assert page.locator(".js-plotly-plot").count() >= 4
+    page.wait_for_timeout(1000)                 # let the WebGL scene draw before the screenshot
+    page.screenshot(path=str(ARTEFACTS / "app_browser_start.png"), full_page=True)
+
+    # Move k from 5 to 4 with the keyboard on the slider's thumb.
+    k_slider = page.locator('[data-testid="stSlider"]').filter(has=page.get_by_text("k", exact=True))
+    assert k_slider.count() == 1
+    thumb = k_slider.get_by_role("slider")
+    thumb.focus()
+    t1 = time.perf_counter()
+    thumb.press("ArrowLeft")
+    page.wait_for_function(f"() => {{ const y = ({TIMELINE_JS})(); return y && y.length === {N_FRAMES - 4}; }}",
+                           timeout=60_000)
+    t_rerun = time.perf_counter() - t1
+    assert thumb.get_attribute("aria-valuetext") in ("4 frames", "4")
+    page.wait_for_selector(".js-plotly-plot .gl-container canvas", timeout=60_000)
+    _no_errors(page)
+
+    # A slider of the decision rule (q̄ for the paper's rule) re-decides: the page stays error-free.
+    rule_box = page.locator('[data-testid="stExpander"]').filter(has_text="Decision rule")
+    rule_thumb = rule_box.get_by_role("slider").first
+    value = rule_thumb.get_attribute("aria-valuetext")
+    t2 = time.perf_counter()
+    rule_thumb.press("ArrowRight")
+    page.wait_for_function("() => !document.querySelector('[data-testid=\"stStatusWidget\"]')", timeout=60_000)
+    page.wait_for_function(TIMELINE_JS, timeout=60_000)
+    t_decide = time.perf_counter() - t2
+    assert rule_thumb.get_attribute("aria-valuetext") != value
+    _no_errors(page)
+    page.wait_for_timeout(1000)
+    page.screenshot(path=str(ARTEFACTS / "app_browser.png"), full_page=True)
+    print(f"\nbrowser: first page with 3D plot {t_first:.2f} s; k slider -> new timeline {t_rerun:.2f} s; "
+          f"q_bar slider -> re-decided {t_decide:.2f} s")
