@@ -8,10 +8,46 @@ from scipy.spatial.transform import Rotation
 
 
 def quaternion_wxyz(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) of a rotation matrix, sign fixed so that w >= 0."""
-    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    """Unit quaternion (w, x, y, z) of a rotation matrix, sign fixed so that w >= 0.
+
+    The same arithmetic as ``scipy.spatial.transform.Rotation.from_matrix`` (a matrix that is not
+    orthonormal to 1e-12 is first replaced by the nearest rotation; the largest of w, x, y, z is
+    solved for first), without its per-call overhead: the decision rules call this once per cell.
+    """
+    m = np.asarray(R, dtype=np.float64)
+    if m.shape != (3, 3) or not np.isfinite(m).all() or _det3(m) <= 0:
+        x, y, z, w = Rotation.from_matrix(m).as_quat()   # scipy's own checks and error messages
+    else:
+        if not (np.abs(m @ m.T - _EYE3) <= _GRAM_TOLERANCE).all():   # np.isclose(atol=1e-12, rtol=1e-5)
+            u, _, vt = np.linalg.svd(m, full_matrices=False)
+            m = u @ vt
+        trace = m[0, 0] + m[1, 1] + m[2, 2]
+        decision = (m[0, 0], m[1, 1], m[2, 2], trace)
+        choice = max(range(4), key=decision.__getitem__)   # first maximum, as numpy's argmax
+        q = np.empty(4)                                    # x, y, z, w
+        if choice != 3:
+            i, j, k = choice, (choice + 1) % 3, (choice + 2) % 3
+            q[i] = 1 - trace + 2 * m[i, i]
+            q[j] = m[j, i] + m[i, j]
+            q[k] = m[k, i] + m[i, k]
+            q[3] = m[k, j] - m[j, k]
+        else:
+            q[0] = m[2, 1] - m[1, 2]
+            q[1] = m[0, 2] - m[2, 0]
+            q[2] = m[1, 0] - m[0, 1]
+            q[3] = 1 + trace
+        x, y, z, w = q / np.linalg.norm(q)
     q = np.array([w, x, y, z])
     return -q if w < 0 else q
+
+
+_EYE3 = np.eye(3)
+_GRAM_TOLERANCE = 1e-12 + 1e-5 * _EYE3
+
+
+def _det3(m: np.ndarray) -> float:
+    return float(m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+                 + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
 
 
 def rotation_angle_rad(R: np.ndarray) -> float:
@@ -31,11 +67,36 @@ def largest_distance(points: np.ndarray) -> float:
     """
     if len(points) < 2:
         return 0.0
+    return diameter_of_vertices(hull_vertices(points))
+
+
+def hull_vertices(points: np.ndarray) -> np.ndarray:
+    """The points that can be an end of the cloud's diameter: its convex hull's vertices.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+
+    Returns
+    -------
+    ndarray, shape (V, 3) : a subset of ``points`` (all of them when there are fewer than 2).
+    The hull vertices of a union of clouds are among the union of their hull vertices, so the
+    diameter of two clouds together is :func:`diameter_of_vertices` of both clouds' vertices.
+    """
+    points = np.asarray(points)
+    if len(points) < 2:
+        return points
     try:
-        hull = points[ConvexHull(points).vertices]
+        return points[ConvexHull(points).vertices]
     except (QhullError, ValueError):   # flat or collinear cloud: the hull within its plane, or its two ends
-        hull = _flat_hull(points)
-    d2 = ((hull[:, None, :] - hull[None, :, :]) ** 2).sum(-1)
+        return _flat_hull(points)
+
+
+def diameter_of_vertices(vertices: np.ndarray) -> float:
+    """Largest distance between any two of ``vertices`` (N, 3); 0 for fewer than two."""
+    if len(vertices) < 2:
+        return 0.0
+    d2 = ((vertices[:, None, :] - vertices[None, :, :]) ** 2).sum(-1)
     return float(np.sqrt(d2.max()))
 
 
@@ -66,17 +127,20 @@ def grid_cells(source: np.ndarray, target: np.ndarray, *, cell_size_m: float):
     sorted by cell index; ``cell`` is the integer (i, j, k) of the cell, ``centre_m`` its centre.
     """
     origin = np.minimum(source.min(0), target.min(0))
-    keys_s = np.floor((source - origin) / cell_size_m).astype(np.int64)
-    keys_t = np.floor((target - origin) / cell_size_m).astype(np.int64)
-    keys = np.concatenate([keys_s, keys_t])
-    cells, inverse = np.unique(keys, axis=0, return_inverse=True)
-    inverse = inverse.ravel()
-    order = np.argsort(inverse, kind="stable")
-    bounds = np.searchsorted(inverse[order], np.arange(len(cells) + 1))
+    keys = np.floor((np.concatenate([source, target]) - origin) / cell_size_m).astype(np.int64)
+    # One integer per cell, in the lexicographic order of (i, j, k) (all >= 0 from the common origin),
+    # so a 1-D stable sort groups the cells in the order np.unique(axis=0) lists them.
+    span = keys.max(0) + 1
+    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    order = np.argsort(flat, kind="stable")
+    sorted_flat = flat[order]
+    starts = np.flatnonzero(np.r_[True, sorted_flat[1:] != sorted_flat[:-1]])
+    bounds = np.r_[starts, len(flat)]
     n_s = len(source)
     out = []
-    for c, cell in enumerate(cells):
-        members = order[bounds[c]:bounds[c + 1]]
+    for c, first in enumerate(starts):
+        members = order[first:bounds[c + 1]]
+        cell = keys[members[0]]
         centre = origin + (cell + 0.5) * cell_size_m
         out.append((tuple(int(v) for v in cell), centre, members[members < n_s], members[members >= n_s] - n_s))
     return out

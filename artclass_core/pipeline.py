@@ -2,22 +2,70 @@
 decisions -> moving max-count filter -> sequence label.
 
 Each stage is a method of :class:`Pipeline` that can be called on its own (the app caches them one by
-one); :meth:`Pipeline.run` streams a whole sequence, holding only the k + 1 clouds that pending pairs
-need, so memory does not grow with the sequence length.
+one); :meth:`Pipeline.run` streams a whole sequence, holding only the clouds that pending pairs need,
+so memory does not grow with the sequence length.
+
+Stages and what their results depend on
+----------------------------------------
+========== ============================================ ==============================================
+stage      method                                       depends on
+========== ============================================ ==============================================
+frame      :meth:`Pipeline.frame` (read, segment,       the frame, segmenter and preprocessor (and
+           preprocess)                                  their params); ``min_cell_points`` only marks
+                                                        a too-small cloud as skipped
+register   :meth:`Pipeline.register` (grid of cells of  the two clouds, registrar (and params),
+           size x, ICP per cell)                        ``cell_size_m``, ``min_cell_points``
+decide     :meth:`Pipeline.decide` (fitness and alpha   the registrations, ``min_fitness``, ``alpha``,
+           checks, decision rule)                       rule (and params)
+summarise  :meth:`Pipeline.summarise` (max-count        the pair decisions, ``w``
+           filter, label)
+========== ============================================ ==============================================
+
+Incremental re-runs
+-------------------
+A :class:`StageCache` keeps each frame's cloud and each pair's registrations, keyed on exactly what
+they depend on (the table above; parameters are frozen dataclasses, hence hashable keys). Pass the
+same cache to successive runs::
+
+    cache = StageCache()
+    result = Pipeline(registry, config).run(sequence, cache=cache)            # reads, segments, ICP
+    config2 = dataclasses.replace(config, rule_params=RuleParams(q_bar=0.2))
+    result2 = Pipeline(registry, config2).run(sequence, cache=cache)          # decides only
+
+A change of a decision parameter (rule and its params, ``alpha``, ``min_fitness``, ``w``) reuses the
+cached registrations; a change of a registration parameter (registrar and its params,
+``cell_size_m``, ``min_cell_points``) reuses the cached clouds; a change of ``k`` reuses the clouds
+and any registered pair it still needs. :meth:`Pipeline.redecide` re-decides a finished
+:class:`RunResult` directly (it needs the clouds: a run with ``keep_clouds=True``, or the cache).
+Deciding never modifies the cells it is given: :meth:`Pipeline.decide` works on copies, so a cached
+registration can be decided again and again without stale clusters.
+
+Throughput
+----------
+``run(sequence, workers=N)`` spreads frames and pairs over N threads (the heavy parts, OpenCV image
+decoding, SciPy KD-trees and Open3D ICP, release the GIL). Every frame and pair is computed by the
+same deterministic function whatever thread runs it, and results are collected in frame order, so
+the result is identical for any number of workers. At most about ``2 * workers + k`` frames are in
+flight at once. For long sequences ``keep_cells="summary"`` drops the cells' point indices after each
+pair is decided (the per-cell motions, clusters and point counts stay).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
-from collections import Counter
+import weakref
+from collections import Counter, OrderedDict, deque
 from collections.abc import Callable, Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from .errors import ArtclassError, InputError, ParamError
-from .geometry import grid_cells, largest_distance
+from .geometry import diameter_of_vertices, grid_cells, hull_vertices, largest_distance
 from .params import Params, PipelineParams, as_dict, describe, parse_value
 from .plugins import Registry
 from .types import DECISIONS, CellMotion, Cloud, FrameResult, PairResult, RunResult, Sequence
@@ -26,6 +74,7 @@ SEVERITY = {"NM": 0, "RM": 1, "AM": 2}
 STAGES = ("read", "segment", "preprocess", "register", "decide")
 PLUGIN_KINDS = ("segmenter", "preprocessor", "registrar", "rule")
 AUTO_SEGMENTER = "auto"   # the sequence's own masks when it has them, else depth_threshold
+KEEP_CELLS = ("full", "summary")
 
 Progress = Callable[[str, int, int], None]
 
@@ -83,6 +132,131 @@ class Config:
         return dataclasses.replace(self, **fields)
 
 
+class StageCache:
+    """Frame clouds and pair registrations kept between runs, keyed on everything they depend on.
+
+    Used by :meth:`Pipeline.run` (``cache=``) and :meth:`Pipeline.redecide`; see the module docstring.
+    Both tables are LRU-bounded (``max_frames`` clouds, ``max_pairs`` registered pairs), so a cache
+    can stay alive in a long-lived app. Sequences are told apart by identity (the same
+    :class:`Sequence` object), never by path, so two in-memory sequences can never share entries.
+    Thread-safe.
+
+    Parameters
+    ----------
+    max_frames : int
+        Frames (clouds) kept; each is a preprocessed cloud, typically 50-500 kB.
+    max_pairs : int
+        Registered pairs kept; each holds its cells' transforms and point indices.
+    """
+
+    def __init__(self, *, max_frames: int = 512, max_pairs: int = 1024):
+        self.max_frames, self.max_pairs = max_frames, max_pairs
+        self._frames: OrderedDict[tuple, tuple] = OrderedDict()
+        self._pairs: OrderedDict[tuple, tuple] = OrderedDict()
+        self._lock = threading.Lock()
+        self._tokens: dict[int, int] = {}      # id(sequence) -> token, dropped when the sequence dies
+        self._next_token = 0
+        self.hits = {"frame": 0, "register": 0}
+        self.misses = {"frame": 0, "register": 0}
+
+    def sequence_token(self, sequence: Sequence) -> int:
+        """A number that stands for ``sequence`` (this very object) in the keys."""
+        with self._lock:
+            key = id(sequence)
+            if key not in self._tokens:
+                self._tokens[key] = self._next_token
+                self._next_token += 1
+                weakref.finalize(sequence, self._forget, key)
+            return self._tokens[key]
+
+    def _forget(self, key: int) -> None:
+        with self._lock:
+            token = self._tokens.pop(key, None)
+            if token is None:
+                return
+            for table in (self._frames, self._pairs):
+                for k in [k for k in table if k[0] == token]:
+                    del table[k]
+
+    def _get(self, table: OrderedDict, key: tuple, stage: str):
+        with self._lock:
+            value = table.get(key)
+            if value is None:
+                self.misses[stage] += 1
+            else:
+                table.move_to_end(key)
+                self.hits[stage] += 1
+            return value
+
+    def _put(self, table: OrderedDict, key: tuple, value, limit: int) -> None:
+        with self._lock:
+            table[key] = value
+            table.move_to_end(key)
+            while len(table) > limit:
+                table.popitem(last=False)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._frames.clear()
+            self._pairs.clear()
+
+    def stats(self) -> dict[str, Any]:
+        """Entries held and hits/misses per stage."""
+        with self._lock:
+            return dict(frames=len(self._frames), pairs=len(self._pairs), hits=dict(self.hits),
+                        misses=dict(self.misses))
+
+
+@dataclass(frozen=True)
+class _RawFrame:
+    """What segmentation and preprocessing gave for one frame, before the pipeline's own checks."""
+
+    index: int
+    name: str
+    cloud: Cloud | None
+    mask_pixels: int
+
+
+@dataclass
+class _Job:
+    """A frame or pair computed (possibly in a worker thread), with its own stage timings."""
+
+    value: Any
+    timing: dict[str, float]
+
+
+class _Inline:
+    """The executor of ``workers=1``: runs each job at once, in the calling thread."""
+
+    def submit(self, fn, *args) -> Future:
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args))
+        except BaseException as exc:
+            fut.set_exception(exc)
+        return fut
+
+    def shutdown(self, **_kw) -> None:
+        pass
+
+
+_HULLS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def cloud_hull(cloud: Cloud) -> np.ndarray:
+    """The hull vertices of ``cloud.points`` (:func:`~artclass_core.geometry.hull_vertices`), computed
+    once per cloud and remembered while the cloud lives (recomputed if ``cloud.points`` is replaced)."""
+    key = id(cloud)
+    entry = _HULLS.get(key)
+    if entry is not None and entry[0] is cloud.points:
+        return entry[1]
+    vertices = hull_vertices(cloud.points)
+    if entry is None:
+        weakref.finalize(cloud, _HULLS.pop, key, None)
+    _HULLS[key] = (cloud.points, vertices)
+    return vertices
+
+
 class Pipeline:
     """The configured plugins, ready to run stage by stage or on a whole sequence."""
 
@@ -94,6 +268,7 @@ class Pipeline:
             setattr(self, kind, registry.create(kind, getattr(self.config, kind),
                                                 self.config.plugin_params(registry, kind)))
         self._segmenters: dict[str, object] = {}
+        self._lock = threading.Lock()
 
     # -- stage 1 and 2: one frame -> cloud -------------------------------------------------------
     def segmenter_name(self, sequence: Sequence) -> str:
@@ -104,14 +279,34 @@ class Pipeline:
 
     def segmenter(self, sequence: Sequence):
         name = self.segmenter_name(sequence)
-        if name not in self._segmenters:
-            self._segmenters[name] = self.registry.create(
-                "segmenter", name, self.config.plugin_params(self.registry, "segmenter", name))
-        return self._segmenters[name]
+        with self._lock:
+            if name not in self._segmenters:
+                self._segmenters[name] = self.registry.create(
+                    "segmenter", name, self.config.plugin_params(self.registry, "segmenter", name))
+            return self._segmenters[name]
 
-    def frame(self, sequence: Sequence, i: int, *, timing: dict[str, float] | None = None) -> FrameResult:
-        """Read, segment and preprocess frame ``i``. A frame with no object is returned as skipped."""
-        timing = timing if timing is not None else {}
+    def frame(self, sequence: Sequence, i: int, *, timing: dict[str, float] | None = None,
+              cache: StageCache | None = None) -> FrameResult:
+        """Read, segment and preprocess frame ``i``. A frame with no object is returned as skipped.
+
+        With a ``cache``, a frame already processed with the same segmenter and preprocessor (and
+        params) is taken from it.
+        """
+        return self._finish_frame(self._raw_frame(sequence, i, timing if timing is not None else {}, cache))
+
+    def frame_key(self, sequence: Sequence, i: int, cache: StageCache) -> tuple:
+        """The cache key of frame ``i``: the sequence, the frame, the segmenter and the preprocessor."""
+        seg = self.segmenter_name(sequence)
+        return (cache.sequence_token(sequence), i, seg, self.config.plugin_params(self.registry, "segmenter", seg),
+                self.config.preprocessor, self.config.plugin_params(self.registry, "preprocessor"))
+
+    def _raw_frame(self, sequence: Sequence, i: int, timing: dict[str, float], cache: StageCache | None) -> _RawFrame:
+        key = None
+        if cache is not None:
+            key = self.frame_key(sequence, i, cache)
+            hit = cache._get(cache._frames, key, "frame")
+            if hit is not None:
+                return hit
         t0 = time.perf_counter()
         frame = sequence[i]
         t1 = time.perf_counter()
@@ -121,22 +316,46 @@ class Pipeline:
         _add(timing, "segment", t2 - t1)
         n_mask = 0 if mask is None else int(np.count_nonzero(mask))
         if n_mask == 0:
-            return FrameResult(i, frame.name, None, skipped="no object found")
-        cloud = self.preprocessor.process(frame, mask, intrinsics=sequence.intrinsics)
-        _add(timing, "preprocess", time.perf_counter() - t2)
+            raw = _RawFrame(i, frame.name, None, 0)
+        else:
+            cloud = self.preprocessor.process(frame, mask, intrinsics=sequence.intrinsics)
+            _add(timing, "preprocess", time.perf_counter() - t2)
+            raw = _RawFrame(i, frame.name, cloud, n_mask)
+        if cache is not None:
+            cache._put(cache._frames, key, raw, cache.max_frames)
+        return raw
+
+    def _finish_frame(self, raw: _RawFrame) -> FrameResult:
+        if raw.cloud is None:
+            return FrameResult(raw.index, raw.name, None, skipped="no object found")
+        cloud = raw.cloud
         if len(cloud) < self.params.min_cell_points:
-            return FrameResult(i, frame.name, None, skipped=f"only {len(cloud)} object points",
-                               mask_pixels=n_mask, info=dict(cloud.info))
-        return FrameResult(i, frame.name, cloud, mask_pixels=n_mask, info=dict(cloud.info))
+            return FrameResult(raw.index, raw.name, None, skipped=f"only {len(cloud)} object points",
+                               mask_pixels=raw.mask_pixels, info=dict(cloud.info))
+        return FrameResult(raw.index, raw.name, cloud, mask_pixels=raw.mask_pixels, info=dict(cloud.info))
 
     # -- stage 3: a pair of clouds -> per-cell registrations -----------------------------------
     def cell_size(self, source: Cloud, target: Cloud) -> float:
+        """The cell size x: ``cell_size_m``, or 1/5 of the largest distance between points of the pair.
+
+        The largest distance is taken over the two clouds' hull vertices (computed once per cloud),
+        which gives exactly the diameter of the two clouds together.
+        """
         if self.params.cell_size_m is not None:
             return self.params.cell_size_m
-        return max(largest_distance(np.concatenate([source.points, target.points])) / 5.0, 1e-4)
+        return max(diameter_of_vertices(np.concatenate([cloud_hull(source), cloud_hull(target)])) / 5.0, 1e-4)
 
     def register(self, source: Cloud, target: Cloud) -> tuple[list[CellMotion], float]:
-        """Split both clouds over one grid of cells of size x and register each cell with ICP."""
+        """Split both clouds over one grid of cells of size x and register each cell with ICP.
+
+        Cells with fewer than ``min_cell_points`` points in either cloud are not registered; cells
+        without a correspondence or with a fitness below ``min_fitness`` are marked skipped.
+        """
+        cells, x = self._register_raw(source, target)
+        return self.checked_cells(cells), x
+
+    def _register_raw(self, source: Cloud, target: Cloud) -> tuple[tuple[CellMotion, ...], float]:
+        """Per-cell ICP, without the fitness check (which depends on ``min_fitness`` only)."""
         x = self.cell_size(source, target)
         p = self.params
         cells = []
@@ -145,24 +364,34 @@ class Pipeline:
             if min(len(si), len(ti)) < p.min_cell_points:
                 cell.skipped = f"too few points ({len(si)} source, {len(ti)} target)"
             else:
-                reg = self.registrar.register(
+                cell.registration = self.registrar.register(
                     source.points[si], target.points[ti],
                     source_normals=None if source.normals is None else source.normals[si],
                     target_normals=None if target.normals is None else target.normals[ti], cell_size_m=x)
-                cell.registration = reg
-                if reg.n_correspondences == 0:
-                    cell.skipped = "no correspondence"
-                elif reg.fitness < p.min_fitness:
-                    cell.skipped = f"low fitness {reg.fitness:.2f}"
             cells.append(cell)
-        return cells, x
+        return tuple(cells), x
+
+    def checked_cells(self, cells: Iterable[CellMotion]) -> list[CellMotion]:
+        """Copies of registered ``cells`` with the skip reasons of this pipeline's ``min_fitness``, and
+        no cluster (a cell that was not registered keeps its reason)."""
+        out = []
+        for c in cells:
+            reg, skipped = c.registration, c.skipped
+            if reg is not None:
+                skipped = ("no correspondence" if reg.n_correspondences == 0 else
+                           f"low fitness {reg.fitness:.2f}" if reg.fitness < self.params.min_fitness else None)
+            out.append(dataclasses.replace(c, skipped=skipped, cluster=None, key=None))
+        return out
 
     # -- stage 4: registrations -> pair decision ----------------------------------------------
     def decide(self, i: int, j: int, cells: list[CellMotion], source: Cloud, target: Cloud,
                cell_size_m: float) -> PairResult:
-        """Apply the alpha check and the decision rule to a registered pair."""
-        for c in cells:
-            c.cluster = c.key = None
+        """Apply the alpha check and the decision rule to a registered pair.
+
+        The cells are copied first (the returned pair holds the copies, with their clusters), so the
+        same registered cells can be decided again, under another rule, without stale clusters.
+        """
+        cells = [dataclasses.replace(c, cluster=None, key=None) for c in cells]
         pair = PairResult(i, j, "skipped", cells=cells, cell_size_m=cell_size_m)
         n_matched = sum(c.matched for c in cells)
         if not cells or n_matched == 0 or n_matched < self.params.alpha * len(cells):
@@ -179,22 +408,57 @@ class Pipeline:
 
     def pair(self, a: FrameResult, b: FrameResult, *, timing: dict[str, float] | None = None) -> PairResult:
         """Register and decide the pair of two preprocessed frames."""
-        timing = timing if timing is not None else {}
+        return self._pair(a, b, timing if timing is not None else {}, None, None)
+
+    def pair_key(self, sequence: Sequence, i: int, j: int, cache: StageCache) -> tuple:
+        """The cache key of the registrations of pair (i, j): both frames' keys, the registrar and
+        the grid (``cell_size_m``, ``min_cell_points``)."""
+        fi, fj = self.frame_key(sequence, i, cache), self.frame_key(sequence, j, cache)
+        return (fi[0], fi[1:], fj[1:], self.config.registrar, self.config.plugin_params(self.registry, "registrar"),
+                self.params.cell_size_m, self.params.min_cell_points)
+
+    def _pair(self, a: FrameResult, b: FrameResult, timing: dict[str, float], cache: StageCache | None,
+              key: tuple | None) -> PairResult:
         if a.cloud is None or b.cloud is None:
             skipped = a if a.cloud is None else b
             return PairResult(a.index, b.index, "skipped", reason=f"frame {skipped.index} skipped: {skipped.skipped}")
         t0 = time.perf_counter()
-        cells, x = self.register(a.cloud, b.cloud)
+        hit = cache._get(cache._pairs, key, "register") if cache is not None and key is not None else None
+        if hit is None:
+            raw, x = self._register_raw(a.cloud, b.cloud)
+            if cache is not None and key is not None:
+                cache._put(cache._pairs, key, (raw, x), cache.max_pairs)
+        else:
+            raw, x = hit
+        cells = self.checked_cells(raw)
         t1 = time.perf_counter()
         pair = self.decide(a.index, b.index, cells, a.cloud, b.cloud, x)
         _add(timing, "register", t1 - t0)
         _add(timing, "decide", time.perf_counter() - t1)
         return pair
 
+    def _frame_job(self, sequence: Sequence, i: int, cache: StageCache | None) -> _Job:
+        timing: dict[str, float] = {}
+        return _Job(self._raw_frame(sequence, i, timing, cache), timing)
+
+    def _pair_job(self, a: FrameResult, b: FrameResult, cache: StageCache | None, key: tuple | None) -> _Job:
+        timing: dict[str, float] = {}
+        return _Job(self._pair(a, b, timing, cache, key), timing)
+
     # -- the whole sequence ---------------------------------------------------------------------
-    def run(self, sequence: Sequence, *, progress: Progress | None = None, keep_clouds: bool = False) -> RunResult:
+    def run(self, sequence: Sequence, *, progress: Progress | None = None, keep_clouds: bool = False,
+            workers: int = 1, cache: StageCache | None = None) -> RunResult:
         """Classify a sequence. Streams: each frame is read and preprocessed once, and only the
         clouds of pending pairs are held.
+
+        Parameters
+        ----------
+        sequence : the sequence
+        progress : called as ``progress("pairs", done, total)`` as pairs complete, in order
+        keep_clouds : keep every frame's cloud in the result (for display or :meth:`redecide`);
+            otherwise a cloud is dropped as soon as the pairs that use it are done
+        workers : threads that process frames and pairs; the result is identical for any number
+        cache : a :class:`StageCache` to take clouds and registrations from and to fill
 
         Raises
         ------
@@ -205,24 +469,54 @@ class Pipeline:
         n = len(sequence)
         if n < k + 1:
             raise InputError(f"sequence has {n} frames; k = {k} needs at least {k + 1}", path=sequence.path)
+        if not (isinstance(workers, int) and workers >= 1):
+            raise ParamError(f"workers = {workers!r} must be a positive integer")
         t_start = time.perf_counter()
         timing = {s: 0.0 for s in STAGES}
         frames: list[FrameResult] = []
         pairs: list[PairResult] = []
         pending: dict[int, FrameResult] = {}
-        for j in range(n):
-            fr = self.frame(sequence, j, timing=timing)
-            frames.append(fr)
-            pending[j] = fr
-            if j >= k:
-                first = pending.pop(j - k)
-                pair = self.pair(first, fr, timing=timing)
-                pair.truth = sequence.pair_truth(j - k, j)
+        self.segmenter(sequence)                      # created once, before any worker asks for it
+        executor = _Inline() if workers == 1 else ThreadPoolExecutor(workers, thread_name_prefix="artclass")
+        ahead = 0 if workers == 1 else 2 * workers    # frames read ahead of the one being collected
+        frame_jobs: dict[int, Future] = {}
+        pair_jobs: deque[tuple[FrameResult, Future]] = deque()
+        submitted = 0
+
+        def collect(block: bool) -> None:
+            while pair_jobs and (block or pair_jobs[0][1].done()):
+                first, fut = pair_jobs.popleft()
+                job = fut.result()
+                _merge(timing, job.timing)
+                pair = job.value
+                pair.truth = sequence.pair_truth(pair.i, pair.j)
                 pairs.append(pair)
                 if not keep_clouds:
                     first.cloud = None
                 if progress:
                     progress("pairs", len(pairs), n - k)
+                block = block and len(pair_jobs) > 2 * workers
+
+        try:
+            for j in range(n):
+                while submitted < min(n, j + ahead + 1):
+                    frame_jobs[submitted] = executor.submit(self._frame_job, sequence, submitted, cache)
+                    submitted += 1
+                job = frame_jobs.pop(j).result()
+                _merge(timing, job.timing)
+                fr = self._finish_frame(job.value)
+                frames.append(fr)
+                pending[j] = fr
+                if j >= k:
+                    first = pending.pop(j - k)
+                    key = (self.pair_key(sequence, j - k, j, cache)
+                           if cache is not None and first.cloud is not None and fr.cloud is not None else None)
+                    pair_jobs.append((first, executor.submit(self._pair_job, first, fr, cache, key)))
+                collect(block=len(pair_jobs) > 2 * workers)
+            while pair_jobs:
+                collect(block=True)
+        finally:
+            executor.shutdown(wait=True, cancel_futures=True)
         if all(f.skipped for f in frames):
             reasons = Counter(f.skipped for f in frames).most_common(1)[0][0]
             raise InputError(f"no object in any of the {n} frames (segmenter "
@@ -233,29 +527,92 @@ class Pipeline:
         timing["total"] = time.perf_counter() - t_start
         return self.summarise(sequence, frames, pairs, timing)
 
+    def redecide(self, result: RunResult, *, sequence: Sequence | None = None,
+                 cache: StageCache | None = None) -> RunResult:
+        """Decide a finished run again under this pipeline's decision settings, reusing its registrations.
+
+        The decision settings are the rule and its params, ``alpha``, ``min_fitness`` and ``w``; no
+        frame is read and no ICP runs. The rule is given the pair's clouds: they come from
+        ``result.frames`` (a run with ``keep_clouds=True``) or, failing that, from ``cache`` (the
+        :class:`StageCache` the run used, with its ``sequence``).
+
+        Raises
+        ------
+        ArtclassError
+            when ``result`` was produced with other frame or registration settings (segmenter,
+            preprocessor, registrar, their params, ``k``, ``cell_size_m``, ``min_cell_points``): run
+            again instead (with the same cache, the clouds are reused), or when the clouds are missing.
+        """
+        t_start = time.perf_counter()
+        self._check_same_registrations(result)
+        clouds = {f.index: f.cloud for f in result.frames if f.cloud is not None}
+        needed = sorted({i for p in result.pairs if p.cells for i in (p.i, p.j)} - clouds.keys())
+        if needed:
+            if cache is None or sequence is None:
+                raise ArtclassError(f"re-deciding needs the clouds of frames {needed[:5]}{'...' if len(needed) > 5 else ''}: "
+                                    f"run with keep_clouds=True, or pass the run's StageCache and its sequence")
+            for i in needed:
+                clouds[i] = self.frame(sequence, i, cache=cache).cloud
+        timing = {"decide": 0.0}
+        pairs = []
+        for p in result.pairs:
+            if not p.cells:   # a frame of the pair was skipped: nothing was registered
+                pairs.append(dataclasses.replace(p))
+                continue
+            t0 = time.perf_counter()
+            new = self.decide(p.i, p.j, self.checked_cells(p.cells), clouds[p.i], clouds[p.j], p.cell_size_m)
+            _add(timing, "decide", time.perf_counter() - t0)
+            new.truth = p.truth
+            pairs.append(new)
+        frames = [dataclasses.replace(f) for f in result.frames]
+        timing["total"] = time.perf_counter() - t_start
+        return self._summarise(dict(result.sequence), result.plugins["segmenter"], frames, pairs, timing)
+
+    def _check_same_registrations(self, result: RunResult) -> None:
+        mine = {kind: getattr(self.config, kind) for kind in ("segmenter", "preprocessor", "registrar")}
+        if mine["segmenter"] == AUTO_SEGMENTER:
+            mine["segmenter"] = result.plugins.get("segmenter")
+        changed = [f"{kind} {result.plugins.get(kind)!r} -> {name!r}" for kind, name in mine.items()
+                   if result.plugins.get(kind) != name]
+        if not changed:
+            for kind, name in mine.items():
+                now = as_dict(self.config.plugin_params(self.registry, kind, name))
+                before = result.params.get(kind, {})
+                changed += [f"{kind} {n} {before.get(n)!r} -> {v!r}" for n, v in now.items() if before.get(n) != v]
+        before = result.params.get("pipeline", {})
+        changed += [f"{n} {before.get(n)!r} -> {getattr(self.params, n)!r}" for n in ("k", "cell_size_m", "min_cell_points")
+                    if before.get(n) != getattr(self.params, n)]
+        if changed:
+            raise ArtclassError("cannot re-decide: the registrations depend on settings that changed ("
+                                + "; ".join(changed) + "); run the sequence again")
+
     def summarise(self, sequence: Sequence, frames: list[FrameResult], pairs: list[PairResult],
                   timing: dict[str, float]) -> RunResult:
         """Filter the pair decisions, label the sequence and record how it was obtained."""
+        info = dict(name=sequence.name, path=str(sequence.path), object=sequence.object_name,
+                    n_frames=len(sequence), truth=sequence.label)
+        return self._summarise(info, self.segmenter_name(sequence), frames, pairs, timing)
+
+    def _summarise(self, sequence_info: dict[str, Any], segmenter: str, frames: list[FrameResult],
+                   pairs: list[PairResult], timing: dict[str, float]) -> RunResult:
         decided = [p.decision for p in pairs if p.decision != "skipped"]
         filtered = max_count_filter(decided, w=self.params.w)
         plugins = {kind: getattr(self.config, kind) for kind in PLUGIN_KINDS}
-        plugins["segmenter"] = self.segmenter_name(sequence)
+        plugins["segmenter"] = segmenter
         params = {"pipeline": as_dict(self.params)}
         for kind in PLUGIN_KINDS:
             params[kind] = as_dict(self.config.plugin_params(self.registry, kind, plugins[kind]))
         return RunResult(
-            sequence=dict(name=sequence.name, path=str(sequence.path), object=sequence.object_name,
-                          n_frames=len(sequence), truth=sequence.label),
-            label=sequence_label(filtered), fractions=fractions(decided), pairs=pairs, filtered=filtered,
-            frames=frames, params=params, plugins=plugins, timing_s={k: round(v, 4) for k, v in timing.items()},
-            version=_version())
+            sequence=sequence_info, label=sequence_label(filtered), fractions=fractions(decided), pairs=pairs,
+            filtered=filtered, frames=frames, params=params, plugins=plugins,
+            timing_s={k: round(v, 4) for k, v in timing.items()}, version=_version())
 
 
 def max_count_filter(decisions: list[str], *, w: int) -> list[str]:
     """Moving max-count (mode) filter with a centred window of ``w`` decisions.
 
-    A tie goes to the decision at the window's centre if it is among the tied, else to the least
-    severe of the tied (NM < RM < AM), so an isolated AM cannot win a tie.
+    A tie goes to the least severe of the tied (NM < RM < AM), so an isolated AM cannot win a tie,
+    not even in the truncated windows at the ends of the sequence.
     """
     out = []
     before = (w - 1) // 2
@@ -264,7 +621,7 @@ def max_count_filter(decisions: list[str], *, w: int) -> list[str]:
         counts = Counter(window)
         top = max(counts.values())
         tied = [d for d in counts if counts[d] == top]
-        out.append(decisions[t] if decisions[t] in tied else min(tied, key=SEVERITY.__getitem__))
+        out.append(min(tied, key=SEVERITY.__getitem__))
     return out
 
 
@@ -278,6 +635,11 @@ def fractions(decided: list[str]) -> dict[str, float]:
     """Share of the decided pairs in each class (the paper's per-sequence "probabilities")."""
     n = len(decided)
     return {d: (decided.count(d) / n if n else 0.0) for d in DECISIONS}
+
+
+def _merge(timing: dict[str, float], more: dict[str, float]) -> None:
+    for stage, seconds in more.items():
+        _add(timing, stage, seconds)
 
 
 def _add(timing: dict[str, float], stage: str, seconds: float) -> None:
