@@ -112,7 +112,7 @@ def test_folder_reader_reads_every_sample():
 
 # -- segmenters ---------------------------------------------------------------------------------------
 
-SEGMENT_SEQ = make_sequence("hinge", n_frames=6)
+SEGMENT_SEQ = make_sequence("hinge", n_frames=4)
 
 
 def segment(name: str, frame: Frame, seq: Sequence):
