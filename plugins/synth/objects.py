@@ -234,7 +234,8 @@ def cylinder(radius_m, length_m, centre_m, colour, *, axis=(0, 0, 1), resolution
     return _piece(_place(v, R=_z_to(axis), t=centre_m), f, colour, **kw)
 
 
-def cone(radius_m, height_m, base_centre_m, colour, *, axis=(0, 0, 1), resolution=20, **kw) -> Piece:
+def cone(radius_m, height_m, base_centre_m, colour, *, axis=(0, 0, 1), resolution=20,
+         **kw) -> Piece:
     """A cone whose base disc is at ``base_centre_m``, pointing along ``axis``."""
     v, f = _legacy_arrays(o3d.geometry.TriangleMesh.create_cone(radius_m, height_m, resolution, 1))
     return _piece(_place(v, R=_z_to(axis), t=base_centre_m), f, colour, **kw)
@@ -488,7 +489,8 @@ def _drill() -> ObjectSpec:
         cylinder(0.003, 0.07, (-0.18, 0, 0.205), metal, axis=(1, 0, 0), resolution=8,
                  pattern="plain"),
     )
-    return ObjectSpec("drill", "rigid", "cordless drill (rigid composite)", (Part("drill", pieces),))
+    return ObjectSpec("drill", "rigid", "cordless drill (rigid composite)",
+                      (Part("drill", pieces),))
 
 
 def _banana() -> ObjectSpec:
@@ -503,8 +505,10 @@ def _banana() -> ObjectSpec:
         x, y = arc_r * math.sin(a), arc_r * (1 - math.cos(a)) - 0.04
         pieces.append(sphere(r, (x, y, 0.02), yellow, resolution=10, colour2=(0.7, 0.6, 0.1),
                              pattern="stripes", cell_m=0.01))
-    pieces.append(cylinder(0.004, 0.02, (arc_r * math.sin(55 * _DEG), arc_r * (1 - math.cos(55 * _DEG)) - 0.04, 0.02),
-                           (0.35, 0.28, 0.10), axis=(math.cos(55 * _DEG), math.sin(55 * _DEG), 0),
+    stem = 55 * _DEG
+    pieces.append(cylinder(0.004, 0.02,
+                           (arc_r * math.sin(stem), arc_r * (1 - math.cos(stem)) - 0.04, 0.02),
+                           (0.35, 0.28, 0.10), axis=(math.cos(stem), math.sin(stem), 0),
                            resolution=6, pattern="plain"))
     return ObjectSpec("banana", "rigid", "banana-like curved shape (rigid)",
                       (Part("banana", tuple(pieces)),))

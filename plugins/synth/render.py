@@ -199,7 +199,8 @@ def _invert(T: np.ndarray) -> np.ndarray:
     return Ti
 
 
-def object_meshes(spec: ObjectSpec, q: float | None, T_world_from_object: np.ndarray) -> list[SceneMesh]:
+def object_meshes(spec: ObjectSpec, q: float | None,
+                  T_world_from_object: np.ndarray) -> list[SceneMesh]:
     """The pieces of ``spec`` at joint position ``q`` placed by ``T_world_from_object``."""
     out = []
     for part_index, part in enumerate(spec.parts):
