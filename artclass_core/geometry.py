@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial import ConvexHull, QhullError, cKDTree
+from scipy.spatial.distance import pdist
 from scipy.spatial.transform import Rotation
 
 
@@ -96,8 +97,7 @@ def diameter_of_vertices(vertices: np.ndarray) -> float:
     """Largest distance between any two of ``vertices`` (N, 3); 0 for fewer than two."""
     if len(vertices) < 2:
         return 0.0
-    d2 = ((vertices[:, None, :] - vertices[None, :, :]) ** 2).sum(-1)
-    return float(np.sqrt(d2.max()))
+    return float(np.sqrt(pdist(vertices, "sqeuclidean").max()))   # no (V, V, 3) temporary
 
 
 def _flat_hull(points: np.ndarray) -> np.ndarray:
@@ -144,3 +144,39 @@ def grid_cells(source: np.ndarray, target: np.ndarray, *, cell_size_m: float):
         centre = origin + (cell + 0.5) * cell_size_m
         out.append((tuple(int(v) for v in cell), centre, members[members < n_s], members[members >= n_s] - n_s))
     return out
+
+
+def statistical_inliers(points: np.ndarray, *, neighbours: int, std_ratio: float) -> np.ndarray:
+    """Indices of the points kept by statistical outlier removal, exactly as Open3D's
+    ``PointCloud.remove_statistical_outlier(nb_neighbors, std_ratio)`` keeps them.
+
+    Each point's mean distance to its ``neighbours`` nearest points (itself included, as Open3D
+    counts it) is compared with the mean ``mu`` and the sample standard deviation ``sigma`` of those
+    means over the cloud; a point is kept when its mean is above 0 and below ``mu + std_ratio *
+    sigma``. Computed with SciPy's KD-tree, which releases the GIL, so several frames can be
+    processed in parallel threads (Open3D's version holds it).
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 3)
+    neighbours : int, >= 1
+    std_ratio : float
+
+    Returns
+    -------
+    ndarray of int64, shape (K,) : indices into ``points``, ascending
+    """
+    n = len(points)
+    if n == 0 or neighbours < 1:
+        return np.arange(0)
+    k = min(neighbours, n)
+    distances, _ = cKDTree(points).query(points, k=k)
+    distances = distances.reshape(n, k)
+    mean = distances.sum(axis=1) / k
+    valid = mean > 0
+    n_valid = int(valid.sum())
+    if n_valid == 0:
+        return np.arange(0)
+    mu = mean[valid].sum() / n_valid
+    sigma = np.sqrt(((mean[valid] - mu) ** 2).sum() / (n_valid - 1)) if n_valid > 1 else 0.0
+    return np.flatnonzero(valid & (mean < mu + std_ratio * sigma))

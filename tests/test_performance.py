@@ -359,3 +359,22 @@ def test_quaternion_equals_scipy():
     assert np.array_equal(quaternion_wxyz(np.eye(3)), [1.0, 0.0, 0.0, 0.0])
     with pytest.raises(ValueError):
         quaternion_wxyz(np.diag([1.0, 1.0, -1.0]))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_statistical_inliers_equal_open3d(seed):
+    import open3d as o3d
+
+    from artclass_core.geometry import statistical_inliers
+
+    rng = np.random.default_rng(seed)
+    surface = np.column_stack([rng.uniform(-0.1, 0.1, (3000, 2)), np.full(3000, 0.7)])
+    surface[:, 2] += rng.normal(scale=0.001, size=3000)
+    flying = rng.uniform([-0.1, -0.1, 0.5], [0.1, 0.1, 0.9], (60, 3))
+    points = np.concatenate([surface, flying, surface[:5]])          # duplicates too
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    for neighbours, ratio in ((20, 0.5), (8, 2.0), (1, 1.0)):
+        _, want = pcd.remove_statistical_outlier(nb_neighbors=neighbours, std_ratio=ratio)
+        got = statistical_inliers(points, neighbours=neighbours, std_ratio=ratio)
+        assert np.array_equal(got, np.asarray(want)), (neighbours, ratio)
+    assert len(statistical_inliers(points, neighbours=20, std_ratio=0.5)) < len(points) - 40   # flyers go
