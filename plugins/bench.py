@@ -14,8 +14,10 @@ cached under ``$XDG_CACHE_HOME/artclass/bench`` keyed by the generator's version
   resident memory after 10 % of the pairs and at the end (it must not grow with the length).
 
 Every measurement runs in a fresh (spawned) process so that its peak memory is its own. Stage times
-are summed over the worker threads; with more than one worker they add up to more than the wall
-time, and the throughput that counts is the ``total`` row (wall clock).
+are wall-clock times summed over the worker threads; with more than one worker they add up to more
+than the wall time, and the throughput that counts is the ``total`` row (wall clock). On a shared,
+busy machine wall times stretch with the load average (printed with every run); the process CPU
+time ("pairs per CPU-second") does not.
 """
 
 from __future__ import annotations
@@ -237,7 +239,7 @@ def measure_redecide(spec: dict) -> dict:
         out["cache_stats"] = cache.stats()
         if hasattr(Pipeline, "redecide"):
             t0 = time.perf_counter()
-            redecided = Pipeline(registry, new_config).redecide(first, cache=cache)
+            redecided = Pipeline(registry, new_config).redecide(first, sequence=seq, cache=cache)
             out["redecide_s"] = time.perf_counter() - t0
             out["redecide_equals_cached_rerun"] = (
                 [p.decision for p in redecided.pairs] == [p.decision for p in again.pairs])
@@ -303,7 +305,8 @@ def format_run(m: dict) -> str:
     if "error" in m:
         return f"{head}\n  error: {m['error']}\n"
     lines = [f"{head}: {m['n_frames']} frames, {m['n_pairs']} pairs ({m['n_decided']} decided), "
-             f"label {m['label']}; wall {m['wall_s']:.2f} s, CPU {m['cpu_s']:.2f} s, "
+             f"label {m['label']}; wall {m['wall_s']:.2f} s, CPU {m['cpu_s']:.2f} s "
+             f"({m['n_pairs'] / m['cpu_s']:.1f} pairs per CPU-second), "
              f"peak RSS {m['peak_rss_mb']:.0f} MB (after imports {m['rss_base_mb']:.0f} MB), load {m['load']:.1f}",
              f"  {'stage':<11}{'seconds':>9}{'frames/s':>10}{'pairs/s':>10}{'ms/frame':>10}{'ms/pair':>10}"]
     for stage, s, fps, pps, mspf, mspp in stage_rows(m):
@@ -364,7 +367,10 @@ def run_bench(args) -> int:
         out.write(f"benchmark sequence: {path} (ready in {time.perf_counter() - t0:.1f} s)\n")
     segmenters = [s for s in _csv(args.segmenters) if s in registry.names("segmenter")]
     missing = [s for s in _csv(args.segmenters) if s not in registry.names("segmenter")]
-    registrars = _csv(args.registrars) if args.registrars != "all" else registry.names("registrar")
+    from artclass_core import Config
+    default_registrar = Config().registrar
+    registrars = _csv(args.registrars) if args.registrars != "all" else sorted(
+        registry.names("registrar"), key=lambda r: (r != default_registrar, r))   # the default first
     workers = [int(w) for w in _csv(args.workers)]
     rev = os.popen("git -C {} rev-parse --short HEAD 2>/dev/null".format(Path(__file__).resolve().parent)).read().strip()
     out.write(f"artclass bench: commit {rev or 'unknown'}, {os.cpu_count()} CPUs, Python {sys.version.split()[0]}, "

@@ -378,3 +378,44 @@ def test_statistical_inliers_equal_open3d(seed):
         got = statistical_inliers(points, neighbours=neighbours, std_ratio=ratio)
         assert np.array_equal(got, np.asarray(want)), (neighbours, ratio)
     assert len(statistical_inliers(points, neighbours=20, std_ratio=0.5)) < len(points) - 40   # flyers go
+
+
+# -- the benchmark command (its numbers are printed, not judged; here only that it runs and reports) ---
+
+def test_cycled_sequence_plays_back_and_forth(sample_dir, registry):
+    from artclass_core import open_sequences
+    from artclass_plugins.bench import CycledSequence
+
+    base = open_sequences(registry, sample_dir / "drawer_carry_articulate")[0]
+    n = len(base)
+    long = CycledSequence(base, 5 * n)
+    order = [long.base_index(i) for i in range(len(long))]
+    assert order[:n] == list(range(n)) and order[n:2 * n - 1] == list(range(n - 2, -1, -1))
+    assert all(abs(a - b) == 1 for a, b in zip(order, order[1:])), "neighbours stay neighbours"
+    f = long[n + 1]
+    assert f.index == n + 1 and np.array_equal(f.depth_m, base[n - 3].depth_m)
+    assert f.depth_m is not base[n - 3].depth_m, "copies, so the base's cache is not pinned"
+
+
+@pytest.mark.slow
+def test_bench_command_reports_every_stage(sample_dir, tmp_path, capsys):
+    import json
+
+    from artclass_core.cli import main
+
+    out = tmp_path / "bench.json"
+    status = main(["bench", "--sequence", str(sample_dir / "drawer_carry_articulate"), "--segmenters", "mask",
+                   "--registrars", "icp_point_to_point", "--workers", "1,2", "--long-frames", "40",
+                   "--json", str(out)])
+    text = capsys.readouterr().out
+    assert status == 0
+    for stage in ("read", "segment", "preprocess", "register", "decide", "total"):
+        assert text.count(f"\n  {stage} ") == 2, f"stage {stage} missing from {text}"
+    assert "re-decide after a rule change" in text and "long sequence (40 frames" in text
+    data = json.loads(out.read_text())
+    assert [r["spec"]["workers"] for r in data["runs"]] == [1, 2]
+    assert all("error" not in r and r["n_pairs"] > 0 and r["wall_s"] > 0 and r["peak_rss_mb"] > 0
+               for r in data["runs"])
+    assert data["runs"][0]["label"] == data["runs"][1]["label"]
+    assert data["redecide"]["redecide_equals_cached_rerun"] is True
+    assert data["long"]["n_pairs"] == 40 - 5
