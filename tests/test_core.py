@@ -147,19 +147,19 @@ class TestMaxCountFilter:
         d = ["RM", "RM", "AM", "AM", "RM", "RM", "RM"]
         assert max_count_filter(d, w=3) == d
         assert max_count_filter(d, w=5) == ["RM"] * 7
-        # the window is cut at the ends: there the two AMs hold on
-        assert max_count_filter(["RM", "AM", "AM", "RM", "RM"], w=5)[:2] == ["AM", "AM"]
+        # the window is cut at the ends: at the first pair [RM, AM, AM] keeps AM, at the second the
+        # tie [RM, AM, AM, RM] goes to the less severe RM
+        assert max_count_filter(["RM", "AM", "AM", "RM", "RM"], w=5) == ["AM", "RM", "RM", "RM", "RM"]
 
-    def test_tie_goes_to_the_centre(self):
-        # at t = 1 the window [AM, NM, RM] is a three-way tie: the centre NM stays
+    def test_tie_goes_to_the_least_severe(self):
         assert max_count_filter(["AM", "NM", "RM"], w=3)[1] == "NM"
-        # at the first position the window is [AM, NM]: the centre AM is among the tied
-        assert max_count_filter(["AM", "NM"], w=3)[0] == "AM"
-
-    def test_tie_without_centre_goes_to_least_severe(self):
+        # also in the truncated windows at the ends: an isolated AM cannot win a tie
+        assert max_count_filter(["AM", "NM"], w=3) == ["NM", "NM"]
+        assert max_count_filter(["RM", "AM"], w=3) == ["RM", "RM"]
         # centre NM has one vote; RM and AM tie with two: RM (less severe than AM) wins
         assert max_count_filter(["AM", "RM", "NM", "AM", "RM"], w=5)[2] == "RM"
         assert max_count_filter(["AM", "AM", "RM", "NM", "NM"], w=5)[2] == "NM"
+        assert max_count_filter(["AM", "AM", "RM", "RM"], w=4)[1] == "RM"
 
     def test_length_and_empty(self):
         assert max_count_filter([], w=3) == []
