@@ -42,8 +42,10 @@ registration can be decided again and again without stale clusters.
 
 Throughput
 ----------
-``run(sequence, workers=N)`` spreads frames and pairs over N threads (the heavy parts, OpenCV image
-decoding, SciPy KD-trees and Open3D ICP, release the GIL). Every frame and pair is computed by the
+``run(sequence, workers=N)`` spreads frames and pairs over N threads. OpenCV image decoding, SciPy
+KD-trees, NumPy and Open3D ICP release the GIL; Open3D's statistical outlier removal and normal
+estimation hold it, so with the ``paper`` preprocessor (whose outlier removal is most of a frame's
+cost) a second worker gains little; measure with ``artclass bench``. Every frame and pair is computed by the
 same deterministic function whatever thread runs it, and results are collected in frame order, so
 the result is identical for any number of workers. At most about ``2 * workers + k`` frames are in
 flight at once, so the peak memory does not depend on the sequence length; only the result grows, by
