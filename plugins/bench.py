@@ -159,8 +159,6 @@ def _run_kwargs(pipeline, spec: dict) -> dict:
         kw["workers"] = spec.get("workers", 1)
     elif spec.get("workers", 1) != 1:
         raise RuntimeError("this Pipeline.run has no `workers` option")
-    if spec.get("long_frames") and _supports(pipeline.run, "keep_cells"):
-        kw["keep_cells"] = spec.get("keep_cells", "summary")
     return kw
 
 
@@ -353,6 +351,9 @@ def run_bench(args) -> int:
 
     registry = load_registry()
     out = sys.stdout
+    if args.quick:
+        from artclass_core import Config
+        args.segmenters, args.registrars, args.workers, args.long_frames = "mask", Config().registrar, "1", 0
     if args.sequence:
         path = str(args.sequence)
     else:
@@ -373,8 +374,9 @@ def run_bench(args) -> int:
         registry.names("registrar"), key=lambda r: (r != default_registrar, r))   # the default first
     workers = [int(w) for w in _csv(args.workers)]
     rev = os.popen("git -C {} rev-parse --short HEAD 2>/dev/null".format(Path(__file__).resolve().parent)).read().strip()
-    out.write(f"artclass bench: commit {rev or 'unknown'}, {os.cpu_count()} CPUs, Python {sys.version.split()[0]}, "
-              f"load average {os.getloadavg()[0]:.1f}\n\n")
+    import artclass_core
+    out.write(f"artclass bench: commit {rev or 'unknown'} (core from {Path(artclass_core.__file__).parent}), "
+              f"{os.cpu_count()} CPUs, Python {sys.version.split()[0]}, load average {os.getloadavg()[0]:.1f}\n\n")
     for name in missing:
         out.write(f"segmenter {name!r} is not registered: skipped\n\n")
     results: dict[str, Any] = dict(sequence=path, runs=[], commit=rev)
@@ -420,6 +422,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--long-frames", type=int, default=1000,
                    help="length of the memory test sequence (0 = skip; default 1000)")
     p.add_argument("--skip-redecide", action="store_true", help="skip the re-decide measurement")
+    p.add_argument("--quick", action="store_true",
+                   help="a short check: the mask segmenter, the default registrar, 1 worker, no long sequence")
     p.add_argument("--json", metavar="FILE", help="also write every number to this JSON file")
 
 
