@@ -138,8 +138,10 @@ def test_unmatched_flicker_cannot_win_but_a_vanished_object_scores():
     d0, m0 = box_scene({})
     blob = np.zeros((H, W), bool)
     blob[100:115, 20:40] = True              # a segment on the plane, seen in one frame only
+    before = blob.copy()
     scores, matches, _ = change_scores([m0["a"], blob], d0, [m0["a"]], d0, change_m=0.01)
     assert matches[1][0] is None and scores[1] == 0.0
+    assert np.array_equal(blob, before)          # the instances are not modified
     gone, _ = box_scene({}, sizes={"a": (20, 10, 30, 30)})   # box b removed in the other frame
     scores, matches, _ = change_scores([m0["a"], m0["b"]], d0, [m0["a"]], gone, change_m=0.01)
     assert matches[1][0] is None and scores[1] > 0.9

@@ -19,7 +19,7 @@ import numpy as np
 
 from artclass_core import Intrinsics, Params, param
 
-__all__ = ["BackgroundParams", "Plane", "fit_planes", "background_mask", "range_mask", "ransac_plane"]
+__all__ = ["BackgroundParams", "Plane", "fit_planes", "background_mask", "range_mask", "ransac_plane", "clean_depth"]
 
 
 @dataclass(frozen=True)
@@ -69,6 +69,15 @@ class BackgroundParams(Params):
             raise ParamError(f"parameter far_m = {self.far_m} must be greater than near_m = {self.near_m}")
 
 
+def clean_depth(depth_m: np.ndarray) -> np.ndarray:
+    """Depth as float32 with NaN and infinities replaced by 0 (no reading); no copy when already clean."""
+    d = np.asarray(depth_m, dtype=np.float32)
+    bad = ~np.isfinite(d)
+    if bad.any():
+        d = np.where(bad, np.float32(0), d)
+    return d
+
+
 @functools.lru_cache(maxsize=8)
 def _rays(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel ray slopes ((u - cx) / fx, (v - cy) / fy), float32, shapes (1, W) and (H, 1)."""
@@ -79,7 +88,7 @@ def _rays(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -
 
 def range_mask(depth_m: np.ndarray, *, near_m: float, far_m: float) -> np.ndarray:
     """Pixels with a depth reading inside ``[near_m, far_m]``: ndarray of bool, shape (H, W)."""
-    d = np.nan_to_num(depth_m, nan=0.0)
+    d = clean_depth(depth_m)
     return (d >= near_m) & (d <= far_m) & (d > 0)
 
 
@@ -146,7 +155,7 @@ def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: Backgroun
     list of Plane, oriented towards the camera
     """
     s = params.plane_stride_px
-    d = np.nan_to_num(np.asarray(depth_m, dtype=np.float32)[::s, ::s], nan=0.0)
+    d = clean_depth(np.asarray(depth_m)[::s, ::s])
     rx, ry = _rays(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height)
     valid = (d >= params.near_m) & (d <= params.far_m) & (d > 0)
     z = d[valid].astype(np.float64)
@@ -192,7 +201,7 @@ def background_mask(depth_m: np.ndarray, intrinsics: Intrinsics, planes: list[Pl
     valid : ndarray of bool, shape (H, W)
         pixels with a depth reading (> 0, finite)
     """
-    d = np.nan_to_num(np.asarray(depth_m, dtype=np.float32), nan=0.0)
+    d = clean_depth(depth_m)
     valid = d > 0
     background = valid & ((d < params.near_m) | (d > params.far_m))
     rx, ry = _rays(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height)

@@ -1,0 +1,150 @@
+"""Benchmark of the segmenters: milliseconds per 640x480 frame, and mask quality (IoU).
+
+Not a test: it prints numbers. Run from the repository root::
+
+    .venv/bin/python benchmarks/bench_segmenters.py                    # mask, depth_threshold, u2net
+    .venv/bin/python benchmarks/bench_segmenters.py --maskrcnn-model /path/MaskRCNN-12.onnx
+    .venv/bin/python benchmarks/bench_segmenters.py --repeat 3 --segmenters depth_threshold
+
+Timing: the YCB-Video excerpts (../shared/data/ycbv, 640x480 real RGB-D, 15 frames) are read into
+memory first, so disk reading is excluded; each repeat segments every frame with a fresh segmenter
+object (no cached masks), so the time per frame covers the per-frame work (instances) and the
+manipulated-instance selection. The best of ``--repeat`` runs is reported, with the median.
+
+Quality: on YCB-Video, the IoU of the chosen mask with the union of the labelled objects and with
+the best-matching single object; on the synthetic ``sample_data/`` sequences, the IoU with the
+ground-truth mask.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from artclass_core import ArtclassError, Frame, Sequence, load_registry, open_sequences
+from artclass_plugins.segmenters.selection import mask_iou
+
+ROOT = Path(__file__).resolve().parents[1]
+YCBV = (ROOT / ".." / "shared" / "data" / "ycbv").resolve()
+
+
+class Preloaded(Sequence):
+    """A sequence held in memory (frames copied from a reader's sequence)."""
+
+    def __init__(self, source: Sequence):
+        super().__init__(name=source.name, path=source.path, intrinsics=source.intrinsics, n_frames=len(source),
+                         has_masks=source.has_masks)
+        self.frames = [source[i] for i in range(len(source))]
+        self.cache_frames = len(source)
+
+    def load(self, i: int) -> Frame:
+        return self.frames[i]
+
+
+def make(registry, name: str, overrides: dict[str, str]):
+    cls = registry.get("segmenter", name)
+    fields = {k: v for k, v in overrides.items() if k in cls.Params.__dataclass_fields__}
+    return cls(cls.Params(**fields))
+
+
+def time_segmenter(registry, name: str, sequences: list[Sequence], *, repeat: int, overrides) -> list[float]:
+    """ms per frame of each repeat (fresh segmenter each time, all frames of all sequences)."""
+    out = []
+    n = sum(len(s) for s in sequences)
+    for _ in range(repeat):
+        seg = make(registry, name, overrides)
+        t0 = time.perf_counter()
+        for seq in sequences:
+            for i in range(len(seq)):
+                seg.segment(seq[i], sequence=seq)
+        out.append(1000 * (time.perf_counter() - t0) / n)
+    return out
+
+
+def ycbv_quality(registry, name: str, scenes: dict[str, list[Sequence]], overrides) -> str:
+    parts = []
+    for scene, seqs in scenes.items():
+        seg = make(registry, name, overrides)
+        union, best = [], []
+        for i in range(len(seqs[0])):
+            mask = seg.segment(seqs[0][i], sequence=seqs[0])
+            labelled = [s[i].mask for s in seqs]
+            if mask is None:
+                union.append(0.0)
+                best.append(0.0)
+                continue
+            union.append(mask_iou(mask, np.any(labelled, axis=0)))
+            best.append(max(mask_iou(mask, m) for m in labelled))
+        parts.append(f"ycbv/{scene}: IoU union {np.mean(union):.3f} (min {np.min(union):.3f}), "
+                     f"best single {np.mean(best):.3f}")
+    return "; ".join(parts)
+
+
+def synthetic_quality(registry, name: str, folders: list[Path], overrides) -> str:
+    parts = []
+    for folder in folders:
+        seq = open_sequences(registry, folder)[0]
+        seg = make(registry, name, overrides)
+        ious = []
+        for i in range(len(seq)):
+            mask = seg.segment(seq[i], sequence=seq)
+            ious.append(0.0 if mask is None else mask_iou(mask, seq[i].mask))
+        parts.append(f"{folder.name} {np.mean(ious):.3f}")
+    return "synthetic IoU: " + ", ".join(parts)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--segmenters", default="mask,depth_threshold,u2net")
+    ap.add_argument("--maskrcnn-model", help="a MaskRCNN-10/12 ONNX file: also benchmark maskrcnn")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--no-quality", action="store_true", help="timings only")
+    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                    help="segmenter parameter (applied where the segmenter has it)")
+    args = ap.parse_args(argv)
+    if not YCBV.is_dir():
+        print(f"bench_segmenters: {YCBV} is absent; it holds the 640x480 frames this benchmark times", file=sys.stderr)
+        return 1
+    overrides = dict(item.split("=", 1) for item in args.param)
+    for k, v in list(overrides.items()):
+        for cast in (int, float):
+            try:
+                overrides[k] = cast(v)
+                break
+            except ValueError:
+                pass
+    names = [n for n in args.segmenters.split(",") if n]
+    if args.maskrcnn_model:
+        names.append("maskrcnn")
+        overrides["model_path"] = args.maskrcnn_model
+    registry = load_registry()
+    scenes = {scene: [Preloaded(s) for s in open_sequences(registry, YCBV / scene, reader="ycbv")]
+              for scene in ("0000", "0001")}
+    timed = [seqs[0] for seqs in scenes.values()]
+    n = sum(len(s) for s in timed)
+    w, h = timed[0].intrinsics.width, timed[0].intrinsics.height
+    synthetic = sorted(p for p in (ROOT / "sample_data").iterdir() if (p / "meta.json").is_file()) \
+        if (ROOT / "sample_data").is_dir() else []
+    print(f"segmenters on {n} YCB-Video frames of {w}x{h} (in memory), best / median of {args.repeat} runs")
+    for name in names:
+        try:
+            runs = time_segmenter(registry, name, timed, repeat=args.repeat, overrides=overrides)
+        except ArtclassError as exc:
+            print(f"  {name:<16} error: {exc}")
+            continue
+        line = f"  {name:<16} {min(runs):8.1f} ms/frame (median {statistics.median(runs):.1f})"
+        print(line, flush=True)
+        if not args.no_quality:
+            print(f"  {'':<16} {ycbv_quality(registry, name, scenes, overrides)}", flush=True)
+            if synthetic and name != "maskrcnn":
+                print(f"  {'':<16} {synthetic_quality(registry, name, synthetic, overrides)}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
