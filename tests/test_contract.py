@@ -154,6 +154,19 @@ def test_mask_segmenter_without_masks_names_the_sequence():
     assert str(seq.path) in str(err.value)
 
 
+@pytest.mark.parametrize("model_path", ["", "/nonexistent/MaskRCNN-12.onnx"], ids=["unset", "missing-file"])
+def test_maskrcnn_without_its_model_fails_with_the_documented_error(model_path):
+    """Mask R-CNN needs a file the user provides: without it, a one-line PluginError naming what to set."""
+    assert "maskrcnn" in REGISTRY.names("segmenter"), "the maskrcnn segmenter is not registered"
+    cls = REGISTRY.get("segmenter", "maskrcnn")
+    with pytest.raises(PluginError) as err:
+        cls(cls.Params(model_path=model_path)).segment(SEGMENT_SEQ[0], sequence=SEGMENT_SEQ)
+    one_line_error(err.value)
+    assert "model_path" in str(err.value)
+    if model_path:
+        assert model_path in str(err.value), "the message names the missing file"
+
+
 # -- preprocessors -------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name", ids("preprocessor"))
