@@ -19,7 +19,8 @@ import pytest
 
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Pipeline, Config, Sequence, load_registry, open_sequences
 from artclass_plugins.segmenters.cache import PackedMask, params_hash
-from artclass_plugins.segmenters.depth_threshold import DepthThresholdParams, DepthThresholdSegmenter, components
+from artclass_plugins.segmenters.depth_threshold import (DepthThresholdParams, DepthThresholdSegmenter, components,
+                                                        fill_dropouts)
 from artclass_plugins.segmenters.selection import (choose_instance, change_scores, fallback_index, mask_iou,
                                                   match_instances)
 from artclass_plugins.segmenters.support import BackgroundParams, background_mask, fit_planes
@@ -343,13 +344,14 @@ def ycbv_scenes():
 
 
 def test_depth_threshold_on_ycbv_selects_the_labelled_objects(ycbv_scenes):
-    """Measured (defaults): mean IoU with the union of the labelled objects 0.58 (0000) and 0.53
-    (0001), every frame >= 0.39; with the best single object 0.45 and 0.73. The scenes are static,
+    """Measured (defaults): mean IoU with the union of the labelled objects 0.59 (0000) and 0.58
+    (0001), every frame >= 0.40; with the best single object 0.45 and 0.66. The scenes are static,
     so the fallback picks the largest central segment: in 0000 the mug and the foam brick in front
-    of it (touching in the image, one segment), in 0001 the cracker box. The bounds leave 0.1 of
-    margin. Precision (share of the mask on labelled objects) is >= 0.95 in every frame but one:
-    in frame 4 of 0000 the keyboard's segment touches the gelatin box's and joins the chosen one
-    (0.61)."""
+    of it (touching in the image, one segment); in 0001 the cracker box in frame 0, then the cracker
+    box with the coffee can in front of it (their segments join from frame 1). Bounds: 0.48 on the
+    mean, 0.29 on any frame. Precision (share of the mask on labelled objects) is >= 0.95 in every
+    frame but one: in frame 4 of 0000 the keyboard's segment touches the gelatin box's and joins the
+    chosen one (0.61)."""
     for scene, seqs in ycbv_scenes.items():
         seg = DepthThresholdSegmenter()
         seq = seqs[0]
@@ -361,6 +363,39 @@ def test_depth_threshold_on_ycbv_selects_the_labelled_objects(ycbv_scenes):
             union_ious.append(mask_iou(mask, union))
             precisions.append(np.count_nonzero(mask & union) / np.count_nonzero(mask))
             rules.add(seg.choice(seq[i], sequence=seq).rule)
-        assert np.mean(union_ious) > 0.43 and min(union_ious) > 0.29, (scene, union_ious)
+        assert np.mean(union_ious) > 0.48 and min(union_ious) > 0.29, (scene, union_ious)
         assert np.median(precisions) > 0.9 and min(precisions) > 0.5, (scene, precisions)
         assert rules <= {"still, fallback", "still, kept"}, f"{scene}: a static scene was seen moving: {rules}"
+
+
+def test_fill_dropouts_adds_only_enclosed_pixels_without_reading():
+    mask = np.zeros((H, W), bool)
+    mask[40:80, 40:80] = True
+    valid = np.ones((H, W), bool)
+    mask[50:52, 50:52] = False
+    valid[50:52, 50:52] = False            # a dropout inside the object
+    mask[60:62, 60:62] = False             # a hole with a reading: background seen through
+    valid[10:20, 10:20] = False            # dropouts far away
+    filled = fill_dropouts([mask], valid, fill_px=2)[0]
+    assert filled[50:52, 50:52].all() and not filled[60:62, 60:62].any() and not filled[10:20, 10:20].any()
+    assert np.count_nonzero(filled) == np.count_nonzero(mask) + 4
+    assert mask[50:52, 50:52].sum() == 0   # the input is not modified
+
+
+# -- synthetic sequences with ground-truth masks -------------------------------------------------
+
+def sample_sequences() -> list[Path]:
+    folder = Path(__file__).resolve().parents[1] / "sample_data"
+    return sorted(p for p in folder.iterdir() if (p / "meta.json").is_file()) if folder.is_dir() else []
+
+
+@pytest.mark.parametrize("path", sample_sequences(), ids=lambda p: p.name)
+def test_depth_threshold_matches_the_synthetic_ground_truth(path):
+    """Measured mean IoU over all frames of sample_data (defaults): cereal box 0.91, drawer 0.97,
+    laptop 0.97, mug 0.94; every frame >= 0.84. The ground-truth masks include the bottom
+    ``plane_distance_m`` (1.2 cm) of the object, which is removed with the table, and mixed-depth
+    pixels at its silhouette. Bounds: 0.85 on the mean, 0.75 on any frame."""
+    seq = open_sequences(load_registry(), path)[0]
+    seg = DepthThresholdSegmenter()
+    ious = [mask_iou(seg.segment(seq[i], sequence=seq), seq[i].mask) for i in range(len(seq))]
+    assert np.mean(ious) > 0.85 and min(ious) > 0.75, ious

@@ -3,7 +3,8 @@
 Per frame: keep the depth readings inside ``[near_m, far_m]``; remove the large background planes
 (the support plane, the points behind it such as the floor beyond a table's edge, and a second large
 plane such as a wall; see :mod:`.support`); open the remaining mask by ``open_px``; its connected
-components of at least ``min_area_fraction`` of the image are the instances, and the shared
+components of at least ``min_area_fraction`` of the image are the instances, each with the
+dropouts (pixels without a reading) that a closing of radius ``fill_px`` puts inside it; the shared
 selection (:mod:`.selection`) picks the one being manipulated.
 """
 
@@ -19,7 +20,7 @@ from artclass_core import Frame, Sequence, param
 from .selection import InstanceSegmenter, SelectionParams
 from .support import BackgroundParams, background_mask, fit_planes
 
-__all__ = ["DepthThresholdParams", "DepthThresholdSegmenter", "components"]
+__all__ = ["DepthThresholdParams", "DepthThresholdSegmenter", "components", "fill_dropouts"]
 
 
 @dataclass(frozen=True)
@@ -30,6 +31,29 @@ class DepthThresholdParams(SelectionParams, BackgroundParams):
     min_area_fraction: float = param(0.002, unit="fraction", bounds=(0.0, 0.5),
                                      help="Connected regions smaller than this share of the image are not "
                                           "instances (about 600 px at 640x480).")
+    fill_px: int = param(2, unit="px", bounds=(0, 20),
+                         help="Pixels without a depth reading that a closing of this radius puts inside an "
+                              "instance join it (sensor dropouts on the object; they carry no points).")
+
+
+def fill_dropouts(instances: list[np.ndarray], valid: np.ndarray, *, fill_px: int) -> list[np.ndarray]:
+    """Add to each instance the pixels without a depth reading that a closing of radius ``fill_px``
+    puts inside it (holes and ragged edges from sensor dropouts). Instances are not modified."""
+    if not fill_px:
+        return instances
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * fill_px + 1, 2 * fill_px + 1))
+    h, w = valid.shape
+    out = []
+    for mask in instances:
+        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+        y0, y1 = max(rows[0] - fill_px, 0), min(rows[-1] + fill_px + 1, h)
+        x0, x1 = max(cols[0] - fill_px, 0), min(cols[-1] + fill_px + 1, w)
+        crop = np.pad(mask[y0:y1, x0:x1].astype(np.uint8), fill_px)
+        closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, kernel)[fill_px:-fill_px, fill_px:-fill_px] > 0
+        filled = mask.copy()
+        filled[y0:y1, x0:x1] |= closed & ~valid[y0:y1, x0:x1]
+        out.append(filled)
+    return out
 
 
 def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> list[np.ndarray]:
@@ -69,13 +93,14 @@ class DepthThresholdSegmenter(InstanceSegmenter):
     description = "depth range + background-plane removal + connected components, moving instance chosen"
     Params = DepthThresholdParams
 
-    def candidates(self, frame: Frame, *, sequence: Sequence) -> np.ndarray:
-        """Pixels with a depth reading that are not background: ndarray of bool, shape (H, W)."""
+    def candidates(self, frame: Frame, *, sequence: Sequence) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels with a depth reading that are not background, and pixels with a reading: bool (H, W)."""
         planes = fit_planes(frame.depth_m, sequence.intrinsics, params=self.params)
         background, valid = background_mask(frame.depth_m, sequence.intrinsics, planes, params=self.params)
-        return valid & ~background
+        return valid & ~background, valid
 
     def instances(self, frame: Frame, *, sequence: Sequence) -> list[np.ndarray]:
         p = self.params
-        return components(self.candidates(frame, sequence=sequence), open_px=p.open_px,
-                          min_area_fraction=p.min_area_fraction)
+        foreground, valid = self.candidates(frame, sequence=sequence)
+        found = components(foreground, open_px=p.open_px, min_area_fraction=p.min_area_fraction)
+        return fill_dropouts(found, valid, fill_px=p.fill_px)
