@@ -236,7 +236,8 @@ def _verified(path: str, mtime_ns: int, name: str) -> None:
 
 @functools.lru_cache(maxsize=8)
 def session(path: str, *, threads: int = 2):
-    """An onnxruntime CPU session for the model at ``path`` (one per path and process, cached).
+    """An onnxruntime CPU session for the model at ``path`` (one per path and process, cached), with
+    ``threads`` intra-op threads that do not spin while idle.
 
     Raises :class:`PluginError` naming the file when onnxruntime cannot load it.
     """
@@ -246,6 +247,9 @@ def session(path: str, *, threads: int = 2):
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
     options.log_severity_level = 3
+    # No busy-waiting between runs: the app and other stages share the CPU. Measured on the 2-core
+    # machine under load: 482 ms instead of 673 ms of CPU per u2netp frame, and less wall time.
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     try:
         return ort.InferenceSession(path, sess_options=options, providers=["CPUExecutionProvider"])
     except Exception as exc:   # onnxruntime raises its own exception types (InvalidGraph, Fail, ...)
