@@ -246,10 +246,11 @@ class CentroidShiftRegistrar(Registrar):
     calls: list = []
 
     def register(self, source, target, *, source_normals, target_normals, cell_size_m) -> Registration:
-        type(self).calls.append((source.shape, target.shape, source_normals, cell_size_m))
         T = np.eye(4)
         T[:3, 3] = target.mean(0) - source.mean(0)
-        return Registration(T, 1.0, 0.0, min(len(source), len(target)))
+        reg = Registration(T, 1.0, 0.0, min(len(source), len(target)))
+        type(self).calls.append((source.shape, target.shape, source_normals, cell_size_m, reg))
+        return reg
 
 
 class MedianDepthRule(DecisionRule):
@@ -329,12 +330,16 @@ def test_hook_register_registrars(tmp_path):
     config = Config(segmenter="test_band", registrar="test_centroid_shift", pipeline=PipelineParams(k=1))
     result = Pipeline(registry, config).run(seq)
     registered = [c for p in result.pairs for c in p.cells if c.registration is not None]
-    assert len(CentroidShiftRegistrar.calls) == len(registered) > 0
-    cell_sizes = {p.cell_size_m for p in result.pairs}
-    for (src_shape, tgt_shape, normals, x), cell in zip(CentroidShiftRegistrar.calls, registered):
+    assert registered and result.plugins["registrar"] == "test_centroid_shift"
+    # Every cell's registration is one our registrar returned (the pipeline may also call it on
+    # whole clouds, e.g. to pre-align them, so there can be more calls than cells).
+    returned = {id(call[-1]): call for call in CentroidShiftRegistrar.calls}
+    assert len(returned) >= len(registered)
+    for cell in registered:
+        src_shape, tgt_shape, normals, x, _ = returned[id(cell.registration)]
         assert src_shape == (len(cell.source_idx), 3) and tgt_shape == (len(cell.target_idx), 3)
-        assert normals is not None and normals.shape == src_shape   # the paper preprocessor supplies normals
-        assert x in cell_sizes
+        assert normals is not None and normals.shape == src_shape   # the preprocessor supplies normals
+        assert x == pytest.approx(next(p.cell_size_m for p in result.pairs if any(c is cell for c in p.cells)))
     # the whole object moved 10 mm towards +z per frame: the registrar's z shifts say so
     dz = np.median([c.registration.T_target_from_source[2, 3] for c in registered])
     assert dz == pytest.approx(0.01, abs=0.003)
