@@ -97,7 +97,9 @@ def decision_timeline(result: RunResult, *, selected: int | None = None) -> go.F
     Figure with, on the left, one marker per pair at its decision level (``skipped`` < NM < RM < AM)
     in trace ``"pair decision"`` (``customdata`` = pair index, x = the pair's first frame), the
     moving max-count filtered decisions in trace ``"filtered (w = ...)"``, the per-pair ground truth
-    (if known) in ``"ground truth"``; on the right the class fractions. The title gives the label.
+    (if known) in ``"ground truth"`` (these two take no hover or clicks: the pair markers carry
+    everything, so a click always lands on a pair); on the right the class fractions. The title
+    gives the label.
     """
     w = result.params.get("pipeline", {}).get("w")
     k = result.params.get("pipeline", {}).get("k")
@@ -105,7 +107,10 @@ def decision_timeline(result: RunResult, *, selected: int | None = None) -> go.F
                         subplot_titles=("", "Class fractions"))
     pairs = result.pairs
     xs = [p.i for p in pairs]
+    decided = [p for p in pairs if p.decision != "skipped"]
+    filtered = dict(zip((p.i for p in decided), result.filtered)) if len(result.filtered) == len(decided) else {}
     hover = [f"frames {p.i} → {p.j}: <b>{p.decision}</b> ({DECISION_NAMES[p.decision]})<br>{html.escape(p.reason)}"
+             + (f"<br>after the filter: {filtered[p.i]}" if p.i in filtered else "")
              + (f"<br>truth: {p.truth}" if p.truth else "") + f"<br>{sum(c.matched for c in p.cells)} of "
              f"{len(p.cells)} cells matched" for p in pairs]
     fig.add_trace(go.Scatter(
@@ -114,18 +119,17 @@ def decision_timeline(result: RunResult, *, selected: int | None = None) -> go.F
                     symbol=["x-thin-open" if p.decision == "skipped" else "circle" for p in pairs]),
         customdata=list(range(len(pairs))), hovertext=hover, hovertemplate="%{hovertext}<extra></extra>"),
         row=1, col=1)
-    decided = [p for p in pairs if p.decision != "skipped"]
     if decided and len(result.filtered) == len(decided):
         fig.add_trace(go.Scatter(
             x=[p.i for p in decided], y=list(result.filtered), mode="lines", line_shape="hvh",
             name=f"filtered (w = {w})" if w else "filtered", line=dict(color="#333333", width=2, dash="dot"),
-            hovertemplate="filtered: %{y}<extra></extra>"), row=1, col=1)
+            hoverinfo="skip"), row=1, col=1)
     truth = [p for p in pairs if p.truth]
     if truth:
         fig.add_trace(go.Scatter(
             x=[p.i for p in truth], y=[p.truth for p in truth], mode="markers", name="ground truth",
             marker=dict(size=19, symbol="circle-open", color="#333333", line=dict(width=1.5)),
-            hovertemplate="truth: %{y}<extra></extra>"), row=1, col=1)
+            hoverinfo="skip"), row=1, col=1)
     if selected is not None and 0 <= selected < len(pairs):
         fig.add_vline(x=pairs[selected].i, line=dict(color="#888888", width=1.5, dash="dash"), row=1, col=1)
     _fraction_bars(fig, result, row=1, col=2)
@@ -143,7 +147,18 @@ def decision_timeline(result: RunResult, *, selected: int | None = None) -> go.F
         text=f"{html.escape(str(result.sequence.get('name', '')))}: <b style='color:{colour}'>{result.label}</b>"
              f"{truth_text}", x=0.01),
         legend=dict(orientation="h", yanchor="bottom", y=1.02, xanchor="right", x=0.78), clickmode="event+select",
+        meta=dict(sequence=result.sequence, label=result.label, plugins=result.plugins, params=_jsonable(result.params)),
         margin=dict(l=10, r=10, t=80, b=10))
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.generic,)):
+        return value.item()
+    return value if value is None or isinstance(value, (str, int, float, bool)) else str(value)
 
 
 # -- one pair in 3D ----------------------------------------------------------------------------------
@@ -237,8 +252,9 @@ def motion_arrows(pair: PairResult, source: Cloud, target: Cloud, *, max_points:
     axis = dict(showbackground=True, backgroundcolor="#F4F6F8", gridcolor="#DDDDDD", zerolinecolor="#CCCCCC",
                 tickformat=".2f")
     return _layout(fig, height=560, title=dict(text=title, x=0.01),
-                   legend=dict(itemsizing="constant", yanchor="top", y=0.98, x=0.01, bgcolor="rgba(255,255,255,0.7)"),
-                   scene=dict(aspectmode="data", xaxis=dict(title="x (m)", **axis), yaxis=dict(title="y (m)", **axis),
+                   legend=dict(itemsizing="constant", yanchor="top", y=0.98, xanchor="left", x=0.8,
+                               bgcolor="rgba(255,255,255,0.7)", maxheight=480),
+                   scene=dict(aspectmode="data", domain=dict(x=[0.0, 0.78], y=[0.0, 1.0]), xaxis=dict(title="x (m)", **axis), yaxis=dict(title="y (m)", **axis),
                               zaxis=dict(title="z (m)", **axis),
                               camera=dict(up=dict(x=0, y=-1, z=0), eye=dict(x=0.35, y=-0.45, z=-1.5))),
                    uirevision=f"pair-{pair.i}-{pair.j}")

@@ -129,6 +129,25 @@ class CallCounter:
 
 
 # -- the analyse page ------------------------------------------------------------------------------------
+def test_opens_on_the_bundled_samples_with_no_configuration(monkeypatch):
+    for name in ("ARTCLASS_SAMPLE_DATA", "ARTCLASS_DATA_ROOTS"):
+        monkeypatch.delenv(name, raising=False)
+    samples = ROOT / "sample_data"
+    assert samples.is_dir(), f"{samples} is missing: the bundled samples are part of the repository"
+    folders = sorted(p for p in samples.iterdir() if (p / "meta.json").is_file())
+    first = next(p for p in folders if json.loads((p / "meta.json").read_text()).get("label") == "articulated")
+    at = ok(AppTest.from_file(APP, default_timeout=TIMEOUT).run())
+    assert [t.value for t in at.title] == [first.name]
+    options = at.selectbox(key="an_sample").options          # shown as "name  (label)"
+    assert [o.split()[0] for o in options] == [p.name for p in folders]
+    assert timeline_decisions(at)
+    # With no data root configured, typed-in paths are confined to the bundled samples.
+    open_folder(at, samples / folders[-1].name)
+    assert [t.value for t in ok(at).title] == [folders[-1].name]
+    open_folder(at, ROOT)
+    assert any("outside the data folders" in e for e in errors(at)), errors(at)
+
+
 def test_opens_on_first_articulated_sample_and_matches_the_pipeline(app, data_root, registry):
     ok(app.run())
     assert [t.value for t in app.title] == ["laptop_articulate"]
