@@ -386,3 +386,19 @@ def test_maskrcnn_picks_the_moving_detection(tmp_path):
     seg.detections = detections
     for i in range(len(seq)):
         assert mask_iou(seg.segment(seq[i], sequence=seq), truth[i]) == 1.0
+
+
+def test_cli_classifies_with_u2net(tmp_path, u2netp_path, capsys):
+    """`artclass classify SEQ --segmenter u2net --json` end to end, on a short synthetic sequence."""
+    import json
+
+    from artclass_plugins.synth import generate_sequence
+
+    seq = generate_sequence(tmp_path / "mug", object_name="mug", motion="carry", noise="low", n_frames=6, seed=3,
+                            width=160, height=120)
+    assert main(["classify", str(seq), "--segmenter", "u2net", "--json", "--no-cells", "--param", "k=2",
+                 "--param", f"model_path={u2netp_path}"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["plugins"]["segmenter"] == "u2net"
+    assert result["params"]["segmenter"]["model_path"] == str(u2netp_path)
+    assert all(f["skipped"] is None and f["mask_pixels"] > 100 for f in result["frames"])

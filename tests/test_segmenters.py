@@ -230,7 +230,7 @@ def test_components_drop_small_regions_and_sort_by_area():
 # -- the depth_threshold segmenter on an in-memory sequence ----------------------------------------
 
 class CountingDepthThreshold(DepthThresholdSegmenter):
-    name = "counting_depth_threshold"
+    """depth_threshold (same name, so the same disk-cache folder) that records its instances() calls."""
 
     def __init__(self, params=None):
         super().__init__(params)
@@ -297,9 +297,7 @@ def test_disk_cache_writes_pngs_outside_and_is_reused(tmp_path):
     masks = [first.segment(seq[i], sequence=seq) for i in range(6)]
     files = sorted((tmp_path / "cache").rglob("*.png"))
     assert len(files) == 6 and f"depth_threshold-{params_hash(params)}" in str(files[0])
-    second = CountingDepthThreshold(params)
-    second.name = "depth_threshold"        # same cache key as the first
-    second._disk = first._disk
+    second = CountingDepthThreshold(params)      # a new object: nothing in memory
     again = [second.segment(seq[i], sequence=seq) for i in range(6)]
     assert second.calls == []               # nothing recomputed
     assert all(np.array_equal(a, b) for a, b in zip(masks, again))
