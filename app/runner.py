@@ -17,10 +17,11 @@ from collections.abc import Callable
 from artclass_core import (CellMotion, Config, FrameResult, InputError, PairResult, Pipeline, PipelineParams,
                            RunResult, Sequence)
 
-# Pipeline parameters a stage's output does NOT depend on. Everything else is part of the stage's
-# key, so a parameter added to PipelineParams later invalidates every stage (safe, if slower).
+# Pipeline parameters a stage's output does NOT depend on (the stage table in artclass_core.pipeline:
+# the fitness and alpha checks are part of ``decide``). Everything else is part of the stage's key,
+# so a parameter added to PipelineParams later invalidates every stage (safe, if slower).
 _NOT_FRAME = ("k", "w", "alpha", "cell_size_m", "min_fitness")
-_NOT_REGISTER = ("k", "w", "alpha")
+_NOT_REGISTER = ("k", "w", "alpha", "min_fitness")
 _NOT_DECIDE = ("k", "w")
 
 Progress = Callable[[str, int, int], None]

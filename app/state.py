@@ -6,8 +6,8 @@ Caching follows the pipeline's stages, so that a slider only re-runs what depend
 cache              key                                         recomputed when
 =================  ==========================================  ===========================================
 ``frame_result``   sequence, frame, segmenter + preprocessor   a segmentation or preprocessing parameter
-``registered``     ... + registrar, x, ICP limits              x or a registrar parameter (no re-segmenting)
-``decided``        ... + rule, alpha                           q̄, t̄, α (no ICP)
+``registered``     ... + registrar, x, min_cell_points         x or a registrar parameter (no re-segmenting)
+``decided``        ... + rule, alpha, min_fitness              q̄, t̄, α, min_fitness (no ICP)
 (not cached)       summarise                                   w, k (k only pairs other, cached frames)
 =================  ==========================================  ===========================================
 

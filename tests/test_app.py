@@ -102,6 +102,19 @@ def timeline_decisions(at: AppTest) -> list[str]:
     return array(next(t for t in spec["data"] if t["name"] == "pair decision")["y"])
 
 
+def assert_matches_pipeline(at: AppTest, registry, folder: Path) -> None:
+    """The app's pair decisions are what ``Pipeline.run`` gives with the plugins and parameters the
+    app reports (in the timeline's ``layout.meta``): the caches never serve a stale stage."""
+    meta = chart(at, "pair decision")["layout"]["meta"]
+    plugins, params = meta["plugins"], meta["params"]
+    kinds = ("segmenter", "preprocessor", "registrar", "rule")
+    config = Config(**{k: plugins[k] for k in kinds}, pipeline=PipelineParams(**params["pipeline"]),
+                    **{f"{k}_params": registry.get(k, plugins[k]).Params(**params[k]) for k in kinds})
+    expected = Pipeline(registry, config).run(open_sequences(registry, folder)[0])
+    assert timeline_decisions(at) == [p.decision for p in expected.pairs]
+    assert metric(at, "Label") == expected.label
+
+
 def use_paper_rule(at: AppTest) -> AppTest:
     at.selectbox(key="cfg_plugin:rule").set_value("paper")
     at.selectbox(key="cfg_plugin:preprocessor").set_value("paper")
@@ -167,7 +180,7 @@ def test_opens_on_first_articulated_sample_and_matches_the_pipeline(app, data_ro
     assert any(d.label.startswith("Run result") for d in app.get("download_button"))
 
 
-def test_decision_sliders_redecide_without_icp(app, monkeypatch):
+def test_decision_sliders_redecide_without_icp(app, monkeypatch, registry, data_root):
     use_paper_rule(ok(app.run()))
     before = timeline_decisions(ok(app))
     counter = CallCounter(monkeypatch, "frame", "register", "decide")
@@ -183,11 +196,18 @@ def test_decision_sliders_redecide_without_icp(app, monkeypatch):
     assert metric(app, "Label") == "static"
     assert counter.calls["register"] == 0 and counter.calls["frame"] == 0, counter.calls
     assert counter.calls["decide"] > 0
+    assert_matches_pipeline(app, registry, data_root / "laptop_articulate")
+    # min_fitness is checked when deciding: no ICP either.
+    app.select_slider(key="cfg_p:pipeline:core:min_fitness").set_value(0.95)
+    ok(app.run())
+    assert counter.calls["register"] == 0 and counter.calls["frame"] == 0, counter.calls
+    assert_matches_pipeline(app, registry, data_root / "laptop_articulate")
     # Moving x re-registers the pairs, but does not segment or preprocess again.
     app.checkbox(key="cfg_auto:pipeline:core:cell_size_m").uncheck().run()
     app.select_slider(key="cfg_p:pipeline:core:cell_size_m").set_value(0.03)
     ok(app.run())
     assert counter.calls["register"] > 0 and counter.calls["frame"] == 0, counter.calls
+    assert_matches_pipeline(app, registry, data_root / "laptop_articulate")
 
 
 def test_k_changes_the_pairs_and_w_only_the_filter(app, monkeypatch):
@@ -495,6 +515,7 @@ def test_stage_keys_depend_on_what_the_stage_uses():
     from artclass_plugins.rules.paper import PaperRuleParams
     assert changed(Config(rule="paper", rule_params=PaperRuleParams(q_bar=0.5))) == {"decide"}
     assert changed(Config(rule="paper", pipeline=PipelineParams(alpha=0.9))) == {"decide"}
+    assert changed(Config(rule="paper", pipeline=PipelineParams(min_fitness=0.9))) == {"decide"}
     assert changed(Config(rule="paper", pipeline=PipelineParams(w=7))) == set()
     assert changed(Config(rule="paper", pipeline=PipelineParams(k=2))) == set()
     assert changed(Config(rule="paper", pipeline=PipelineParams(cell_size_m=0.02))) == {"register", "decide"}
