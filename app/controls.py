@@ -163,7 +163,8 @@ def params_widgets(kind: str, plugin: str, params_cls: type, *, advanced: bool =
     ----------
     kind, plugin : which plugin the parameters belong to (part of the widget keys)
     params_cls : the plugin's frozen Params dataclass
-    advanced : also show the parameters without a paper symbol (else they keep their values)
+    advanced : also show the parameters without a paper symbol (else they keep their values);
+        a plugin none of whose parameters has a paper symbol always shows them all
     hints : values the automatic parameters resolved to in the last run, by parameter name, used
         to start a slider when its "auto" box is unticked
 
@@ -173,13 +174,16 @@ def params_widgets(kind: str, plugin: str, params_cls: type, *, advanced: bool =
     """
     hints = hints or {}
     values = {}
-    for spec in describe(params_cls):
+    specs = describe(params_cls)
+    # The paper's parameters first; a plugin whose parameters have no paper symbol shows them all.
+    any_symbol = any(spec.symbol for spec in specs)
+    for spec in specs:
         vkey, akey = value_key(kind, plugin, spec.name), auto_key(kind, plugin, spec.name)
         hint = hints.get(spec.name)
         st.session_state.setdefault(vkey, _initial(spec, hint))
         if spec.auto:
             st.session_state.setdefault(akey, spec.default is None)
-        shown = advanced or bool(spec.symbol)
+        shown = advanced or bool(spec.symbol) or not any_symbol
         is_auto = bool(spec.auto) and bool(st.session_state[akey])
         if shown and spec.auto:
             st.checkbox(f"{label(spec)}: auto", key=akey, help=help_text(spec), disabled=disabled,
