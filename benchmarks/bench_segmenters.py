@@ -9,7 +9,8 @@ Not a test: it prints numbers. Run from the repository root::
 Timing: the YCB-Video excerpts (../shared/data/ycbv, 640x480 real RGB-D, 15 frames) are read into
 memory first, so disk reading is excluded; each repeat segments every frame with a fresh segmenter
 object (no cached masks), so the time per frame covers the per-frame work (instances) and the
-manipulated-instance selection. The best of ``--repeat`` runs is reported, with the median.
+manipulated-instance selection. The best of ``--repeat`` runs is reported, with the median, and the
+CPU time (all threads), which a busy machine inflates less than the wall time.
 
 Quality: on YCB-Video, the IoU of the chosen mask with the union of the labelled objects and with
 the best-matching single object; on the synthetic ``sample_data/`` sequences, the IoU with the
@@ -19,6 +20,7 @@ ground-truth mask.
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
@@ -52,18 +54,21 @@ def make(registry, name: str, overrides: dict[str, str]):
     return cls(cls.Params(**fields))
 
 
-def time_segmenter(registry, name: str, sequences: list[Sequence], *, repeat: int, overrides) -> list[float]:
-    """ms per frame of each repeat (fresh segmenter each time, all frames of all sequences)."""
-    out = []
+def time_segmenter(registry, name: str, sequences: list[Sequence], *, repeat: int, overrides
+                   ) -> tuple[list[float], list[float]]:
+    """Wall and CPU (all threads) ms per frame of each repeat (fresh segmenter each time, all frames
+    of all sequences)."""
+    wall, cpu = [], []
     n = sum(len(s) for s in sequences)
     for _ in range(repeat):
         seg = make(registry, name, overrides)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for seq in sequences:
             for i in range(len(seq)):
                 seg.segment(seq[i], sequence=seq)
-        out.append(1000 * (time.perf_counter() - t0) / n)
-    return out
+        wall.append(1000 * (time.perf_counter() - t0) / n)
+        cpu.append(1000 * (time.process_time() - c0) / n)
+    return wall, cpu
 
 
 def ycbv_quality(registry, name: str, scenes: dict[str, list[Sequence]], overrides) -> str:
@@ -130,14 +135,17 @@ def main(argv: list[str] | None = None) -> int:
     w, h = timed[0].intrinsics.width, timed[0].intrinsics.height
     synthetic = sorted(p for p in (ROOT / "sample_data").iterdir() if (p / "meta.json").is_file()) \
         if (ROOT / "sample_data").is_dir() else []
-    print(f"segmenters on {n} YCB-Video frames of {w}x{h} (in memory), best / median of {args.repeat} runs")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"segmenters on {n} YCB-Video frames of {w}x{h} (in memory), best / median of {args.repeat} runs; "
+          f"{os.cpu_count()} CPUs, load average {load:.1f} at the start")
     for name in names:
         try:
-            runs = time_segmenter(registry, name, timed, repeat=args.repeat, overrides=overrides)
+            runs, cpu = time_segmenter(registry, name, timed, repeat=args.repeat, overrides=overrides)
         except ArtclassError as exc:
             print(f"  {name:<16} error: {exc}")
             continue
-        line = f"  {name:<16} {min(runs):8.1f} ms/frame (median {statistics.median(runs):.1f})"
+        line = (f"  {name:<16} {min(runs):8.1f} ms/frame (median {statistics.median(runs):.1f}; "
+                f"CPU {min(cpu):.1f} ms/frame over all threads)")
         print(line, flush=True)
         if not args.no_quality:
             print(f"  {'':<16} {ycbv_quality(registry, name, scenes, overrides)}", flush=True)
