@@ -275,6 +275,21 @@ def test_data_roots_from_the_environment(app, data_root, tmp_path, monkeypatch):
     assert any("outside the data folders" in e for e in errors(app)), errors(app)
 
 
+def test_real_ycb_video_scene_through_the_folder_source(app, shared_data, monkeypatch, registry):
+    """A real recording (YCB-Video scene 0000, one sequence per object) opened as a user would."""
+    monkeypatch.setenv("ARTCLASS_DATA_ROOTS", str(shared_data))
+    scene = shared_data / "ycbv" / "0000"
+    open_folder(ok(app.run()), scene)
+    ok(app)
+    names = app.selectbox(key="an_seqname").options
+    assert names == [s.name for s in open_sequences(registry, scene)] and len(names) == 3
+    assert [t.value for t in app.title] == [names[0]]
+    app.selectbox(key="an_seqname").set_value(names[1])
+    ok(app.run())
+    assert [t.value for t in app.title] == [names[1]]
+    assert_matches_pipeline(app, registry, Path(f"{scene}#{names[1].split('/')[-1]}"))
+
+
 def _copy(data_root: Path, name: str, dest: Path) -> Path:
     shutil.copytree(data_root / name, dest)
     return dest
