@@ -254,7 +254,10 @@ def cloud_hull(cloud: Cloud) -> np.ndarray:
         return entry[1]
     vertices = hull_vertices(cloud.points)
     if entry is None:
-        weakref.finalize(cloud, _HULLS.pop, key, None)
+        try:
+            weakref.finalize(cloud, _HULLS.pop, key, None)
+        except TypeError:              # an object that cannot be weakly referenced: not remembered
+            return vertices
     _HULLS[key] = (cloud.points, vertices)
     return vertices
 
