@@ -125,5 +125,8 @@ class PipelineParams(Params):
     min_fitness: float = param(0.3, unit="fraction", bounds=(0.0, 1.0),
                                help="A cell whose ICP fitness (share of source points with a correspondence) "
                                     "is below this is skipped as a low-confidence match.")
+    prealign: bool = param(True, help="Move the source cloud by the whole-object motion (found with the chosen "
+                                      "registrar, coarse to fine) before the per-cell ICP, so cells of a carried "
+                                      "object register; false = the paper's per-cell ICP from the identity.")
     min_cell_points: int = param(8, unit="points", bounds=(3, 100000),
                                  help="A cell with fewer points than this in either frame is not registered.")

@@ -68,7 +68,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ArtclassError, InputError, ParamError
-from .geometry import diameter_of_vertices, grid_cells, hull_vertices, largest_distance
+from .geometry import diameter_of_vertices, grid_cells, hull_vertices, largest_distance, transform
 from .params import Params, PipelineParams, as_dict, describe, parse_value
 from .plugins import Registry
 from .types import DECISIONS, CellMotion, Cloud, FrameResult, PairResult, RunResult, Sequence
@@ -85,18 +85,26 @@ Progress = Callable[[str, int, int], None]
 class Config:
     """Which plugins run and with which parameters. Frozen and hashable: a safe cache key.
 
-    A plugin's params left as ``None`` mean that plugin's defaults.
+    A plugin's params left as ``None`` mean that plugin's defaults. The defaults are the pipeline
+    that is right on real data (``fine`` preprocessing, pre-aligned cells, the ``robust`` rule);
+    :meth:`paper` gives the paper's pipeline as written, for comparison.
     """
 
     segmenter: str = AUTO_SEGMENTER
-    preprocessor: str = "paper"
+    preprocessor: str = "fine"
     registrar: str = "icp_point_to_point"
-    rule: str = "paper"
+    rule: str = "robust"
     pipeline: PipelineParams = field(default_factory=PipelineParams)
     segmenter_params: Params | None = None
     preprocessor_params: Params | None = None
     registrar_params: Params | None = None
     rule_params: Params | None = None
+
+    @classmethod
+    def paper(cls) -> "Config":
+        """The paper's pipeline as written: Algorithm 1 at D/20 and 5v, per-cell ICP from the identity,
+        Algorithm 2's quantise-and-hash rule."""
+        return cls(preprocessor="paper", rule="paper", pipeline=PipelineParams(prealign=False))
 
     def plugin_params(self, registry: Registry, kind: str, name: str | None = None) -> Params:
         """The params of the chosen plugin of ``kind`` (its defaults when none were set)."""
@@ -359,20 +367,50 @@ class Pipeline:
         cells, x = self._register_raw(source, target)
         return self.checked_cells(cells), x
 
+    def prealign(self, source: Cloud, target: Cloud) -> np.ndarray:
+        """Whole-cloud motion ``T_target_from_source`` found with the chosen registrar, coarse to fine,
+        from the identity and from the centroid shift (the better fit wins); identity if disabled."""
+        if not self.params.prealign:
+            return np.eye(4)
+        extent = float(np.linalg.norm(np.ptp(np.concatenate([source.points, target.points]), axis=0)))
+        shift = np.eye(4)
+        shift[:3, 3] = target.points.mean(0) - source.points.mean(0)
+        best, best_key = np.eye(4), (-1.0, 0.0)
+        for T in (np.eye(4), shift):
+            for scale in (extent / 2.5, extent / 5, extent / 10):
+                reg = self.registrar.register(
+                    transform(source.points, T), target.points,
+                    source_normals=None if source.normals is None else source.normals @ T[:3, :3].T,
+                    target_normals=target.normals, cell_size_m=scale)
+                T = reg.T_target_from_source @ T
+            if (reg.fitness, -reg.rmse_m) > best_key:
+                best, best_key = T, (reg.fitness, -reg.rmse_m)
+        return best
+
     def _register_raw(self, source: Cloud, target: Cloud) -> tuple[tuple[CellMotion, ...], float]:
-        """Per-cell ICP, without the fitness check (which depends on ``min_fitness`` only)."""
+        """Per-cell ICP, without the fitness check (which depends on ``min_fitness`` only).
+
+        With ``prealign`` the source is first moved by the whole-cloud motion, so each cell's ICP,
+        which starts from the identity, only has to find the residual; the cell's transform is the
+        composition, and its centre is given in the source frame.
+        """
         x = self.cell_size(source, target)
         p = self.params
+        T0 = self.prealign(source, target)
+        moved = transform(source.points, T0)
+        normals = None if source.normals is None else source.normals @ T0[:3, :3].T
+        T0_inv = np.linalg.inv(T0)
         cells = []
-        for key, centre, si, ti in grid_cells(source.points, target.points, cell_size_m=x):
-            cell = CellMotion(key, centre, si, ti)
+        for key, centre, si, ti in grid_cells(moved, target.points, cell_size_m=x):
+            cell = CellMotion(key, transform(centre[None], T0_inv)[0], si, ti)
             if min(len(si), len(ti)) < p.min_cell_points:
                 cell.skipped = f"too few points ({len(si)} source, {len(ti)} target)"
             else:
-                cell.registration = self.registrar.register(
-                    source.points[si], target.points[ti],
-                    source_normals=None if source.normals is None else source.normals[si],
+                reg = self.registrar.register(
+                    moved[si], target.points[ti], source_normals=None if normals is None else normals[si],
                     target_normals=None if target.normals is None else target.normals[ti], cell_size_m=x)
+                reg.T_target_from_source = reg.T_target_from_source @ T0
+                cell.registration = reg
             cells.append(cell)
         return tuple(cells), x
 

@@ -127,6 +127,7 @@ class Cloud:
     points: np.ndarray                 # (N, 3) float64, metres, camera frame
     normals: np.ndarray | None = None  # (N, 3) unit vectors towards the camera
     info: dict[str, Any] = field(default_factory=dict)  # resolved v, r, diameter, counts ...
+    colors: np.ndarray | None = None   # (N, 3) float RGB in [0, 1], if the preprocessor keeps colour
 
     def __len__(self) -> int:
         return len(self.points)

@@ -23,29 +23,50 @@ from artclass_core.io import read_depth, read_json, read_mask, read_rgb, require
 from artclass_core.types import LABELS
 
 IMAGE_SUFFIXES = (".png",)
+# Per-pair truth bands (no motion at or below the first value, motion above the second, no truth in
+# between): about 1x and 3x the depth noise of a structured-light sensor at 1 m, for a 10 cm part.
+REVOLUTE_BAND_RAD = (np.radians(0.5), np.radians(3.0))
+PRISMATIC_BAND_M = (0.001, 0.005)
+MOVE_BAND_M = (0.001, 0.005)
+TURN_BAND_RAD = (np.radians(0.5), np.radians(2.0))
 
 
 def _images(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) if folder.is_dir() else []
 
 
-def pair_truth_from_states(joint_a, joint_b, pose_a, pose_b, *, joint_eps: float, move_eps_m: float,
-                           turn_eps_rad: float) -> str | None:
-    """AM when the joint moved by more than ``joint_eps``, else RM when the object moved, else NM.
+Threshold = float | tuple[float, float]
+
+
+def _exceeds(value: float, eps: Threshold) -> bool | None:
+    """True above the band, False at or below it, None (ambiguous) inside it."""
+    low, high = eps if isinstance(eps, tuple) else (eps, eps)
+    return True if value > high else False if value <= low else None
+
+
+def pair_truth_from_states(joint_a, joint_b, pose_a, pose_b, *, joint_eps: Threshold, move_eps_m: Threshold,
+                           turn_eps_rad: Threshold) -> str | None:
+    """AM when the joint moved, else RM when the object moved, else NM; None when unknown or ambiguous.
 
     ``pose_*`` are 4x4 camera_from_object. The object "moved" when its points (taken 10 cm from the
     origin, a typical object radius) moved by more than ``move_eps_m`` or it turned more than
-    ``turn_eps_rad``. Returns None where the states are unknown.
+    ``turn_eps_rad``. A threshold given as ``(low, high)`` is a band: a change inside it is neither
+    clearly a motion nor clearly none (e.g. a 1 degree turn of a 10 cm lid moves it by less than the
+    sensor noise), and the pair gets no truth rather than a label no sensor could confirm.
     """
-    if joint_a is not None and joint_b is not None and abs(joint_b - joint_a) > joint_eps:
-        return "AM"
+    if joint_a is not None and joint_b is not None:
+        joint = _exceeds(abs(joint_b - joint_a), joint_eps)
+        if joint is not False:
+            return "AM" if joint else None
     if pose_a is None or pose_b is None:
         return None if joint_a is None or joint_b is None else "NM"
     A, B = np.asarray(pose_a, float), np.asarray(pose_b, float)
     delta = B @ np.linalg.inv(A)
-    moved = np.linalg.norm(delta[:3, 3] + (delta[:3, :3] - np.eye(3)) @ A[:3, 3]) > move_eps_m
-    turned = rotation_angle_rad(delta[:3, :3]) > turn_eps_rad
-    return "RM" if moved or turned else "NM"
+    moved = _exceeds(float(np.linalg.norm(delta[:3, 3] + (delta[:3, :3] - np.eye(3)) @ A[:3, 3])), move_eps_m)
+    turned = _exceeds(rotation_angle_rad(delta[:3, :3]), turn_eps_rad)
+    if moved or turned:
+        return "RM"
+    return "NM" if moved is False and turned is False else None
 
 
 class FolderSequence(Sequence):
@@ -80,8 +101,8 @@ class FolderSequence(Sequence):
         poses = self.truth.get("object_poses") or [None] * len(self)
         revolute = self.truth.get("joint_type") != "prismatic"
         return pair_truth_from_states(joints[i], joints[j], poses[i], poses[j],
-                                      joint_eps=np.radians(1.0) if revolute else 0.003,
-                                      move_eps_m=0.002, turn_eps_rad=np.radians(0.5))
+                                      joint_eps=REVOLUTE_BAND_RAD if revolute else PRISMATIC_BAND_M,
+                                      move_eps_m=MOVE_BAND_M, turn_eps_rad=TURN_BAND_RAD)
 
 
 class FolderReader(Reader):

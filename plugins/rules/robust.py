@@ -7,24 +7,32 @@ fall anywhere. This rule asks instead how many rigid motions are needed to *expl
 
 For a pair (i, i + k):
 
-1. Hypotheses: the identity, a whole-object ICP, and every matched cell's own ICP transform.
+1. Hypotheses: the identity; a whole-object ICP started from the identity and from the centroid
+   shift (coarse to fine); every matched cell's own ICP transform; and, for each cell the best
+   whole-object motion leaves unexplained, a local ICP of that cell started from that motion and
+   from the identity (the paper's per-cell ICP from the identity cannot capture a carried object's
+   centimetres of motion).
 2. Every hypothesis h is scored on every cell c by the share of c's points that h brings within
-   tau of the target surface (point-to-plane distance to the nearest target point, or the plain
-   distance where no target point is near). tau is noise-scaled: ``noise_factor`` times the robust
-   residual of the cells under their own motion, never below ``noise_floor_m``.
-3. h *explains* c when its score is within ``explain_margin`` of the best score any hypothesis gets
-   on c. A flat or cylindrical cell is explained by every motion that keeps its surface in place,
-   so such cells constrain the answer but cannot by themselves create a new motion; the comparison
-   with the cell's best score makes the test relative to what occlusion leaves achievable.
-   Cells that no hypothesis explains well (best score < ``min_cell_score``) carry no evidence.
-4. NM when the identity explains a share ``static_share`` of the informative points.
-5. Otherwise a greedy cover: take the hypothesis that explains most points, refit it by ICP on the
-   points it explains, remove them, and repeat. A further motion counts only with support of at
-   least ``min_part_cells`` cells and ``min_part_share`` of the informative points (a lone outlier
-   cell is not a part).
-6. Cross-explanation: with two or more motions, a single ICP refit on all the informative points is
-   tried from each motion; if one rigid motion explains the supposed parts as well, the pair is RM.
-7. Two or more supported motions: AM; one motion: RM (NM when it is the identity).
+   tau of the target surface: the residual of a moved point is its distance to the tangent plane of
+   the nearest target point, or its distance to that point less one sampling step v if larger (a
+   point may slide within a surface by the sampling step, not onto a neighbouring surface).
+   tau is noise-scaled: ``noise_factor`` times the noise measured on the data (the
+   spread of the target's points about their local planes, times sqrt(2) for two samplings of one
+   surface), never below ``noise_floor_m``. Comparing motions by where they
+   put the cell's points removes the rotation-translation coupling of the paper's keys.
+3. h *explains* c when its share is within ``explain_margin`` of the best share any hypothesis
+   reaches on c, plus two standard errors of the difference of two shares measured on c's points
+   (a cell of 48 points where 3 fall beyond tau is not evidence of another motion). A flat or cylindrical (degenerate) cell is explained by every motion that keeps
+   its surface in place, so such cells constrain the answer but cannot create a motion of their
+   own. Cells whose best share is below ``min_cell_score`` (occluded, out of view) carry no evidence.
+4. NM when the identity explains ``static_share`` of the informative points.
+5. Otherwise a greedy cover: the hypothesis that explains most points, then the one that explains
+   most of the rest, and so on. A further motion needs at least ``min_part_cells`` cells and
+   ``min_part_share`` of the informative points: a lone outlier cell is not a part.
+6. Cross-explanation: with two or more motions, one ICP refit on all their points is tried from each
+   motion; if a single rigid motion explains the supposed parts as well, there is one motion.
+7. Two or more motions: AM. One motion: RM, or NM when it moves no point by more than tau
+   (a motion within noise is no motion).
 """
 
 from __future__ import annotations
@@ -46,11 +54,12 @@ class RobustRuleParams(Params):
     noise_floor_m: float = param(0.002, unit="m", bounds=(1e-5, 0.1),
                                  help="Smallest inlier distance tau: below this, misfit is sensor noise.")
     noise_factor: float = param(3.0, unit="sigma", bounds=(0.5, 20.0),
-                                help="tau is this many robust standard deviations of the cells' residuals "
-                                     "under their own motion.")
-    explain_margin: float = param(0.15, unit="fraction", bounds=(0.0, 1.0),
-                                  help="A motion explains a cell when its inlier share is within this of the "
-                                       "best share any motion reaches on the cell.")
+                                help="tau is this many times the depth noise measured on the pair (spread of "
+                                     "points about their local planes, times sqrt 2).")
+    explain_margin: float = param(0.05, unit="fraction", bounds=(0.0, 1.0),
+                                  help="A motion explains a cell when its inlier share is within this, plus two "
+                                       "standard errors of the difference of two shares, of the best share any "
+                                       "motion reaches on the cell.")
     min_cell_score: float = param(0.5, unit="fraction", bounds=(0.0, 1.0),
                                   help="Cells whose best inlier share is below this (occluded, out of view) "
                                        "carry no evidence.")
@@ -64,14 +73,21 @@ class RobustRuleParams(Params):
                                      help="Points per cell used for scoring (evenly subsampled, for speed).")
 
 
-def _icp(source: np.ndarray, target: np.ndarray, target_normals: np.ndarray, init: np.ndarray,
-         max_distance_m: float) -> np.ndarray:
-    src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source))
-    tgt = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(target))
-    tgt.normals = o3d.utility.Vector3dVector(target_normals)
-    result = reg.registration_icp(src, tgt, max_distance_m, init, reg.TransformationEstimationPointToPlane(),
-                                  reg.ICPConvergenceCriteria(max_iteration=30))
-    return np.array(result.transformation)
+def _pcd(points, normals=None):
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
+    if normals is not None:
+        pcd.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, dtype=np.float64))
+    return pcd
+
+
+def icp_point_to_plane(source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, init: np.ndarray,
+                       distances_m) -> np.ndarray:
+    """Point-to-plane ICP run coarse to fine over ``distances_m``; returns T_target_from_source."""
+    T = init
+    for d in distances_m:
+        T = reg.registration_icp(source, target, d, T, reg.TransformationEstimationPointToPlane(),
+                                 reg.ICPConvergenceCriteria(max_iteration=30)).transformation
+    return np.array(T)
 
 
 class RobustRule(DecisionRule):
@@ -86,9 +102,11 @@ class RobustRule(DecisionRule):
         if not matched or source.normals is None or target.normals is None:
             return RuleDecision("skipped", [None] * len(cells), reason="no matched cell with normals")
         spacing = float(source.info.get("v_m") or np.median(cKDTree(source.points).query(source.points, k=2)[0][:, 1]))
+        extent = float(np.linalg.norm(np.ptp(np.concatenate([source.points, target.points]), axis=0)))
         tree = cKDTree(target.points)
+        tgt = _pcd(target.points, target.normals)
 
-        # Points used for scoring: every matched cell's source points, evenly subsampled.
+        # Scoring points: every matched cell's source points, evenly subsampled.
         idx = [c.source_idx[np.linspace(0, len(c.source_idx) - 1, min(len(c.source_idx), p.max_points_per_cell)).astype(int)]
                for c in (cells[n] for n in matched)]
         owner = np.repeat(np.arange(len(matched)), [len(i) for i in idx])
@@ -98,32 +116,50 @@ class RobustRule(DecisionRule):
         def residuals(T: np.ndarray) -> np.ndarray:
             moved = transform(pts, T)
             d, j = tree.query(moved)
-            normal_d = np.abs(np.einsum("ij,ij->i", moved - target.points[j], target.normals[j]))
-            return np.where(d <= 2.0 * spacing, normal_d, d)
+            return np.maximum(np.abs(np.einsum("ij,ij->i", moved - target.points[j], target.normals[j])),
+                              d - spacing)
 
-        hyps = [np.eye(4), _icp(source.points, target.points, target.normals, np.eye(4),
-                                max(pair_extent(source) / 5.0, 4 * spacing))]
+        # Whole-object motions, from the identity and from the centroid shift, coarse to fine.
+        src_all = _pcd(source.points, source.normals)
+        steps = [extent / 5, extent / 10, extent / 20, 3 * spacing]
+        shift = np.eye(4)
+        shift[:3, 3] = target.points.mean(0) - source.points.mean(0)
+        hyps = [np.eye(4), icp_point_to_plane(src_all, tgt, np.eye(4), steps), icp_point_to_plane(src_all, tgt, shift, steps)]
+        n_global = len(hyps)
         hyps += [cells[n].registration.T_target_from_source for n in matched]
-        res = np.stack([residuals(T) for T in hyps])                       # (H, P)
+        geo = np.stack([residuals(T) for T in hyps])                      # (H, P) metres
 
-        # Noise scale from each cell's residual under its own motion.
-        own = res[2 + owner, np.arange(len(owner))]
-        sigma = 1.4826 * np.median(own)
+        # Noise measured on the data, independent of any motion: the spread of the target's points about
+        # their local planes; two noisy samplings of one surface differ by sqrt(2) of that.
+        sigma = np.sqrt(2.0) * surface_noise(target.points, tree)
         tau = max(p.noise_floor_m, p.noise_factor * sigma)
+        score = _per_cell(geo <= tau, owner, counts)                       # (H, C) inlier share
 
-        score = _per_cell((res <= tau).astype(float), owner, counts)      # (H, C) inlier share
+        # Cells the best whole-object motion leaves unexplained get local hypotheses of their own.
+        g = 1 + int(np.argmax(score[1:n_global] @ counts))
+        best = score.max(axis=0)
+        poor = np.flatnonzero(score[g] < np.maximum(best, p.min_cell_score) - p.explain_margin)
+        extra = []
+        for c in poor:
+            cell = cells[matched[c]]
+            src_cell = _pcd(source.points[cell.source_idx], source.normals[cell.source_idx])
+            near = [4 * spacing, 2 * spacing]
+            extra += [icp_point_to_plane(src_cell, tgt, hyps[g], near), icp_point_to_plane(src_cell, tgt, np.eye(4), near)]
+        if extra:
+            hyps += extra
+            score = np.concatenate([score, _per_cell(np.stack([residuals(T) <= tau for T in extra]), owner, counts)])
+
         best = score.max(axis=0)
         informative = best >= p.min_cell_score
+        info = dict(tau_m=round(tau, 6), sigma_m=round(float(sigma), 6), n_informative=int(informative.sum()),
+                    n_hypotheses=len(hyps))
+        clusters: list[int | None] = [None] * len(cells)
         if not informative.any():
-            return RuleDecision("skipped", [None] * len(cells), reason="no cell is explained by any motion",
-                                info=dict(tau_m=tau))
-        explains = (score >= best - p.explain_margin) & informative          # (H, C)
+            return RuleDecision("skipped", clusters, reason="no cell is explained by any motion", info=info)
+        explains = _explains(score, best, counts, p.explain_margin) & informative   # (H, C)
         weight = counts * informative
         total = weight.sum()
 
-        clusters: list[int | None] = [None] * len(cells)
-        info = dict(tau_m=round(tau, 6), sigma_m=round(float(sigma), 6), n_informative=int(informative.sum()),
-                    n_hypotheses=len(hyps))
         if (explains[0] * weight).sum() >= p.static_share * total:
             for c in np.flatnonzero(informative):
                 clusters[matched[c]] = 0
@@ -131,24 +167,26 @@ class RobustRule(DecisionRule):
 
         motions, members = self._cover(hyps, explains, weight, total, informative)
         if len(motions) >= 2:
-            merged = self._single_motion(motions, members, residuals, pts, owner, counts, best, weight, target,
-                                         tau, spacing)
+            merged = self._single_motion(motions, members, residuals, pts, owner, counts, best, weight,
+                                         tgt, tau, spacing, extent)
             if merged is not None:
                 motions, members = [merged[0]], [merged[1]]
                 info["merged"] = True
         for m, cs in enumerate(members):
             for c in cs:
-                if clusters[matched[c]] is None:
-                    clusters[matched[c]] = m
+                clusters[matched[c]] = m
         keys = [_describe(T) for T in motions]
-        info.update(motions=keys, support=[float(weight[cs].sum() / total) for cs in members])
+        info.update(motions=keys, support=[round(float(weight[cs].sum() / total), 4) for cs in members])
         if len(motions) >= 2:
             return RuleDecision("AM", clusters, keys, reason=f"{len(motions)} distinct motions", info=info)
-        decision = "NM" if _is_identity(motions[0], pts, tau) else "RM"
-        return RuleDecision(decision, clusters, keys, reason="one motion explains the points", info=info)
+        shift_m = float(np.max(np.linalg.norm(transform(pts, motions[0]) - pts, axis=1)))
+        info["max_displacement_m"] = round(shift_m, 6)
+        if shift_m <= tau:
+            return RuleDecision("NM", clusters, keys, reason="the only motion is within noise", info=info)
+        return RuleDecision("RM", clusters, keys, reason="one motion explains the points", info=info)
 
     def _cover(self, hyps, explains, weight, total, informative):
-        """Greedy cover of the informative cells by refitted motions with enough support."""
+        """Greedy cover of the informative cells by motions with enough support."""
         p = self.params
         left = informative.copy()
         motions, members = [], []
@@ -163,35 +201,48 @@ class RobustRule(DecisionRule):
             left[cs] = False
         return motions, members
 
-    def _single_motion(self, motions, members, residuals_of, pts, owner, counts, best, weight, target, tau, spacing):
+    def _single_motion(self, motions, members, residuals, pts, owner, counts, best, weight, tgt, tau,
+                       spacing, extent):
         """One rigid motion that explains all the supposed parts nearly as well, if there is one."""
         p = self.params
         cells = np.concatenate(members)
         use = np.isin(owner, cells)
         total = weight[cells].sum()
         for T0 in motions:
-            T = _icp(pts[use], target.points, target.normals, T0, max(4 * tau, 2 * spacing))
-            share = _per_cell((residuals_of(T) <= tau)[None].astype(float), owner, counts)[0]
-            explained = weight[cells][share[cells] >= best[cells] - p.explain_margin].sum()
-            if explained >= (1.0 - p.min_part_share) * total:
+            T = icp_point_to_plane(_pcd(pts[use]), tgt, T0, [extent / 10, 2 * spacing, spacing, 2 * tau])
+            share = _per_cell((residuals(T) <= tau)[None], owner, counts)[0]
+            ok = _explains(share[None, cells], best[cells], counts[cells], p.explain_margin)[0]
+            if weight[cells][ok].sum() >= (1.0 - p.min_part_share) * total:
                 return T, cells
         return None
 
 
+def _explains(score: np.ndarray, best: np.ndarray, counts: np.ndarray, margin: float) -> np.ndarray:
+    """Whether each hypothesis' inlier share on each cell is as good as the best, within ``margin`` plus
+    two standard errors of the difference of two shares measured on the cell's n points."""
+    pooled = (score + best) / 2.0
+    return score >= best - margin - 2.0 * np.sqrt(2.0 * pooled * (1.0 - pooled) / np.maximum(counts, 1))
+
+
+def surface_noise(points: np.ndarray, tree: cKDTree, *, n_samples: int = 400, k: int = 12) -> float:
+    """Robust standard deviation (m) of points about the plane of their k nearest neighbours.
+
+    Measured on an even subsample; curvature inflates it slightly, which errs on the safe side.
+    """
+    if len(points) < k + 1:
+        return 0.0
+    sample = points[np.linspace(0, len(points) - 1, min(n_samples, len(points))).astype(int)]
+    _, nn = tree.query(sample, k=k)
+    hood = points[nn] - points[nn].mean(axis=1, keepdims=True)              # (S, k, 3)
+    _, s, vt = np.linalg.svd(hood, full_matrices=False)
+    off = np.abs(np.einsum("skj,sj->sk", hood, vt[:, 2, :]))                  # distances to the plane
+    return float(1.4826 * np.median(off) * np.sqrt(k / (k - 3)))             # 3 dof used by the fit
+
+
 def _per_cell(values: np.ndarray, owner: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Mean of ``values`` (H, P) over each cell's points -> (H, C)."""
-    out = np.zeros((values.shape[0], len(counts)))
-    for h in range(values.shape[0]):
-        out[h] = np.bincount(owner, weights=values[h], minlength=len(counts))
+    out = np.stack([np.bincount(owner, weights=v.astype(float), minlength=len(counts)) for v in values])
     return out / np.maximum(counts, 1)
-
-
-def pair_extent(cloud: Cloud) -> float:
-    return float(cloud.info.get("diameter_m") or np.linalg.norm(np.ptp(cloud.points, axis=0)))
-
-
-def _is_identity(T: np.ndarray, pts: np.ndarray, tau: float) -> bool:
-    return bool(np.max(np.linalg.norm(transform(pts, T) - pts, axis=1)) <= tau)
 
 
 def _describe(T: np.ndarray) -> str:
