@@ -38,7 +38,9 @@ cached registrations; a change of a registration parameter (registrar and its pa
 and any registered pair it still needs. :meth:`Pipeline.redecide` re-decides a finished
 :class:`RunResult` directly (it needs the clouds: a run with ``keep_clouds=True``, or the cache).
 Deciding never modifies the cells it is given: :meth:`Pipeline.decide` works on copies, so a cached
-registration can be decided again and again without stale clusters.
+registration can be decided again and again without stale clusters. A rule whose own work is costly
+can keep its threshold-independent evidence in :func:`pair_memo`, which lives as long as the pair's
+clouds, so that re-deciding under other thresholds does not redo it.
 
 Throughput
 ----------
@@ -248,6 +250,45 @@ class _Inline:
 
     def shutdown(self, **_kw) -> None:
         pass
+
+
+_PAIR_MEMOS: dict[tuple[int, int], tuple[weakref.ref, weakref.ref, dict]] = {}
+_PAIR_MEMO_LOCK = threading.Lock()
+
+
+def pair_memo(source: Cloud, target: Cloud) -> dict:
+    """A dict that lives exactly as long as both clouds of a pair, for a decision rule's evidence.
+
+    A rule whose work splits into evidence that its thresholds do not change (motion hypotheses, the
+    residual of every point under each of them ...) and a cheap decision on that evidence can keep the
+    evidence here: re-deciding the same pair under other thresholds (:meth:`Pipeline.redecide`, a
+    :meth:`Pipeline.run` with a :class:`StageCache`, the app's sliders) hands the rule the very same
+    cloud objects, so it finds its evidence again. Key the entries on everything the evidence depends
+    on besides the two clouds, e.g. ``(params.max_points_per_cell, tuple((c.cell, id(c.registration))
+    for c in cells if c.matched))`` (a cell's registration object stays the same while it is cached).
+    In a streaming run the clouds, and so the memo, are dropped as soon as the pair is done.
+    """
+    key = (id(source), id(target))
+    with _PAIR_MEMO_LOCK:
+        entry = _PAIR_MEMOS.get(key)
+        if entry is not None and entry[0]() is source and entry[1]() is target:
+            return entry[2]
+        try:
+            refs = (weakref.ref(source), weakref.ref(target))
+        except TypeError:              # objects that cannot be weakly referenced: a memo for this call only
+            return {}
+        memo: dict = {}
+        _PAIR_MEMOS[key] = (*refs, memo)
+    for cloud in (source, target):
+        weakref.finalize(cloud, _drop_pair_memo, key, refs)
+    return memo
+
+
+def _drop_pair_memo(key: tuple[int, int], refs: tuple) -> None:
+    with _PAIR_MEMO_LOCK:
+        entry = _PAIR_MEMOS.get(key)
+        if entry is not None and entry[0] is refs[0] and entry[1] is refs[1]:   # identity: Cloud.__eq__ compares arrays
+            del _PAIR_MEMOS[key]
 
 
 _HULLS: dict[int, tuple[np.ndarray, np.ndarray]] = {}

@@ -419,3 +419,55 @@ def test_bench_command_reports_every_stage(sample_dir, tmp_path, capsys):
     assert data["runs"][0]["label"] == data["runs"][1]["label"]
     assert data["redecide"]["redecide_equals_cached_rerun"] is True
     assert data["long"]["n_pairs"] == 40 - 5
+
+
+# -- the pair memo (a rule's threshold-independent evidence) ------------------------------------------
+
+def test_pair_memo_lives_as_long_as_both_clouds():
+    from artclass_core import Cloud
+    from artclass_core.pipeline import _PAIR_MEMOS, pair_memo
+
+    a, b = Cloud(0, np.zeros((3, 3))), Cloud(1, np.ones((3, 3)))
+    memo = pair_memo(a, b)
+    memo["evidence"] = 42
+    assert pair_memo(a, b) is memo
+    assert pair_memo(b, a) is not memo, "the pair is ordered"
+    assert pair_memo(a, Cloud(1, np.ones((3, 3)))) is not memo, "equal contents, another object"
+    n = len(_PAIR_MEMOS)
+    del b
+    gc.collect()
+    assert len(_PAIR_MEMOS) < n, "dropped with the target"
+    b2 = Cloud(1, np.ones((3, 3)))
+    assert "evidence" not in pair_memo(a, b2), "a new cloud never sees an old memo, even at a reused id"
+
+
+def test_rule_evidence_in_the_memo_is_reused_when_redeciding(registry, hinge):
+    """A rule that keeps its costly part in pair_memo does it once per pair, however often it re-decides."""
+    from artclass_core import DecisionRule, RuleDecision
+    from artclass_core.pipeline import pair_memo
+
+    calls = []
+
+    class Memoising(DecisionRule):
+        name, description = "memo_test", "test rule"
+        Params = registry.get("rule", "paper").Params
+
+        def decide(self, cells, *, source, target):
+            memo = pair_memo(source, target)
+            key = tuple((c.cell, id(c.registration)) for c in cells if c.matched)
+            if key not in memo:
+                calls.append(1)
+                memo[key] = sum(c.registration.fitness for c in cells if c.matched)
+            decision = "AM" if memo[key] > self.params.q_bar * 10 else "NM"
+            return RuleDecision(decision, [0 if c.matched else None for c in cells], ["all"])
+
+    first = Pipeline(registry, config()).run(hinge, keep_clouds=True)
+    pipe = Pipeline(registry, config())
+    pipe.rule = Memoising(Memoising.Params(q_bar=0.1))
+    one = pipe.redecide(first)
+    n_calls = len(calls)
+    assert n_calls == sum(bool(p.cells) and p.decision != "skipped" for p in one.pairs) > 0
+    pipe.rule = Memoising(Memoising.Params(q_bar=1.9))
+    two = pipe.redecide(first)
+    assert len(calls) == n_calls, "the evidence was found again"
+    assert [p.decision for p in one.pairs] != [p.decision for p in two.pairs]
