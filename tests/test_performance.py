@@ -61,6 +61,13 @@ def test_identical_results_whatever_the_number_of_workers(registry, hinge, regis
     assert fingerprint(runs[2]) == fingerprint(runs[0])
 
 
+def test_identical_results_with_the_default_config(registry, hinge):
+    cfg = dataclasses.replace(Config(), pipeline=PipelineParams(k=2))
+    one, two = (Pipeline(registry, cfg).run(hinge, workers=w) for w in (1, 2))
+    assert fingerprint(two) == fingerprint(one)
+    assert [p.info for p in two.pairs] == [p.info for p in one.pairs]
+
+
 def test_workers_with_skipped_frames_and_k1(registry):
     seq = make_sequence("hinge", n_frames=8, empty_frames=(2, 5))
     cfg = config(pipeline=PipelineParams(k=1))
