@@ -92,6 +92,9 @@ def cmd_evaluate(registry: Registry, args) -> int:
     configs = [config_from_args(registry, args)]
     if args.compare_rule:
         configs.append(config_from_args(registry, args, rule=args.compare_rule))
+    if args.compare_paper:
+        configs.append(config_from_args(registry, args, preprocessor="paper", rule="paper")
+                       .with_overrides(registry, {"prealign": False}))
     evals = [evaluate(registry, sequences, c, progress=_progress(sys.stderr.isatty())) for c in configs]
     if args.json:
         print(json.dumps(dict(evaluations=[e.to_dict() for e in evals]), indent=1))
@@ -148,6 +151,8 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p.add_argument("root")
     _pipeline_options(p)
     p.add_argument("--compare-rule", metavar="RULE", help="also evaluate this decision rule, side by side")
+    p.add_argument("--compare-paper", action="store_true",
+                   help="also evaluate the paper's pipeline as written (paper preprocessor and rule, no prealignment)")
     p.set_defaults(func=partial(cmd_evaluate, registry))
     p = sub.add_parser("plugins", help="list the registered plugins and their parameters")
     p.add_argument("--json", action="store_true")

@@ -107,8 +107,16 @@ def evaluate(registry: Registry, sequences: list[Sequence], config: Config, *, p
         outcomes.append(o)
         if progress:
             progress("sequences", n + 1, len(sequences))
-    return Evaluation(config.rule, outcomes, dict(plugins={k: getattr(config, k) for k in
+    return Evaluation(config_label(config), outcomes, dict(plugins={k: getattr(config, k) for k in
                                                             ("segmenter", "preprocessor", "registrar", "rule")}))
+
+
+def config_label(config: Config) -> str:
+    """A short column name: the rule, and what else differs from the default pipeline."""
+    default = Config()
+    parts = [config.rule] + [f"{kind}={getattr(config, kind)}" for kind in ("segmenter", "preprocessor", "registrar")
+                             if getattr(config, kind) != getattr(default, kind)]
+    return ", ".join(parts + ([] if config.pipeline.prealign else ["no prealign"]))
 
 
 def _pct(x: float | None) -> str:
