@@ -163,7 +163,7 @@ def test_app_renders_3d_and_follows_a_slider(server, page):
     page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
     pair_thumb = page.locator('[data-testid="stSlider"]').filter(has=page.get_by_text("Pair", exact=True)) \
         .get_by_role("slider")
-    page.wait_for_function(f"(el) => el.getAttribute('aria-valuetext').startsWith('2 → {k + 1}')",
+    page.wait_for_function(f"(el) => el.getAttribute('aria-valuetext') === '2 → {k + 1}'",
                            arg=pair_thumb.element_handle(), timeout=60_000)
     page.get_by_text(f"Pair 2 → {k + 1}:").wait_for(timeout=60_000)
     _no_errors(page)
@@ -179,6 +179,9 @@ def test_app_renders_3d_and_follows_a_slider(server, page):
     t_decide = time.perf_counter() - t2
     assert rule_thumb.get_attribute("aria-valuetext") != value
     _no_errors(page)
+    # The chosen pair stays chosen when the decisions change.
+    assert pair_thumb.get_attribute("aria-valuetext") == f"2 → {k + 1}"
+    assert page.get_by_text(f"Pair 2 → {k + 1}:").count() == 1
     page.wait_for_timeout(1000)
     page.screenshot(path=str(ARTEFACTS / "app_browser.png"), full_page=True)
     print(f"\nbrowser: first page with 3D plot {t_first:.2f} s; k slider -> new timeline {t_rerun:.2f} s; "

@@ -135,8 +135,10 @@ def show_result(seq: Sequence, config, result) -> None:
     st.plotly_chart(timeline, key="an_timeline", on_select="rerun", selection_mode="points",
                     config={"displaylogo": False}, theme=None)
     st.caption("Click a pair in the timeline, or use the slider, to see its cells below.")
+    # The labels name the frames only: a label that changed with the decisions would make a new
+    # widget (and lose the chosen pair) whenever a slider re-decides.
     st.select_slider("Pair", options=list(range(n_pairs)), key="an_pair",
-                     format_func=lambda n: f"{pairs[n].i} → {pairs[n].j} · {pairs[n].decision}")
+                     format_func=lambda n: f"{pairs[n].i} → {pairs[n].j}")
     pair = pairs[st.session_state["an_pair"]]
     source, target = result.frames[pair.i], result.frames[pair.j]
     if pair.decision == "skipped" and not pair.cells:
