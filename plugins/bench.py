@@ -139,8 +139,9 @@ def _supports(fn, name: str) -> bool:
 
 def _config(registry, spec: dict):
     from artclass_core import Config
-    cfg = Config(segmenter=spec["segmenter"], registrar=spec["registrar"],
-                 **({"rule": spec["rule"]} if spec.get("rule") else {}))
+    base = Config.paper() if spec.get("paper") else Config()
+    cfg = dataclasses.replace(base, segmenter=spec["segmenter"], registrar=spec["registrar"],
+                              **({"rule": spec["rule"]} if spec.get("rule") else {}))
     overrides = dict(spec.get("params") or {})
     return cfg.with_overrides(registry, overrides) if overrides else cfg
 
@@ -299,7 +300,7 @@ def _f(x, fmt="{:.1f}") -> str:
 def format_run(m: dict) -> str:
     spec = m["spec"]
     head = (f"segmenter={spec['segmenter']} registrar={spec['registrar']} workers={spec.get('workers', 1)}"
-            + (f" rule={spec['rule']}" if spec.get("rule") else ""))
+            + (f" rule={spec['rule']}" if spec.get("rule") else "") + (" (Config.paper())" if spec.get("paper") else ""))
     if "error" in m:
         return f"{head}\n  error: {m['error']}\n"
     lines = [f"{head}: {m['n_frames']} frames, {m['n_pairs']} pairs ({m['n_decided']} decided), "
@@ -380,7 +381,7 @@ def run_bench(args) -> int:
     for name in missing:
         out.write(f"segmenter {name!r} is not registered: skipped\n\n")
     results: dict[str, Any] = dict(sequence=path, runs=[], commit=rev)
-    base = dict(path=path, rule=args.rule, params=dict(p.split("=", 1) for p in args.param))
+    base = dict(path=path, rule=args.rule, paper=args.paper, params=dict(p.split("=", 1) for p in args.param))
     for seg in segmenters:
         for regname in registrars:
             for w in workers:
@@ -415,6 +416,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--segmenters", default="mask,depth_threshold", help="comma-separated (default mask,depth_threshold)")
     p.add_argument("--registrars", default="all", help="comma-separated, or all (default)")
     p.add_argument("--rule", help="decision rule (default: the pipeline's default)")
+    p.add_argument("--paper", action="store_true",
+                   help="start from Config.paper() (the paper's pipeline as written) instead of the defaults")
     p.add_argument("--workers", default=f"1,{max(os.cpu_count() or 1, 1)}" if (os.cpu_count() or 1) > 1 else "1",
                    help="comma-separated worker counts to measure (default 1 and the number of CPUs)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
