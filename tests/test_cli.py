@@ -17,10 +17,10 @@ from conftest import ROOT, sample_sequences
 LABELS = {"articulated", "rigid", "static"}
 BUILTINS = {
     "reader": {"folder", "ycbv", "rbo", "tum"},
-    "segmenter": {"mask", "depth_threshold"},
-    "preprocessor": {"paper"},
+    "segmenter": {"mask", "depth_threshold", "u2net", "maskrcnn"},
+    "preprocessor": {"paper", "fine"},
     "registrar": {"icp_point_to_point", "icp_point_to_plane"},
-    "rule": {"paper"},
+    "rule": {"paper", "robust"},
 }
 SAMPLES = sample_sequences()
 
