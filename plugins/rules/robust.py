@@ -29,8 +29,10 @@ For a pair (i, i + k):
 5. Otherwise a greedy cover: the hypothesis that explains most points, then the one that explains
    most of the rest, and so on. A further motion needs at least ``min_part_cells`` cells and
    ``min_part_share`` of the informative points: a lone outlier cell is not a part.
-6. Cross-explanation: with two or more motions, one ICP refit on all their points is tried from each
-   motion; if a single rigid motion explains the supposed parts as well, there is one motion.
+6. Cross-explanation: with two or more motions, one ICP refit on all their points is tried from the
+   identity, the whole-object motions and each motion found; if a single rigid motion explains the
+   supposed parts as well, there is one motion (on a cylinder or a plane the whole-object fit may
+   have slid, and a region that pins the slide then looks like a part of its own).
 7. Two or more motions: AM. One motion: RM, or NM when it moves no point by more than tau
    (a motion within noise is no motion).
 """
@@ -67,7 +69,7 @@ class RobustRuleParams(Params):
                                 help="No motion when the identity explains this share of the informative points.")
     min_part_cells: int = param(2, unit="cells", bounds=(1, 100),
                                 help="A second motion needs at least this many cells of its own.")
-    min_part_share: float = param(0.1, unit="fraction", bounds=(0.0, 0.5),
+    min_part_share: float = param(0.15, unit="fraction", bounds=(0.0, 0.5),
                                   help="A second motion needs at least this share of the informative points.")
     max_points_per_cell: int = param(48, unit="points", bounds=(4, 10000),
                                      help="Points per cell used for scoring (evenly subsampled, for speed).")
@@ -167,7 +169,7 @@ class RobustRule(DecisionRule):
 
         motions, members = self._cover(hyps, explains, weight, total, informative)
         if len(motions) >= 2:
-            merged = self._single_motion(motions, members, residuals, pts, owner, counts, best, weight,
+            merged = self._single_motion(motions, members, hyps[:n_global], residuals, pts, owner, counts, best, weight,
                                          tgt, tau, spacing, extent)
             if merged is not None:
                 motions, members = [merged[0]], [merged[1]]
@@ -201,14 +203,14 @@ class RobustRule(DecisionRule):
             left[cs] = False
         return motions, members
 
-    def _single_motion(self, motions, members, residuals, pts, owner, counts, best, weight, tgt, tau,
+    def _single_motion(self, motions, members, seeds, residuals, pts, owner, counts, best, weight, tgt, tau,
                        spacing, extent):
         """One rigid motion that explains all the supposed parts nearly as well, if there is one."""
         p = self.params
         cells = np.concatenate(members)
         use = np.isin(owner, cells)
         total = weight[cells].sum()
-        for T0 in motions:
+        for T0 in seeds + motions:
             T = icp_point_to_plane(_pcd(pts[use]), tgt, T0, [extent / 10, 2 * spacing, spacing, 2 * tau])
             share = _per_cell((residuals(T) <= tau)[None], owner, counts)[0]
             ok = _explains(share[None, cells], best[cells], counts[cells], p.explain_margin)[0]
