@@ -14,15 +14,17 @@ import time
 from collections import Counter
 from collections.abc import Callable
 
-from artclass_core import (CellMotion, Config, FrameResult, InputError, PairResult, Pipeline, PipelineParams,
-                           RunResult, Sequence)
+from artclass_core import (CellMotion, Cloud, Config, FrameResult, InputError, PairResult, Pipeline,
+                           PipelineParams, RunResult, Sequence)
 
-# Pipeline parameters a stage's output does NOT depend on (the stage table in artclass_core.pipeline:
-# the fitness and alpha checks are part of ``decide``). Everything else is part of the stage's key,
-# so a parameter added to PipelineParams later invalidates every stage (safe, if slower).
+# Pipeline parameters a stage's output does NOT depend on. Everything else is part of the stage's
+# key, so a parameter added to PipelineParams later invalidates every stage (safe, if slower).
+# The register stage runs with min_fitness = 0 (no cell is skipped for low fitness); the fitness
+# check is applied when deciding (:func:`decide_registered`), so moving min_fitness needs no ICP.
 _NOT_FRAME = ("k", "w", "alpha", "cell_size_m", "min_fitness")
-_NOT_REGISTER = ("k", "w", "alpha", "min_fitness")
+_NOT_REGISTER = ("k", "w", "alpha")
 _NOT_DECIDE = ("k", "w")
+_REGISTER_MIN_FITNESS = 0.0
 
 Progress = Callable[[str, int, int], None]
 
@@ -53,11 +55,25 @@ def stage_config(config: Config, stage: str) -> Config:
         return dataclasses.replace(base, **keep, pipeline=_reset(config.pipeline, _NOT_FRAME))
     keep.update(registrar=config.registrar, registrar_params=config.registrar_params)
     if stage == "register":
-        return dataclasses.replace(base, **keep, pipeline=_reset(config.pipeline, _NOT_REGISTER))
+        pipeline = _reset(config.pipeline, _NOT_REGISTER)
+        if hasattr(pipeline, "min_fitness"):
+            pipeline = dataclasses.replace(pipeline, min_fitness=_REGISTER_MIN_FITNESS)
+        return dataclasses.replace(base, **keep, pipeline=pipeline)
     keep.update(rule=config.rule, rule_params=config.rule_params)
     if stage == "decide":
         return dataclasses.replace(base, **keep, pipeline=_reset(config.pipeline, _NOT_DECIDE))
     raise ValueError(f"unknown stage {stage!r}; expected frame, register or decide")
+
+
+def decide_registered(pipeline: Pipeline, i: int, j: int, cells: list[CellMotion], source: Cloud, target: Cloud,
+                      cell_size_m: float) -> PairResult:
+    """Decide a pair registered by the ``register`` stage pipeline of :func:`stage_config`.
+
+    That stage marks no cell as low-fitness; this applies ``pipeline``'s own fitness check
+    (:meth:`Pipeline.checked_cells`, which copies the cells) and then :meth:`Pipeline.decide`. The
+    result equals ``pipeline.decide`` on ``pipeline.register``'s cells. ``cells`` are not modified.
+    """
+    return pipeline.decide(i, j, pipeline.checked_cells(cells), source, target, cell_size_m)
 
 
 def stage_key(config: Config, stage: str) -> str:
@@ -80,8 +96,9 @@ def run_staged(sequence: Sequence, config: Config, summary: Pipeline, *,
     summary : a :class:`Pipeline` built on ``config``, used for :meth:`Pipeline.summarise`
     frame : ``i -> FrameResult`` with its cloud (``Pipeline.frame``)
     register : ``(frame_i, frame_j) -> (cells, x)`` (``Pipeline.register`` on the two clouds)
-    decide : ``(frame_i, frame_j, cells, x) -> PairResult`` (``Pipeline.decide``); it may mutate
-        ``cells``, so ``register`` must hand out a copy each time
+    decide : ``(frame_i, frame_j, cells, x) -> PairResult`` (:func:`decide_registered`, or
+        ``Pipeline.decide``); it must not modify ``cells`` or the frames (neither does the core's),
+        since the app hands out the very same cached objects on every re-run
     progress : called as ``progress(stage, done, total)`` for stages ``frames``, ``registration``
         and ``decision``
 

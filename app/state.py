@@ -11,8 +11,12 @@ cache              key                                         recomputed when
 (not cached)       summarise                                   w, k (k only pairs other, cached frames)
 =================  ==========================================  ===========================================
 
-``st.cache_data`` hands out a fresh unpickled copy on every call, so :meth:`Pipeline.decide`
-(which writes each cell's cluster) never changes a cached registration.
+The frame and register stages are ``st.cache_resource``: every re-run gets the very same cloud and
+registration objects (nothing is copied, and a decision rule's :func:`artclass_core.pipeline.pair_memo`
+evidence survives a slider move). Nothing in the app modifies them: :meth:`Pipeline.decide` and
+:meth:`Pipeline.checked_cells` work on copies. The register stage runs without the fitness check
+(``min_fitness`` = 0); it is applied when deciding (:func:`app.runner.decide_registered`). The
+decisions are ``st.cache_data`` (a copy per call; the app sets each pair's ground truth on it).
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from artclass_core import (ArtclassError, CellMotion, Config, FrameResult, Input
 from artclass_core.pipeline import AUTO_SEGMENTER
 
 from . import controls, uploads
-from .runner import run_staged, stage_config, stage_key
+from .runner import decide_registered, run_staged, stage_config, stage_key
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV_SAMPLES = "ARTCLASS_SAMPLE_DATA"
@@ -104,24 +108,26 @@ def sequence_key(seq: Sequence) -> str:
 
 
 # -- cached stages -------------------------------------------------------------------------------------
-@st.cache_data(max_entries=2000, show_spinner=False)
+@st.cache_resource(max_entries=2000, show_spinner=False)
 def frame_result(seq_key: str, i: int, key: str, _sequence: Sequence, _config: Config) -> FrameResult:
-    """Segment and preprocess frame ``i`` (``Pipeline.frame``); keeps the cloud."""
+    """Segment and preprocess frame ``i`` (``Pipeline.frame``); keeps the cloud. Shared: read only."""
     return stage_pipeline(_config, "frame").frame(_sequence, i)
 
 
-@st.cache_data(max_entries=2000, show_spinner=False)
+@st.cache_resource(max_entries=2000, show_spinner=False)
 def registered(seq_key: str, i: int, j: int, key: str, _config: Config, _source: FrameResult,
-               _target: FrameResult) -> tuple[list[CellMotion], float]:
-    """Per-cell ICP of the pair (i, j) (``Pipeline.register``): cells and the cell size x."""
-    return stage_pipeline(_config, "register").register(_source.cloud, _target.cloud)
+               _target: FrameResult) -> tuple[tuple[CellMotion, ...], float]:
+    """Per-cell ICP of the pair (i, j) (``Pipeline.register`` without the fitness check): cells and
+    the cell size x. Shared: read only."""
+    cells, x = stage_pipeline(_config, "register").register(_source.cloud, _target.cloud)
+    return tuple(cells), x
 
 
 @st.cache_data(max_entries=4000, show_spinner=False)
 def decided(seq_key: str, i: int, j: int, key: str, _config: Config, _source: FrameResult, _target: FrameResult,
-            _cells: list[CellMotion], x: float) -> PairResult:
-    """Alpha check and decision rule of the pair (``Pipeline.decide``)."""
-    return stage_pipeline(_config, "decide").decide(i, j, _cells, _source.cloud, _target.cloud, x)
+            _cells: tuple[CellMotion, ...], x: float) -> PairResult:
+    """Fitness and alpha checks and the decision rule of the pair (:func:`app.runner.decide_registered`)."""
+    return decide_registered(stage_pipeline(_config, "decide"), i, j, list(_cells), _source.cloud, _target.cloud, x)
 
 
 @st.cache_data(max_entries=64, show_spinner=False)

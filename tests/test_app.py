@@ -113,6 +113,17 @@ def assert_matches_pipeline(at: AppTest, registry, folder: Path) -> None:
     expected = Pipeline(registry, config).run(open_sequences(registry, folder)[0])
     assert timeline_decisions(at) == [p.decision for p in expected.pairs]
     assert metric(at, "Label") == expected.label
+    pair = expected.pairs[at.session_state["an_pair"]]
+    if pair.cells:
+        assert selected_cells(at) == (len(pair.cells), sum(c.matched for c in pair.cells))
+
+
+def selected_cells(at: AppTest) -> tuple[int, int]:
+    """(cells, matched cells) of the selected pair, from the heading of its cells table."""
+    import re
+    label = next(e.label for e in at.expander if e.label.startswith("Cells of pair"))
+    n, m = re.search(r"\((\d+) cells, (\d+) matched\)", label).groups()
+    return int(n), int(m)
 
 
 def use_paper_rule(at: AppTest) -> AppTest:
@@ -182,10 +193,12 @@ def test_opens_on_first_articulated_sample_and_matches_the_pipeline(app, data_ro
 
 def test_decision_sliders_redecide_without_icp(app, monkeypatch, registry, data_root):
     use_paper_rule(ok(app.run()))
-    before = timeline_decisions(ok(app))
+    app.toggle(key="cfg_advanced").set_value(True).run()
+    # A tight ICP correspondence distance, so that cells' fitness spreads below 1 (min_fitness matters).
+    app.select_slider(key="cfg_p:registrar:icp_point_to_point:max_correspondence_cells").set_value(0.1)
+    before = timeline_decisions(ok(app.run()))
     counter = CallCounter(monkeypatch, "frame", "register", "decide")
     # Huge steps rounded to the nearest bin put every cell's motion in the zero key: NM everywhere.
-    app.toggle(key="cfg_advanced").set_value(True).run()
     app.selectbox(key="cfg_p:rule:paper:rounding").set_value("round")
     app.select_slider(key="cfg_p:rule:paper:q_bar").set_value(2.0)
     app.select_slider(key="cfg_p:rule:paper:t_bar").set_value(10.0)
@@ -197,11 +210,16 @@ def test_decision_sliders_redecide_without_icp(app, monkeypatch, registry, data_
     assert counter.calls["register"] == 0 and counter.calls["frame"] == 0, counter.calls
     assert counter.calls["decide"] > 0
     assert_matches_pipeline(app, registry, data_root / "laptop_articulate")
-    # min_fitness is checked when deciding: no ICP either.
-    app.select_slider(key="cfg_p:pipeline:core:min_fitness").set_value(0.95)
+    # min_fitness is checked when deciding: no ICP either, yet the cells it rejects change.
+    matched_before = selected_cells(app)[1]
+    app.select_slider(key="cfg_p:pipeline:core:min_fitness").set_value(0.9)
     ok(app.run())
     assert counter.calls["register"] == 0 and counter.calls["frame"] == 0, counter.calls
+    assert selected_cells(app)[1] < matched_before
     assert_matches_pipeline(app, registry, data_root / "laptop_articulate")
+    app.select_slider(key="cfg_p:pipeline:core:min_fitness").set_value(0.3)
+    ok(app.run())
+    assert selected_cells(app)[1] == matched_before
     # Moving x re-registers the pairs, but does not segment or preprocess again.
     app.checkbox(key="cfg_auto:pipeline:core:cell_size_m").uncheck().run()
     app.select_slider(key="cfg_p:pipeline:core:cell_size_m").set_value(0.03)
@@ -500,24 +518,34 @@ def laptop_run(registry, laptop):
     return Pipeline(registry, Config()).run(laptop, keep_clouds=True)
 
 
-@pytest.mark.parametrize("rule", ["paper", None])
-def test_run_staged_equals_pipeline_run(registry, laptop, rule):
-    config = Config(rule=rule or Config().rule, pipeline=PipelineParams(k=3, w=1))
+@pytest.mark.parametrize("rule, min_fitness", [("paper", 0.3), ("paper", 0.95), (None, 0.3), (None, 0.95)])
+def test_run_staged_equals_pipeline_run(registry, laptop, rule, min_fitness):
+    """Through the stage pipelines and the fitness check at decision time, as the app runs. A tight
+    ICP correspondence distance spreads the cells' fitness below 1, so min_fitness rejects some."""
+    icp = registry.get("registrar", "icp_point_to_point").Params(max_correspondence_cells=0.1)
+    config = Config(rule=rule or Config().rule, registrar="icp_point_to_point", registrar_params=icp,
+                    pipeline=PipelineParams(k=3, w=1, min_fitness=min_fitness))
     expected = Pipeline(registry, config).run(laptop)
-    p = Pipeline(registry, config)
+    stage = {s: Pipeline(registry, runner.stage_config(config, s)) for s in ("frame", "register", "decide")}
     seen = []
-    result = runner.run_staged(laptop, config, p, frame=lambda i: p.frame(laptop, i),
-                               register=lambda a, b: p.register(a.cloud, b.cloud),
-                               decide=lambda a, b, cells, x: p.decide(a.index, b.index, cells, a.cloud, b.cloud, x),
-                               progress=lambda stage, done, total: seen.append((stage, done, total)))
+    result = runner.run_staged(
+        laptop, config, Pipeline(registry, config), frame=lambda i: stage["frame"].frame(laptop, i),
+        register=lambda a, b: stage["register"].register(a.cloud, b.cloud),
+        decide=lambda a, b, cells, x: runner.decide_registered(stage["decide"], a.index, b.index, cells, a.cloud,
+                                                               b.cloud, x),
+        progress=lambda stage_, done, total: seen.append((stage_, done, total)))
     assert result.label == expected.label and result.filtered == expected.filtered
     assert [p.decision for p in result.pairs] == [p.decision for p in expected.pairs]
+    assert [[c.skipped for c in p.cells] for p in result.pairs] == [[c.skipped for c in p.cells] for p in expected.pairs]
+    assert [[c.cluster for c in p.cells] for p in result.pairs] == [[c.cluster for c in p.cells] for p in expected.pairs]
     assert [p.truth for p in result.pairs] == [p.truth for p in expected.pairs]
     assert result.fractions == expected.fractions
+    if min_fitness == 0.95:   # the check at decision time did reject cells
+        assert any(str(c.skipped).startswith("low fitness") for p in result.pairs for c in p.cells)
     assert ("frames", N_FRAMES, N_FRAMES) in seen and ("decision", N_FRAMES - 3, N_FRAMES - 3) in seen
     with pytest.raises(InputError, match="needs at least"):
-        runner.run_staged(laptop, Config(pipeline=PipelineParams(k=N_FRAMES)), p, frame=None, register=None,
-                          decide=None)
+        runner.run_staged(laptop, Config(pipeline=PipelineParams(k=N_FRAMES)), stage["decide"], frame=None,
+                          register=None, decide=None)
 
 
 def test_stage_keys_depend_on_what_the_stage_uses():
