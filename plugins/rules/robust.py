@@ -49,6 +49,9 @@ from artclass_core import CellMotion, Cloud, DecisionRule, Params, RuleDecision,
 from artclass_core.geometry import rotation_angle_rad, transform
 
 reg = o3d.pipelines.registration
+# One Open3D thread: multi-threaded point-to-plane ICP sums its normal equations in a varying order,
+# and the last-digit differences flip close decisions between runs (see plugins/registrars.py).
+o3d.utility.set_max_threads(1)
 
 
 @dataclass(frozen=True)
