@@ -47,6 +47,7 @@ from scipy.spatial import cKDTree
 
 from artclass_core import CellMotion, Cloud, DecisionRule, Params, RuleDecision, param
 from artclass_core.geometry import rotation_angle_rad, transform
+from artclass_core.pipeline import pair_memo
 
 reg = o3d.pipelines.registration
 # One Open3D thread: multi-threaded point-to-plane ICP sums its normal equations in a varying order,
@@ -106,57 +107,31 @@ class RobustRule(DecisionRule):
         matched = [n for n, c in enumerate(cells) if c.matched]
         if not matched or source.normals is None or target.normals is None:
             return RuleDecision("skipped", [None] * len(cells), reason="no matched cell with normals")
-        spacing = float(source.info.get("v_m") or np.median(cKDTree(source.points).query(source.points, k=2)[0][:, 1]))
-        extent = float(np.linalg.norm(np.ptp(np.concatenate([source.points, target.points]), axis=0)))
-        tree = cKDTree(target.points)
-        tgt = _pcd(target.points, target.normals)
+        # What the thresholds do not change is computed once per pair and found again on re-deciding.
+        memo = pair_memo(source, target)
+        key = ("robust", p.max_points_per_cell, tuple((cells[n].cell, id(cells[n].registration)) for n in matched))
+        ev = memo.get(key)
+        if ev is None:
+            ev = memo[key] = _Evidence(cells, matched, source, target, max_points=p.max_points_per_cell)
+        owner, counts = ev.owner, ev.counts
 
-        # Scoring points: every matched cell's source points, evenly subsampled.
-        idx = [c.source_idx[np.linspace(0, len(c.source_idx) - 1, min(len(c.source_idx), p.max_points_per_cell)).astype(int)]
-               for c in (cells[n] for n in matched)]
-        owner = np.repeat(np.arange(len(matched)), [len(i) for i in idx])
-        pts = source.points[np.concatenate(idx)]
-        counts = np.bincount(owner, minlength=len(matched)).astype(float)
-
-        def residuals(T: np.ndarray) -> np.ndarray:
-            moved = transform(pts, T)
-            d, j = tree.query(moved)
-            return np.maximum(np.abs(np.einsum("ij,ij->i", moved - target.points[j], target.normals[j])),
-                              d - spacing)
-
-        # Whole-object motions, from the identity and from the centroid shift, coarse to fine.
-        src_all = _pcd(source.points, source.normals)
-        steps = [extent / 5, extent / 10, extent / 20, 3 * spacing]
-        shift = np.eye(4)
-        shift[:3, 3] = target.points.mean(0) - source.points.mean(0)
-        hyps = [np.eye(4), icp_point_to_plane(src_all, tgt, np.eye(4), steps), icp_point_to_plane(src_all, tgt, shift, steps)]
-        n_global = len(hyps)
-        hyps += [cells[n].registration.T_target_from_source for n in matched]
-        geo = np.stack([residuals(T) for T in hyps])                      # (H, P) metres
-
-        # Noise measured on the data, independent of any motion: the spread of the target's points about
-        # their local planes; two noisy samplings of one surface differ by sqrt(2) of that.
-        sigma = np.sqrt(2.0) * surface_noise(target.points, tree)
-        tau = max(p.noise_floor_m, p.noise_factor * sigma)
+        tau = max(p.noise_floor_m, p.noise_factor * ev.sigma)
+        hyps, geo = list(ev.hyps), ev.geo
         score = _per_cell(geo <= tau, owner, counts)                       # (H, C) inlier share
 
         # Cells the best whole-object motion leaves unexplained get local hypotheses of their own.
-        g = 1 + int(np.argmax(score[1:n_global] @ counts))
+        g = 1 + int(np.argmax(score[1:ev.n_global] @ counts))
         best = score.max(axis=0)
         poor = np.flatnonzero(score[g] < np.maximum(best, p.min_cell_score) - p.explain_margin)
-        extra = []
-        for c in poor:
-            cell = cells[matched[c]]
-            src_cell = _pcd(source.points[cell.source_idx], source.normals[cell.source_idx])
-            near = [4 * spacing, 2 * spacing]
-            extra += [icp_point_to_plane(src_cell, tgt, hyps[g], near), icp_point_to_plane(src_cell, tgt, np.eye(4), near)]
+        extra = [ev.local(c, g) for c in poor]
         if extra:
-            hyps += extra
-            score = np.concatenate([score, _per_cell(np.stack([residuals(T) <= tau for T in extra]), owner, counts)])
+            hyps += [T for pair in extra for T, _ in pair]
+            geo = np.concatenate([geo, np.stack([r for pair in extra for _, r in pair])])
+            score = _per_cell(geo <= tau, owner, counts)
 
         best = score.max(axis=0)
         informative = best >= p.min_cell_score
-        info = dict(tau_m=round(tau, 6), sigma_m=round(float(sigma), 6), n_informative=int(informative.sum()),
+        info = dict(tau_m=round(tau, 6), sigma_m=round(float(ev.sigma), 6), n_informative=int(informative.sum()),
                     n_hypotheses=len(hyps))
         clusters: list[int | None] = [None] * len(cells)
         if not informative.any():
@@ -170,10 +145,10 @@ class RobustRule(DecisionRule):
                 clusters[matched[c]] = 0
             return RuleDecision("NM", clusters, ["no motion"], reason="the identity explains the points", info=info)
 
-        motions, members = self._cover(hyps, explains, weight, total, informative)
+        chosen, members = self._cover(explains, weight, total, informative)
+        motions = [hyps[h] for h in chosen]
         if len(motions) >= 2:
-            merged = self._single_motion(motions, members, hyps[:n_global], residuals, pts, owner, counts, best, weight,
-                                         tgt, tau, spacing, extent)
+            merged = self._single_motion(ev, hyps, list(range(ev.n_global)) + chosen, members, best, weight, tau)
             if merged is not None:
                 motions, members = [merged[0]], [merged[1]]
                 info["merged"] = True
@@ -184,42 +159,104 @@ class RobustRule(DecisionRule):
         info.update(motions=keys, support=[round(float(weight[cs].sum() / total), 4) for cs in members])
         if len(motions) >= 2:
             return RuleDecision("AM", clusters, keys, reason=f"{len(motions)} distinct motions", info=info)
-        shift_m = float(np.max(np.linalg.norm(transform(pts, motions[0]) - pts, axis=1)))
+        shift_m = float(np.max(np.linalg.norm(transform(ev.pts, motions[0]) - ev.pts, axis=1)))
         info["max_displacement_m"] = round(shift_m, 6)
         if shift_m <= tau:
             return RuleDecision("NM", clusters, keys, reason="the only motion is within noise", info=info)
         return RuleDecision("RM", clusters, keys, reason="one motion explains the points", info=info)
 
-    def _cover(self, hyps, explains, weight, total, informative):
-        """Greedy cover of the informative cells by motions with enough support."""
+    def _cover(self, explains, weight, total, informative):
+        """Greedy cover of the informative cells by motions (hypothesis indices) with enough support."""
         p = self.params
         left = informative.copy()
-        motions, members = [], []
+        chosen, members = [], []
         while left.any():
             gain = (explains & left) @ weight
             h = int(np.argmax(gain))
             cs = np.flatnonzero(explains[h] & left)
-            if motions and (len(cs) < p.min_part_cells or weight[cs].sum() < p.min_part_share * total):
+            if chosen and (len(cs) < p.min_part_cells or weight[cs].sum() < p.min_part_share * total):
                 break
-            motions.append(hyps[h])
+            chosen.append(h)
             members.append(cs)
             left[cs] = False
-        return motions, members
+        return chosen, members
 
-    def _single_motion(self, motions, members, seeds, residuals, pts, owner, counts, best, weight, tgt, tau,
-                       spacing, extent):
+    def _single_motion(self, ev, hyps, seeds, members, best, weight, tau):
         """One rigid motion that explains all the supposed parts nearly as well, if there is one."""
         p = self.params
         cells = np.concatenate(members)
-        use = np.isin(owner, cells)
         total = weight[cells].sum()
-        for T0 in seeds + motions:
-            T = icp_point_to_plane(_pcd(pts[use]), tgt, T0, [extent / 10, 2 * spacing, spacing, 2 * tau])
-            share = _per_cell((residuals(T) <= tau)[None], owner, counts)[0]
-            ok = _explains(share[None, cells], best[cells], counts[cells], p.explain_margin)[0]
+        for h in seeds:
+            T, r = ev.refit(tuple(sorted(cells.tolist())), hyps[h], tau)
+            share = _per_cell((r <= tau)[None], ev.owner, ev.counts)[0]
+            ok = _explains(share[None, cells], best[cells], ev.counts[cells], p.explain_margin)[0]
             if weight[cells][ok].sum() >= (1.0 - p.min_part_share) * total:
                 return T, cells
         return None
+
+
+class _Evidence:
+    """A pair's evidence that the rule's thresholds do not change: the scoring points, the motion
+    hypotheses and every point's residual under each, the measured noise, and the ICP refits done so
+    far (memoised, so re-deciding under other thresholds repeats none of this work)."""
+
+    def __init__(self, cells: list[CellMotion], matched: list[int], source: Cloud, target: Cloud, *,
+                 max_points: int):
+        self.source, self.target = source, target
+        self.spacing = float(source.info.get("v_m")
+                             or np.median(cKDTree(source.points).query(source.points, k=2)[0][:, 1]))
+        self.extent = float(np.linalg.norm(np.ptp(np.concatenate([source.points, target.points]), axis=0)))
+        self.tree = cKDTree(target.points)
+        self.tgt = _pcd(target.points, target.normals)
+        self.cell_idx = [cells[n].source_idx for n in matched]
+        # Scoring points: every matched cell's source points, evenly subsampled.
+        idx = [i[np.linspace(0, len(i) - 1, min(len(i), max_points)).astype(int)] for i in self.cell_idx]
+        self.owner = np.repeat(np.arange(len(matched)), [len(i) for i in idx])
+        self.pts = source.points[np.concatenate(idx)]
+        self.counts = np.bincount(self.owner, minlength=len(matched)).astype(float)
+        # Whole-object motions, from the identity and from the centroid shift, coarse to fine.
+        src_all = _pcd(source.points, source.normals)
+        steps = [self.extent / 5, self.extent / 10, self.extent / 20, 3 * self.spacing]
+        shift = np.eye(4)
+        shift[:3, 3] = target.points.mean(0) - source.points.mean(0)
+        self.hyps = [np.eye(4), icp_point_to_plane(src_all, self.tgt, np.eye(4), steps),
+                     icp_point_to_plane(src_all, self.tgt, shift, steps)]
+        self.n_global = len(self.hyps)
+        self.hyps += [cells[n].registration.T_target_from_source for n in matched]
+        self.geo = np.stack([self.residuals(T) for T in self.hyps])        # (H, P) metres
+        # Noise measured on the data, independent of any motion: the spread of the target's points about
+        # their local planes; two noisy samplings of one surface differ by sqrt(2) of that.
+        self.sigma = np.sqrt(2.0) * surface_noise(target.points, self.tree)
+        self._local: dict = {}
+        self._refits: dict = {}
+
+    def residuals(self, T: np.ndarray) -> np.ndarray:
+        """Each scoring point's misfit under T (m): distance to the nearest target point's tangent plane,
+        or to the point itself less one sampling step if larger."""
+        moved = transform(self.pts, T)
+        d, j = self.tree.query(moved)
+        t = self.target
+        return np.maximum(np.abs(np.einsum("ij,ij->i", moved - t.points[j], t.normals[j])), d - self.spacing)
+
+    def local(self, c: int, g: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Cell c's own ICP, from whole-object motion g and from the identity, with residuals."""
+        if (c, g) not in self._local:
+            i = self.cell_idx[c]
+            src = _pcd(self.source.points[i], self.source.normals[i])
+            near = [4 * self.spacing, 2 * self.spacing]
+            Ts = [icp_point_to_plane(src, self.tgt, self.hyps[g], near), icp_point_to_plane(src, self.tgt, np.eye(4), near)]
+            self._local[(c, g)] = [(T, self.residuals(T)) for T in Ts]
+        return self._local[(c, g)]
+
+    def refit(self, cells: tuple, T0: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
+        """One ICP refit from T0 on the scoring points of ``cells``, with the residuals of all points."""
+        key = (cells, T0.tobytes(), tau)
+        if key not in self._refits:
+            use = np.isin(self.owner, cells)
+            T = icp_point_to_plane(_pcd(self.pts[use]), self.tgt, T0,
+                                   [self.extent / 10, 2 * self.spacing, self.spacing, 2 * tau])
+            self._refits[key] = (T, self.residuals(T))
+        return self._refits[key]
 
 
 def _explains(score: np.ndarray, best: np.ndarray, counts: np.ndarray, margin: float) -> np.ndarray:
