@@ -70,7 +70,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ArtclassError, InputError, ParamError
-from .geometry import diameter_of_vertices, grid_cells, hull_vertices, largest_distance, transform
+from .geometry import diameter_of_vertices, grid_cells, hull_vertices, transform
 from .params import Params, PipelineParams, as_dict, describe, parse_value
 from .plugins import Registry
 from .types import DECISIONS, CellMotion, Cloud, FrameResult, PairResult, RunResult, Sequence
