@@ -88,12 +88,21 @@ def _pcd(points, normals=None):
 
 def icp_point_to_plane(source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, init: np.ndarray,
                        distances_m) -> np.ndarray:
-    """Point-to-plane ICP run coarse to fine over ``distances_m``; returns T_target_from_source."""
-    T = init
+    """Point-to-plane ICP run coarse to fine over ``distances_m``; returns T_target_from_source.
+
+    Solved about the source's centroid: point-to-plane ICP linearises the rotation about the origin,
+    and about a camera a metre away a few degrees of turn become centimetres of coupled translation
+    that the linear step gets wrong (cells then lose their correspondences).
+    """
+    c = source.get_center()
+    shift, unshift = np.eye(4), np.eye(4)
+    shift[:3, 3], unshift[:3, 3] = -c, c
+    src, tgt = o3d.geometry.PointCloud(source).translate(-c), o3d.geometry.PointCloud(target).translate(-c)
+    T = shift @ init @ unshift
     for d in distances_m:
-        T = reg.registration_icp(source, target, d, T, reg.TransformationEstimationPointToPlane(),
+        T = reg.registration_icp(src, tgt, d, T, reg.TransformationEstimationPointToPlane(),
                                  reg.ICPConvergenceCriteria(max_iteration=30)).transformation
-    return np.array(T)
+    return unshift @ np.array(T) @ shift
 
 
 class RobustRule(DecisionRule):
