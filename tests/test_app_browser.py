@@ -181,7 +181,10 @@ def test_app_renders_3d_and_follows_a_slider(server, page):
     _no_errors(page)
     # The chosen pair stays chosen when the decisions change.
     assert pair_thumb.get_attribute("aria-valuetext") == f"2 → {k + 1}"
-    assert page.get_by_text(f"Pair 2 → {k + 1}:").count() == 1
+    # Exactly one title for the chosen pair once the rerun has settled (Streamlit keeps the stale
+    # element in the page until the new one replaces it, so wait rather than count at once).
+    from playwright.sync_api import expect
+    expect(page.get_by_text(f"Pair 2 → {k + 1}:")).to_have_count(1, timeout=30_000)
     page.wait_for_timeout(1000)
     page.screenshot(path=str(ARTEFACTS / "app_browser.png"), full_page=True)
     print(f"\nbrowser: first page with 3D plot {t_first:.2f} s; k slider -> new timeline {t_rerun:.2f} s; "
