@@ -10,7 +10,7 @@ from typing import Any
 
 from .errors import ArtclassError
 from .evaluate import evaluate, markdown
-from .params import describe
+from .params import PipelineParams, describe
 from .pipeline import PLUGIN_KINDS, Config, Pipeline
 from .plugins import Registry, load_registry
 from .sequences import find_sequences, open_sequences
@@ -103,14 +103,23 @@ def cmd_evaluate(registry: Registry, args) -> int:
     return 0
 
 
+def _param_dicts(params_cls: type) -> list[dict[str, Any]]:
+    return [dict(name=s.name, symbol=s.symbol, unit=s.unit, default=s.default, bounds=list(s.bounds), auto=s.auto,
+                 help=s.help) for s in describe(params_cls)]
+
+
+def _param_line(*, name, symbol, unit, default, auto, **_) -> str:
+    sym = f" ({symbol})" if symbol else ""
+    value = f"auto: {auto}" if default is None else repr(default)
+    return f"      {name}{sym} = {value} {unit}".rstrip()
+
+
 def plugin_table(registry: Registry) -> dict[str, Any]:
     """Every registered plugin with its parameters and origin (what ``artclass plugins`` prints)."""
     out: dict[str, Any] = {}
     for kind in KINDS:
         out[kind] = [dict(name=info.name, description=info.cls.description, source=info.source,
-                          params=[dict(name=s.name, symbol=s.symbol, unit=s.unit, default=s.default,
-                                       bounds=list(s.bounds), auto=s.auto, help=s.help)
-                                  for s in describe(info.cls.Params)])
+                          params=_param_dicts(info.cls.Params))
                      for info in sorted(registry.plugins[kind].values(), key=lambda i: i.name)]
     return out
 
@@ -125,14 +134,10 @@ def cmd_plugins(registry: Registry, args) -> int:
         for item in items:
             print(f"  {item['name']:<22} {item['description']}  [{item['source']}]")
             for s in item["params"]:
-                sym = f" ({s['symbol']})" if s["symbol"] else ""
-                default = f"auto: {s['auto']}" if s["default"] is None else repr(s["default"])
-                print(f"      {s['name']}{sym} = {default} {s['unit']}".rstrip())
+                print(_param_line(**s))
     print("pipeline:")
-    for s in describe(Config().pipeline.__class__):
-        sym = f" ({s.symbol})" if s.symbol else ""
-        default = f"auto: {s.auto}" if s.default is None else repr(s.default)
-        print(f"      {s.name}{sym} = {default} {s.unit}".rstrip())
+    for s in _param_dicts(PipelineParams):
+        print(_param_line(**s))
     for name, err in registry.failures.items():
         print(f"failed to load plugin {name!r}: {err}")
     return 0

@@ -16,8 +16,12 @@ from artclass_core.geometry import largest_distance
 MIN_POINTS = 10
 
 
-def to_o3d(points: np.ndarray) -> o3d.geometry.PointCloud:
-    return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
+def to_o3d(points: np.ndarray, normals: np.ndarray | None = None) -> o3d.geometry.PointCloud:
+    """An Open3D point cloud of (N, 3) points, with their normals if given."""
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
+    if normals is not None:
+        pcd.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, dtype=np.float64))
+    return pcd
 
 
 def mean_smooth(points: np.ndarray, *, radius_m: float) -> np.ndarray:

@@ -40,9 +40,7 @@ class _Open3DICP(Registrar):
     def register(self, source, target, *, source_normals, target_normals, cell_size_m) -> Registration:
         p = self.params
         c = source.mean(axis=0) if self.centred and len(source) else np.zeros(3)
-        src, tgt = to_o3d(source - c), to_o3d(target - c)
-        if target_normals is not None:
-            tgt.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(target_normals, dtype=np.float64))
+        src, tgt = to_o3d(source - c), to_o3d(target - c, target_normals)
         result = reg.registration_icp(
             src, tgt, p.max_correspondence_cells * cell_size_m, np.eye(4), self.estimation(),
             reg.ICPConvergenceCriteria(relative_fitness=p.tolerance, relative_rmse=p.tolerance,

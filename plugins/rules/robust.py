@@ -49,6 +49,8 @@ from artclass_core import CellMotion, Cloud, DecisionRule, Params, RuleDecision,
 from artclass_core.geometry import rotation_angle_rad, transform
 from artclass_core.pipeline import pair_memo
 
+from ..preprocessors import to_o3d
+
 reg = o3d.pipelines.registration
 # One Open3D thread: multi-threaded point-to-plane ICP sums its normal equations in a varying order,
 # and the last-digit differences flip close decisions between runs (see plugins/registrars.py).
@@ -77,13 +79,6 @@ class RobustRuleParams(Params):
                                   help="A second motion needs at least this share of the informative points.")
     max_points_per_cell: int = param(48, unit="points", bounds=(4, 10000),
                                      help="Points per cell used for scoring (evenly subsampled, for speed).")
-
-
-def _pcd(points, normals=None):
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
-    if normals is not None:
-        pcd.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, dtype=np.float64))
-    return pcd
 
 
 def icp_point_to_plane(source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, init: np.ndarray,
@@ -216,7 +211,7 @@ class _Evidence:
                              or np.median(cKDTree(source.points).query(source.points, k=2)[0][:, 1]))
         self.extent = float(np.linalg.norm(np.ptp(np.concatenate([source.points, target.points]), axis=0)))
         self.tree = cKDTree(target.points)
-        self.tgt = _pcd(target.points, target.normals)
+        self.tgt = to_o3d(target.points, target.normals)
         self.cell_idx = [cells[n].source_idx for n in matched]
         # Scoring points: every matched cell's source points, evenly subsampled.
         idx = [i[np.linspace(0, len(i) - 1, min(len(i), max_points)).astype(int)] for i in self.cell_idx]
@@ -224,7 +219,7 @@ class _Evidence:
         self.pts = source.points[np.concatenate(idx)]
         self.counts = np.bincount(self.owner, minlength=len(matched)).astype(float)
         # Whole-object motions, from the identity and from the centroid shift, coarse to fine.
-        src_all = _pcd(source.points, source.normals)
+        src_all = to_o3d(source.points, source.normals)
         steps = [self.extent / 5, self.extent / 10, self.extent / 20, 3 * self.spacing]
         shift = np.eye(4)
         shift[:3, 3] = target.points.mean(0) - source.points.mean(0)
@@ -251,7 +246,7 @@ class _Evidence:
         """Cell c's own ICP, from whole-object motion g and from the identity, with residuals."""
         if (c, g) not in self._local:
             i = self.cell_idx[c]
-            src = _pcd(self.source.points[i], self.source.normals[i])
+            src = to_o3d(self.source.points[i], self.source.normals[i])
             near = [4 * self.spacing, 2 * self.spacing]
             Ts = [icp_point_to_plane(src, self.tgt, self.hyps[g], near), icp_point_to_plane(src, self.tgt, np.eye(4), near)]
             self._local[(c, g)] = [(T, self.residuals(T)) for T in Ts]
@@ -262,7 +257,7 @@ class _Evidence:
         key = (cells, T0.tobytes(), tau)
         if key not in self._refits:
             use = np.isin(self.owner, cells)
-            T = icp_point_to_plane(_pcd(self.pts[use]), self.tgt, T0,
+            T = icp_point_to_plane(to_o3d(self.pts[use]), self.tgt, T0,
                                    [self.extent / 10, 2 * self.spacing, self.spacing, 2 * tau])
             self._refits[key] = (T, self.residuals(T))
         return self._refits[key]
