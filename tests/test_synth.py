@@ -354,9 +354,10 @@ def test_smoke_preset(tmp_path):
         generate_set(tmp_path / "set", preset="smoke", seed=1)
 
 
-def test_benchmark_preset_is_balanced():
-    plans = preset_plans("benchmark")
-    assert len(plans) >= 48 and set(PRESETS) == {"sample", "benchmark", "smoke"}
+@pytest.mark.parametrize("preset, size", [("benchmark", (320, 240)), ("benchmark-vga", (640, 480))])
+def test_benchmark_preset_is_balanced(preset, size):
+    plans = preset_plans(preset)
+    assert len(plans) >= 48 and set(PRESETS) == {"sample", "benchmark", "benchmark-vga", "smoke"}
     labels = [MOTIONS[p.motion].label for p in plans]
     n = len(plans)
     assert 0.4 <= labels.count("articulated") / n <= 0.6
@@ -368,7 +369,8 @@ def test_benchmark_preset_is_balanced():
     assert {OBJECTS[p.object_name].joint_type for p in plans
             if MOTIONS[p.motion].moves_joint} == {"revolute", "prismatic"}
     assert {"pliers", "globe", "box_lid"} <= {p.object_name for p in plans}
-    assert all((p.width, p.height) == (320, 240) and 24 <= p.n_frames <= 30 for p in plans)
+    assert all((p.width, p.height) == size and 24 <= p.n_frames <= 30 for p in plans)
+    assert [p.name for p in plans] == [p.name for p in preset_plans("benchmark")]
     assert len({p.name for p in plans}) == n
 
 

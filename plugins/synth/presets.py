@@ -52,7 +52,7 @@ _STATIC = (("mug", "low"), ("drill", "high"), ("cereal_box", "high"), ("bottle",
            ("laptop", "low"), ("microwave", "high"), ("globe", "low"), ("drawer", "high"))
 
 
-def _benchmark() -> list[SequencePlan]:
+def _benchmark(width: int = 320, height: int = 240) -> list[SequencePlan]:
     rows = []
     for obj in _ARTICULATED:
         for noise in ("low", "high"):
@@ -65,7 +65,7 @@ def _benchmark() -> list[SequencePlan]:
             rows.append((obj, "carry", noise))
     rows += [(obj, "carry", noise) for obj, noise in _CARRIED_FIXED_JOINT]
     rows += [(obj, "static", noise) for obj, noise in _STATIC]
-    return [SequencePlan(f"{i:02d}_{obj}_{motion}_{noise}", obj, motion, noise, 24, 320, 240)
+    return [SequencePlan(f"{i:02d}_{obj}_{motion}_{noise}", obj, motion, noise, 24, width, height)
             for i, (obj, motion, noise) in enumerate(rows)]
 
 
@@ -84,9 +84,12 @@ PRESETS: dict[str, str] = {
     "sample": "4 sequences, 320x240, 16 frames, low noise: what sample_data/ holds",
     "benchmark": "48 sequences, 320x240, 24 frames, 13 objects, low and high noise: "
                  "24 articulated, 16 rigid, 8 static",
+    "benchmark-vga": "the benchmark at 640x480, the resolution of the Kinect / RealSense recordings "
+                     "of YCB-Video and RBO",
     "smoke": "4 tiny sequences, 160x120, 8 frames, for tests",
 }
-_PLANS = {"sample": _sample, "benchmark": _benchmark, "smoke": _smoke}
+_PLANS = {"sample": _sample, "benchmark": _benchmark, "benchmark-vga": lambda: _benchmark(640, 480),
+          "smoke": _smoke}
 
 
 def preset_plans(preset: str) -> list[SequencePlan]:
