@@ -13,12 +13,12 @@ from .pipeline import Config, Pipeline, fractions, max_count_filter, sequence_la
 from .plugins import Registry, load_registry
 from .sequences import open_sequences, find_sequences
 from .types import (CellMotion, Cloud, Frame, FrameResult, Intrinsics, PairResult, Registration, RunResult,
-                    Sequence)
+                    Sequence, View)
 
 __all__ = [
     "ArtclassError", "InputError", "ParamError", "PluginError", "hookimpl", "hookspec", "DecisionRule", "Plugin",
     "Preprocessor", "Reader", "Registrar", "RuleDecision", "Segmenter", "Params", "ParamSpec", "PipelineParams",
     "describe", "param", "Config", "Pipeline", "fractions", "max_count_filter", "sequence_label", "Registry",
     "load_registry", "open_sequences", "find_sequences", "CellMotion", "Cloud", "Frame", "FrameResult",
-    "Intrinsics", "PairResult", "Registration", "RunResult", "Sequence",
+    "Intrinsics", "PairResult", "Registration", "RunResult", "Sequence", "View",
 ]

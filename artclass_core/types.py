@@ -120,6 +120,15 @@ class Sequence:
 
 
 @dataclass
+class View:
+    """The image a cloud was measured in, for image-space evidence (optical flow) between two frames."""
+
+    gray: np.ndarray                   # (H, W) uint8 intensity of the whole frame
+    depth_m: np.ndarray                # (H, W) float32, metres, 0 outside the object's (eroded) mask
+    intrinsics: Intrinsics
+
+
+@dataclass
 class Cloud:
     """A preprocessed object point cloud of one frame."""
 
@@ -128,6 +137,7 @@ class Cloud:
     normals: np.ndarray | None = None  # (N, 3) unit vectors towards the camera
     info: dict[str, Any] = field(default_factory=dict)  # resolved v, r, diameter, counts ...
     colors: np.ndarray | None = None   # (N, 3) float RGB in [0, 1], if the preprocessor keeps colour
+    view: View | None = None           # the frame's image, if the preprocessor keeps it
 
     def __len__(self) -> int:
         return len(self.points)

@@ -10,7 +10,7 @@ import open3d as o3d
 from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
-from artclass_core import Cloud, Frame, Intrinsics, Params, Preprocessor, hookimpl, param
+from artclass_core import Cloud, Frame, Intrinsics, Params, Preprocessor, View, hookimpl, param
 from artclass_core.geometry import largest_distance
 
 MIN_POINTS = 10
@@ -97,7 +97,9 @@ class PaperPreprocessor(Preprocessor):
             points = mean_smooth(points, radius_m=r)
         normals = camera_facing_normals(points, radius_m=3 * v) if len(points) >= 3 else np.zeros_like(points)
         info.update(n_inliers=len(pcd.points), n_points=len(points), diameter_m=diameter, v_m=v, r_m=r)
-        return Cloud(frame.index, points, normals, info, colors=np.asarray(down.colors))
+        view = View(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY), np.where(valid, frame.depth_m, 0).astype(np.float32),
+                    intrinsics)
+        return Cloud(frame.index, points, normals, info, colors=np.asarray(down.colors), view=view)
 
 
 @dataclass(frozen=True)

@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import dataclasses
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from artclass_core import CellMotion, Cloud, Config, Pipeline, Registration
+from artclass_core import CellMotion, Cloud, Config, Intrinsics, Pipeline, Registration, View
 from artclass_core.geometry import transform
 from artclass_plugins.preprocessors import camera_facing_normals
 from artclass_plugins.rules.robust import RobustRule, surface_noise
@@ -177,3 +178,33 @@ def test_rule_reports_clusters_and_evidence(robust):
     assert all(c.cluster == 0 for c in matched if c.cluster is not None)
     assert {"tau_m", "n_informative", "motions", "support"} <= set(pair.info)
     assert isinstance(pair.cells[0], CellMotion) and isinstance(matched[0].registration, Registration)
+
+
+# A textured panel 1 m in front of a 320x240 camera: its left half stands still while the texture of
+# its right half slides 8 px (2.8 cm) to the right within the panel's plane, like a belt. Depth is the
+# same in both frames, so only the colour images can tell that anything moved.
+INTRINSICS = Intrinsics(285.0, 285.0, 159.5, 119.5, 320, 240)
+ROWS, COLS, SPLIT, SLIDE_PX = slice(60, 180), slice(80, 240), 160, 8
+
+
+def belt_cloud(index: int, *, with_view: bool = True) -> Cloud:
+    rng = np.random.default_rng(7)
+    texture = cv2.GaussianBlur(rng.random((240, 360)).astype(np.float32), (0, 0), 1.5)
+    texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    gray = texture[:, 20:340].copy()
+    if index:
+        gray[:, SPLIT:] = texture[:, 20 + SPLIT - SLIDE_PX:340 - SLIDE_PX]
+    depth = np.zeros((240, 320), np.float32)
+    depth[ROWS, COLS] = 1.0
+    grid = np.zeros_like(depth, bool)
+    grid[ROWS.start:ROWS.stop:2, COLS.start:COLS.stop:2] = True
+    points = INTRINSICS.backproject(depth, grid)
+    view = View(gray, depth, INTRINSICS) if with_view else None
+    return Cloud(index, points, camera_facing_normals(points, radius_m=0.02), {"v_m": 0.007}, view=view)
+
+
+def test_optical_flow_sees_a_slide_that_keeps_the_surface_in_place(robust):
+    pair = decide(robust, belt_cloud(0), belt_cloud(1))
+    assert pair.decision == "AM", pair.info
+    blind = decide(robust, belt_cloud(0, with_view=False), belt_cloud(1, with_view=False))
+    assert blind.decision == "NM", "without images, depth alone cannot see the slide"

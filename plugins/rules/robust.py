@@ -8,7 +8,8 @@ fall anywhere. This rule asks instead how many rigid motions are needed to *expl
 For a pair (i, i + k):
 
 1. Hypotheses: the identity; a whole-object ICP started from the identity and from the centroid
-   shift (coarse to fine); every matched cell's own ICP transform; and, for each cell the best
+   shift (coarse to fine); the rigid fit to the optical flow (below); every matched cell's own ICP
+   transform and its own fit to the flow; and, for each cell the best
    whole-object motion leaves unexplained, a local ICP of that cell started from that motion and
    from the identity (the paper's per-cell ICP from the identity cannot capture a carried object's
    centimetres of motion).
@@ -25,11 +26,21 @@ For a pair (i, i + k):
    (a cell of 48 points where 3 fall beyond tau is not evidence of another motion). A flat or cylindrical (degenerate) cell is explained by every motion that keeps
    its surface in place, so such cells constrain the answer but cannot create a motion of their
    own. Cells whose best share is below ``min_cell_score`` (occluded, out of view) carry no evidence.
+   Depth cannot see a motion along a surface (a drawer's top sliding along itself, a lever turning in
+   its own plane, a globe spinning): where the colour image has texture, the optical flow says where
+   a point went (see ``flow.py``), and a motion must also bring the point within tau plus the flow's
+   own tolerance of that place. A whole-object motion is not faulted for points that it hides behind
+   the object's own surfaces (a box turning away from the camera hides its far faces); a surface
+   in front that the motion does not account for (a lid swung towards the camera) is no excuse.
 4. NM when the identity explains ``static_share`` of the informative points.
 5. Otherwise a greedy cover: the hypothesis that explains most points, then the one that explains
    most of the rest, and so on. A further motion needs at least ``min_part_cells`` cells and
    ``min_part_share`` of the informative points: a lone outlier cell is not a part.
-6. Cross-explanation: with two or more motions, one ICP refit on all their points is tried from the
+6. Separation: a further motion that puts most of its points less than tau off the surface (or,
+   where flow sees them, less than tau plus the flow's tolerance along it) from where the first
+   motion puts them is not a motion of its own: the data cannot tell the two apart (a bottle turned
+   7 or 8 degrees about its axis).
+   Cross-explanation: with two or more motions, one ICP refit on all their points is tried from the
    identity, the whole-object motions and each motion found; if a single rigid motion explains the
    supposed parts as well, there is one motion (on a cylinder or a plane the whole-object fit may
    have slid, and a region that pins the slide then looks like a part of its own).
@@ -50,6 +61,9 @@ from artclass_core.geometry import rotation_angle_rad, transform
 from artclass_core.pipeline import pair_memo
 
 from ..preprocessors import to_o3d
+from .flow import flow_targets, kabsch
+
+MIN_FLOW_POINTS = 6
 
 reg = o3d.pipelines.registration
 # One Open3D thread: multi-threaded point-to-plane ICP sums its normal equations in a varying order,
@@ -77,6 +91,8 @@ class RobustRuleParams(Params):
                                 help="A second motion needs at least this many cells of its own.")
     min_part_share: float = param(0.15, unit="fraction", bounds=(0.0, 0.5),
                                   help="A second motion needs at least this share of the informative points.")
+    use_flow: bool = param(True, help="Use optical flow between the two colour images as evidence of motions "
+                                      "that keep a surface in place (sliding, spinning).")
     max_points_per_cell: int = param(48, unit="points", bounds=(4, 10000),
                                      help="Points per cell used for scoring (evenly subsampled, for speed).")
 
@@ -113,10 +129,11 @@ class RobustRule(DecisionRule):
             return RuleDecision("skipped", [None] * len(cells), reason="no matched cell with normals")
         # What the thresholds do not change is computed once per pair and found again on re-deciding.
         memo = pair_memo(source, target)
-        key = ("robust", p.max_points_per_cell, tuple((cells[n].cell, id(cells[n].registration)) for n in matched))
+        key = ("robust", p.max_points_per_cell, p.use_flow, tuple((cells[n].cell, id(cells[n].registration)) for n in matched))
         ev = memo.get(key)
         if ev is None:
-            ev = memo[key] = _Evidence(cells, matched, source, target, max_points=p.max_points_per_cell)
+            ev = memo[key] = _Evidence(cells, matched, source, target, max_points=p.max_points_per_cell,
+                                       use_flow=p.use_flow)
         owner, counts = ev.owner, ev.counts
 
         tau = max(p.noise_floor_m, p.noise_factor * ev.sigma)
@@ -151,6 +168,11 @@ class RobustRule(DecisionRule):
 
         chosen, members = self._cover(explains, weight, total, informative)
         motions = [hyps[h] for h in chosen]
+        for m in range(len(motions) - 1, 0, -1):
+            if not ev.separated(motions[0], motions[m], members[m], tau):
+                members[0] = np.concatenate([members[0], members.pop(m)])
+                motions.pop(m)
+                info["unresolved"] = True
         if len(motions) >= 2:
             merged = self._single_motion(ev, hyps, list(range(ev.n_global)) + chosen, members, best, weight, tau)
             if merged is not None:
@@ -205,18 +227,18 @@ class _Evidence:
     far (memoised, so re-deciding under other thresholds repeats none of this work)."""
 
     def __init__(self, cells: list[CellMotion], matched: list[int], source: Cloud, target: Cloud, *,
-                 max_points: int):
+                 max_points: int, use_flow: bool = True):
         self.source, self.target = source, target
         self.spacing = float(source.info.get("v_m")
                              or np.median(cKDTree(source.points).query(source.points, k=2)[0][:, 1]))
         self.extent = float(np.linalg.norm(np.ptp(np.concatenate([source.points, target.points]), axis=0)))
-        self.tree = cKDTree(target.points)
+        self.tree, self.source_tree = cKDTree(target.points), cKDTree(source.points)
         self.tgt = to_o3d(target.points, target.normals)
         self.cell_idx = [cells[n].source_idx for n in matched]
         # Scoring points: every matched cell's source points, evenly subsampled.
         idx = [i[np.linspace(0, len(i) - 1, min(len(i), max_points)).astype(int)] for i in self.cell_idx]
         self.owner = np.repeat(np.arange(len(matched)), [len(i) for i in idx])
-        self.pts = source.points[np.concatenate(idx)]
+        self.pts, self.normals = source.points[np.concatenate(idx)], source.normals[np.concatenate(idx)]
         self.counts = np.bincount(self.owner, minlength=len(matched)).astype(float)
         # Whole-object motions, from the identity and from the centroid shift, coarse to fine.
         src_all = to_o3d(source.points, source.normals)
@@ -225,22 +247,74 @@ class _Evidence:
         shift[:3, 3] = target.points.mean(0) - source.points.mean(0)
         self.hyps = [np.eye(4), icp_point_to_plane(src_all, self.tgt, np.eye(4), steps),
                      icp_point_to_plane(src_all, self.tgt, shift, steps)]
+        # Where the optical flow says each scoring point went, within two pixels of flow error.
+        self.flow, self.flow_tol = flow_targets(source, target, self.pts) if use_flow else \
+            (np.full(self.pts.shape, np.nan), np.zeros(len(self.pts)))
+        self.has_flow = np.isfinite(self.flow[:, 0])
+        if self.has_flow.sum() >= MIN_FLOW_POINTS:
+            self.hyps.append(trimmed_kabsch(self.pts[self.has_flow], self.flow[self.has_flow]))
         self.n_global = len(self.hyps)
         self.hyps += [cells[n].registration.T_target_from_source for n in matched]
-        self.geo = np.stack([self.residuals(T) for T in self.hyps])        # (H, P) metres
+        for c in range(len(matched)):
+            use = self.has_flow & (self.owner == c)
+            if use.sum() >= MIN_FLOW_POINTS:
+                self.hyps.append(trimmed_kabsch(self.pts[use], self.flow[use]))
+        self.geo = np.stack([self.residuals(T, whole=h < self.n_global) for h, T in enumerate(self.hyps)])  # (H, P) m
         # Noise measured on the data, independent of any motion: the spread of the target's points about
         # their local planes; two noisy samplings of one surface differ by sqrt(2) of that.
         self.sigma = np.sqrt(2.0) * surface_noise(target.points, self.tree)
         self._local: dict = {}
         self._refits: dict = {}
 
-    def residuals(self, T: np.ndarray) -> np.ndarray:
+    def residuals(self, T: np.ndarray, *, whole: bool = False) -> np.ndarray:
         """Each scoring point's misfit under T (m): distance to the nearest target point's tangent plane,
         or to the point itself less one sampling step if larger."""
         moved = transform(self.pts, T)
         d, j = self.tree.query(moved)
         t = self.target
-        return np.maximum(np.abs(np.einsum("ij,ij->i", moved - t.points[j], t.normals[j])), d - self.spacing)
+        r = np.maximum(np.abs(np.einsum("ij,ij->i", moved - t.points[j], t.normals[j])), d - self.spacing)
+        f = self.has_flow
+        r[f] = np.maximum(r[f], np.linalg.norm(moved[f] - self.flow[f], axis=1) - self.flow_tol[f])
+        if whole:   # a motion of the whole object is not faulted for the points it hides itself
+            r[self.hidden(moved, T)] = 0.0
+        return r
+
+    def hidden(self, moved: np.ndarray, T: np.ndarray) -> np.ndarray:
+        """Moved points that the target cannot see because T's own motion hides them.
+
+        A point is hidden when the target's depth along its ray is nearer by more than two sampling
+        steps, and the surface in front is one T accounts for: T's inverse takes it back onto the
+        source's surface, or behind it (a face the source could not see either). A box turning away
+        from the camera hides its far faces behind its near ones. A surface in front whose place the
+        source saw through (a lid swung towards the camera, a drawer pulled out over its old place)
+        is not an excuse: the point stays unexplained.
+        """
+        view = self.target.view
+        out = np.zeros(len(moved), bool)
+        if view is None or self.source.view is None:
+            return out
+        gap, ui, vi, zt = _in_front(view, moved, pixels=True)
+        idx = np.flatnonzero(gap > 2 * self.spacing)
+        if not len(idx):
+            return out
+        K, ui, vi, zt = view.intrinsics, ui[idx], vi[idx], zt[idx]
+        q = transform(_backproject(K, ui, vi, zt), np.linalg.inv(T))
+        d, _ = self.source_tree.query(q)
+        out[idx] = d <= 2 * self.spacing
+        return out
+
+    def separated(self, A: np.ndarray, B: np.ndarray, cells: np.ndarray, tau: float) -> bool:
+        """Whether motions A and B put most points of ``cells`` apart: off the surface by more than tau,
+        or (where optical flow sees the point) along it by more than tau plus the flow's tolerance.
+        Closer than that, both motions explain the same points and the data cannot tell them apart
+        (a bottle turned 7 or 8 degrees about its axis)."""
+        use = np.isin(self.owner, cells)
+        gap = transform(self.pts[use], A) - transform(self.pts[use], B)
+        across = np.abs(np.einsum("ij,ij->i", gap, self.normals[use]))
+        along = np.linalg.norm(gap - across[:, None] * self.normals[use], axis=1)
+        flow = self.has_flow[use]
+        apart = (across > tau) | (flow & (along > tau + self.flow_tol[use]))
+        return bool(apart.mean() > 0.5)
 
     def local(self, c: int, g: int) -> list[tuple[np.ndarray, np.ndarray]]:
         """Cell c's own ICP, from whole-object motion g and from the identity, with residuals."""
@@ -259,8 +333,38 @@ class _Evidence:
             use = np.isin(self.owner, cells)
             T = icp_point_to_plane(to_o3d(self.pts[use]), self.tgt, T0,
                                    [self.extent / 10, 2 * self.spacing, self.spacing, 2 * tau])
-            self._refits[key] = (T, self.residuals(T))
+            self._refits[key] = (T, self.residuals(T, whole=True))
         return self._refits[key]
+
+
+def trimmed_kabsch(p: np.ndarray, q: np.ndarray, *, keep: float = 0.7, rounds: int = 3) -> np.ndarray:
+    """Rigid fit of p onto q, refitted on the best ``keep`` share of its own residuals ``rounds`` times."""
+    use = np.arange(len(p))
+    for _ in range(rounds):
+        T = kabsch(p[use], q[use])
+        err = np.linalg.norm(transform(p, T) - q, axis=1)
+        use = np.argsort(err)[:max(3, int(keep * len(p)))]
+    return T
+
+
+def _backproject(K, u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
+    return np.stack([(u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z], axis=1)
+
+
+def _in_front(view, points: np.ndarray, *, pixels: bool = False):
+    """How far in front of each point (m) the view's object surface lies along the point's ray: > 0
+    when the view sees the object nearer; -inf where it sees no object there or the ray leaves the
+    image. With ``pixels``, also the pixel columns, rows and depths read."""
+    K, (h, w) = view.intrinsics, view.depth_m.shape
+    z = points[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.round(K.fx * points[:, 0] / z + K.cx)
+        v = np.round(K.fy * points[:, 1] / z + K.cy)
+    inside = (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    ui, vi = np.where(inside, u, 0).astype(int), np.where(inside, v, 0).astype(int)
+    zt = np.where(inside, view.depth_m[vi, ui], 0.0)
+    gap = np.where(zt > 0, z - zt, -np.inf)
+    return (gap, ui, vi, zt) if pixels else gap
 
 
 def _explains(score: np.ndarray, best: np.ndarray, counts: np.ndarray, margin: float) -> np.ndarray:
