@@ -80,12 +80,13 @@ class PaperPreprocessor(Preprocessor):
     def process(self, frame: Frame, mask: np.ndarray, *, intrinsics: Intrinsics) -> Cloud:
         p = self.params
         valid = mask & np.isfinite(frame.depth_m) & (frame.depth_m > 0)
-        points = intrinsics.backproject(frame.depth_m, valid)
+        used = self.sample(valid)
+        points = intrinsics.backproject(frame.depth_m, used)
         info = dict(n_raw=len(points))
         if len(points) < MIN_POINTS:
             return Cloud(frame.index, np.zeros((0, 3)), np.zeros((0, 3)), info, colors=np.zeros((0, 3)))
         pcd = to_o3d(points)
-        pcd.colors = o3d.utility.Vector3dVector(frame.rgb[valid].astype(np.float64) / 255.0)
+        pcd.colors = o3d.utility.Vector3dVector(frame.rgb[used].astype(np.float64) / 255.0)
         pcd, _ = pcd.remove_statistical_outlier(nb_neighbors=min(p.sor_neighbours, len(points) - 1),
                                                 std_ratio=p.std_ratio)
         diameter = largest_distance(np.asarray(pcd.points))
@@ -101,6 +102,10 @@ class PaperPreprocessor(Preprocessor):
                     intrinsics)
         return Cloud(frame.index, points, normals, info, colors=np.asarray(down.colors), view=view)
 
+    def sample(self, valid: np.ndarray) -> np.ndarray:
+        """The pixels whose points are used (all valid ones)."""
+        return valid
+
 
 @dataclass(frozen=True)
 class FinePreprocessParams(PaperPreprocessParams):
@@ -112,6 +117,10 @@ class FinePreprocessParams(PaperPreprocessParams):
                                 help="Erode the mask by this many pixels first: edge pixels mix the object's "
                                      "depth with the background's, and a silhouette slides over the surface "
                                      "when the view changes, which reads as motion.")
+    pixel_stride: int = param(1, unit="px", bounds=(1, 16),
+                              help="Use every n-th pixel of every n-th row. 2 makes preprocessing ~3x faster at "
+                                   "640x480 (outlier removal is most of its time) but lost 1 of 48 sequences on "
+                                   "the 640x480 benchmark (drawers: fewer points on a part seen at a grazing angle).")
 
 
 class FinePreprocessor(PaperPreprocessor):
@@ -129,6 +138,11 @@ class FinePreprocessor(PaperPreprocessor):
         if px:
             mask = cv2.erode(mask.astype(np.uint8), np.ones((2 * px + 1, 2 * px + 1), np.uint8)) > 0
         return super().process(frame, mask, intrinsics=intrinsics)
+
+    def sample(self, valid: np.ndarray) -> np.ndarray:
+        grid = np.zeros_like(valid)
+        grid[::self.params.pixel_stride, ::self.params.pixel_stride] = True
+        return valid & grid
 
     name = "fine"
     description = "Algorithm 1 at a finer resolution (v = D/40, r = 2v) that keeps thin parts apart (default)"

@@ -455,6 +455,13 @@ class TestPipelineRun:
             run(registry, seq)
         assert str(seq.path) in str(err.value), "the error names the sequence's path"
 
+    def test_pixel_stride_uses_every_nth_pixel_and_keeps_the_full_image_for_flow(self, registry):
+        seq = make_sequence("static", n_frames=1)
+        full, strided = (Pipeline(registry, Config().with_overrides(registry, {"pixel_stride": n})).frame(seq, 0)
+                         for n in ("1", "2"))
+        assert 0.2 < strided.cloud.info["n_raw"] / full.cloud.info["n_raw"] < 0.3
+        assert np.array_equal(strided.cloud.view.depth_m, full.cloud.view.depth_m)
+
     def test_no_object_anywhere(self, registry):
         seq = make_sequence("static", n_frames=3, empty_frames=(0, 1, 2))
         with pytest.raises(InputError, match="no object in any of the 3 frames"):
