@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 from artclass_core import CellMotion, Cloud, Config, Intrinsics, Pipeline, Registration, View
 from artclass_core.geometry import transform
 from artclass_plugins.preprocessors import camera_facing_normals
-from artclass_plugins.rules.robust import RobustRule, surface_noise
+from artclass_plugins.rules.robust import RobustRule, joint_like, surface_noise
 
 SPACING_M = 0.005
 
@@ -208,3 +208,14 @@ def test_optical_flow_sees_a_slide_that_keeps_the_surface_in_place(robust):
     assert pair.decision == "AM", pair.info
     blind = decide(robust, belt_cloud(0, with_view=False), belt_cloud(1, with_view=False))
     assert blind.decision == "NM", "without images, depth alone cannot see the slide"
+
+
+@pytest.mark.parametrize("relative, expected", [
+    (motion(rot_deg=(0, 0, 30), about=(0.05, 0.0, 1.0)), True),                   # a hinge through the object
+    (motion(shift=(0.04, 0.0, 0.0)), True),                                         # a drawer
+    (motion(rot_deg=(0, 0, 30), about=(0.05, 0.0, 1.0), shift=(0, 0, 0.05)), False),  # a screw: 5 cm along the axis
+    (motion(rot_deg=(0, 0, 30), about=(0.6, 0.0, 1.0)), False),                    # a hinge 55 cm away
+])
+def test_a_part_moves_on_a_joint(relative, expected):
+    carry = motion(rot_deg=(5, 10, 0), about=(0, 0, 1.0), shift=(0.02, 0, 0))
+    assert joint_like(carry, relative @ carry, np.array([0.0, 0.0, 1.0]), 0.3) is expected

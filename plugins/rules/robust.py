@@ -39,7 +39,8 @@ For a pair (i, i + k):
 6. Separation: a further motion that puts most of its points less than tau off the surface (or,
    where flow sees them, less than tau plus the flow's tolerance along it) from where the first
    motion puts them is not a motion of its own: the data cannot tell the two apart (a bottle turned
-   7 or 8 degrees about its axis).
+   7 or 8 degrees about its axis). Nor is one that moves relative to the first in a way no joint
+   does (see ``joint_like``: a part slides, or turns about an axis through the object).
    Cross-explanation: with two or more motions, one ICP refit on all their points is tried from the
    identity, the whole-object motions and each motion found; if a single rigid motion explains the
    supposed parts as well, there is one motion (on a cylinder or a plane the whole-object fit may
@@ -55,6 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from artclass_core import CellMotion, Cloud, DecisionRule, Params, RuleDecision, param
 from artclass_core.geometry import rotation_angle_rad, transform
@@ -64,6 +66,7 @@ from ..preprocessors import to_o3d
 from .flow import flow_targets, kabsch
 
 MIN_FLOW_POINTS = 6
+JOINT_MIN_TURN_RAD, JOINT_MAX_SLIDE = np.radians(3.0), 0.1
 
 reg = o3d.pipelines.registration
 # One Open3D thread: multi-threaded point-to-plane ICP sums its normal equations in a varying order,
@@ -169,7 +172,7 @@ class RobustRule(DecisionRule):
         chosen, members = self._cover(explains, weight, total, informative)
         motions = [hyps[h] for h in chosen]
         for m in range(len(motions) - 1, 0, -1):
-            if not ev.separated(motions[0], motions[m], members[m], tau):
+            if not (ev.separated(motions[0], motions[m], members[m], tau) and joint_like(motions[0], motions[m], ev.pts.mean(0), ev.extent)):
                 members[0] = np.concatenate([members[0], members.pop(m)])
                 motions.pop(m)
                 info["unresolved"] = True
@@ -345,6 +348,24 @@ def trimmed_kabsch(p: np.ndarray, q: np.ndarray, *, keep: float = 0.7, rounds: i
         err = np.linalg.norm(transform(p, T) - q, axis=1)
         use = np.argsort(err)[:max(3, int(keep * len(p)))]
     return T
+
+
+def joint_like(A: np.ndarray, B: np.ndarray, centre: np.ndarray, size: float) -> bool:
+    """Whether B moves relative to A as a part moves on a joint: by a translation (a turn of under
+    ``JOINT_MIN_TURN_RAD``: a drawer), or by a turn about an axis that passes within half the object's
+    ``size`` of its ``centre``, sliding along that axis by at most ``JOINT_MAX_SLIDE`` of its size (a
+    hinge). A screw motion of centimetres about a far axis is what two poorly fitted regions of one
+    rigid object look like, not a part."""
+    T = B @ np.linalg.inv(A)
+    rotvec = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+    turn = float(np.linalg.norm(rotvec))
+    if turn < JOINT_MIN_TURN_RAD:
+        return True
+    axis, t = rotvec / turn, T[:3, 3]
+    slide = float(t @ axis)
+    point = np.linalg.lstsq(np.eye(3) - T[:3, :3], t - slide * axis, rcond=None)[0]   # a point on the axis
+    off = centre - point
+    return bool(abs(slide) <= JOINT_MAX_SLIDE * size and np.linalg.norm(off - (off @ axis) * axis) <= 0.5 * size)
 
 
 def _backproject(K, u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
