@@ -9,6 +9,8 @@ failure of the paper's rule, the test also shows that failure on the same pair.
 from __future__ import annotations
 
 import dataclasses
+import gc
+import weakref
 
 import cv2
 import numpy as np
@@ -219,3 +221,14 @@ def test_optical_flow_sees_a_slide_that_keeps_the_surface_in_place(robust):
 def test_a_part_moves_on_a_joint(relative, expected):
     carry = motion(rot_deg=(5, 10, 0), about=(0, 0, 1.0), shift=(0.02, 0, 0))
     assert joint_like(carry, relative @ carry, np.array([0.0, 0.0, 1.0]), 0.3) is expected
+
+
+def test_evidence_does_not_keep_the_clouds_alive(robust):
+    """The rule keeps its evidence in the pair's memo, which lives as long as the clouds: if the evidence
+    held the clouds, no cloud of a streaming run would ever be freed (memory grows with the length)."""
+    a, b = cloud(BOX, noise_m=0.001, seed=17), cloud(BOX, noise_m=0.001, seed=18, index=1)
+    decide(robust, a, b)
+    gone = weakref.ref(a), weakref.ref(b)
+    del a, b
+    gc.collect()
+    assert all(ref() is None for ref in gone)

@@ -231,7 +231,10 @@ class _Evidence:
 
     def __init__(self, cells: list[CellMotion], matched: list[int], source: Cloud, target: Cloud, *,
                  max_points: int, use_flow: bool = True):
-        self.source, self.target = source, target
+        # Arrays, never the clouds themselves: this lives in the clouds' pair_memo, which must not keep
+        # them alive (a streaming run drops each cloud, and with it this, as soon as its pairs are done).
+        self.src_points, self.src_normals, self.src_view = source.points, source.normals, source.view
+        self.tgt_points, self.tgt_normals, self.tgt_view = target.points, target.normals, target.view
         self.spacing = float(source.info.get("v_m")
                              or np.median(cKDTree(source.points).query(source.points, k=2)[0][:, 1]))
         self.extent = float(np.linalg.norm(np.ptp(np.concatenate([source.points, target.points]), axis=0)))
@@ -274,8 +277,8 @@ class _Evidence:
         or to the point itself less one sampling step if larger."""
         moved = transform(self.pts, T)
         d, j = self.tree.query(moved)
-        t = self.target
-        r = np.maximum(np.abs(np.einsum("ij,ij->i", moved - t.points[j], t.normals[j])), d - self.spacing)
+        r = np.maximum(np.abs(np.einsum("ij,ij->i", moved - self.tgt_points[j], self.tgt_normals[j])),
+                       d - self.spacing)
         f = self.has_flow
         r[f] = np.maximum(r[f], np.linalg.norm(moved[f] - self.flow[f], axis=1) - self.flow_tol[f])
         if whole:   # a motion of the whole object is not faulted for the points it hides itself
@@ -292,9 +295,9 @@ class _Evidence:
         source saw through (a lid swung towards the camera, a drawer pulled out over its old place)
         is not an excuse: the point stays unexplained.
         """
-        view = self.target.view
+        view = self.tgt_view
         out = np.zeros(len(moved), bool)
-        if view is None or self.source.view is None:
+        if view is None or self.src_view is None:
             return out
         gap, ui, vi, zt = _in_front(view, moved, pixels=True)
         idx = np.flatnonzero(gap > 2 * self.spacing)
@@ -323,7 +326,7 @@ class _Evidence:
         """Cell c's own ICP, from whole-object motion g and from the identity, with residuals."""
         if (c, g) not in self._local:
             i = self.cell_idx[c]
-            src = to_o3d(self.source.points[i], self.source.normals[i])
+            src = to_o3d(self.src_points[i], self.src_normals[i])
             near = [4 * self.spacing, 2 * self.spacing]
             Ts = [icp_point_to_plane(src, self.tgt, self.hyps[g], near), icp_point_to_plane(src, self.tgt, np.eye(4), near)]
             self._local[(c, g)] = [(T, self.residuals(T)) for T in Ts]
