@@ -23,9 +23,9 @@ For a pair (i, i + k):
    put the cell's points removes the rotation-translation coupling of the paper's keys.
 3. h *explains* c when its share is within ``explain_margin`` of the best share any hypothesis
    reaches on c, plus two standard errors of the difference of two shares measured on c's points
-   (a cell of 48 points where 3 fall beyond tau is not evidence of another motion). A flat or cylindrical (degenerate) cell is explained by every motion that keeps
-   its surface in place, so such cells constrain the answer but cannot create a motion of their
-   own. Cells whose best share is below ``min_cell_score`` (occluded, out of view) carry no evidence.
+   (a cell of 48 points where 3 fall beyond tau is not evidence of another motion). A flat or
+   cylindrical (degenerate) cell is explained by every motion that keeps its surface in place, so
+   such cells constrain the answer but cannot create a motion of their own. Cells whose best share is below ``min_cell_score`` (occluded, out of view) carry no evidence.
    Depth cannot see a motion along a surface (a drawer's top sliding along itself, a lever turning in
    its own plane, a globe spinning): where the colour image has texture, the optical flow says where
    a point went (see ``flow.py``), and a motion must also bring the point within tau plus the flow's
@@ -132,7 +132,8 @@ class RobustRule(DecisionRule):
             return RuleDecision("skipped", [None] * len(cells), reason="no matched cell with normals")
         # What the thresholds do not change is computed once per pair and found again on re-deciding.
         memo = pair_memo(source, target)
-        key = ("robust", p.max_points_per_cell, p.use_flow, tuple((cells[n].cell, id(cells[n].registration)) for n in matched))
+        key = ("robust", p.max_points_per_cell, p.use_flow,
+               tuple((cells[n].cell, id(cells[n].registration)) for n in matched))
         ev = memo.get(key)
         if ev is None:
             ev = memo[key] = _Evidence(cells, matched, source, target, max_points=p.max_points_per_cell,
@@ -172,7 +173,8 @@ class RobustRule(DecisionRule):
         chosen, members = self._cover(explains, weight, total, informative)
         motions = [hyps[h] for h in chosen]
         for m in range(len(motions) - 1, 0, -1):
-            if not (ev.separated(motions[0], motions[m], members[m], tau) and joint_like(motions[0], motions[m], ev.pts.mean(0), ev.extent)):
+            A, B = motions[0], motions[m]
+            if not (ev.separated(A, B, members[m], tau) and joint_like(A, B, ev.pts.mean(0), ev.extent)):
                 members[0] = np.concatenate([members[0], members.pop(m)])
                 motions.pop(m)
                 info["unresolved"] = True
@@ -253,7 +255,7 @@ class _Evidence:
         shift[:3, 3] = target.points.mean(0) - source.points.mean(0)
         self.hyps = [np.eye(4), icp_point_to_plane(src_all, self.tgt, np.eye(4), steps),
                      icp_point_to_plane(src_all, self.tgt, shift, steps)]
-        # Where the optical flow says each scoring point went, within two pixels of flow error.
+        # Where the optical flow says each scoring point went, and how far from there it may be.
         self.flow, self.flow_tol = flow_targets(source, target, self.pts) if use_flow else \
             (np.full(self.pts.shape, np.nan), np.zeros(len(self.pts)))
         self.has_flow = np.isfinite(self.flow[:, 0])
@@ -265,7 +267,8 @@ class _Evidence:
             use = self.has_flow & (self.owner == c)
             if use.sum() >= MIN_FLOW_POINTS:
                 self.hyps.append(trimmed_kabsch(self.pts[use], self.flow[use]))
-        self.geo = np.stack([self.residuals(T, whole=h < self.n_global) for h, T in enumerate(self.hyps)])  # (H, P) m
+        self.geo = np.stack([self.residuals(T, whole=h < self.n_global)                # (H, P) metres
+                             for h, T in enumerate(self.hyps)])
         # Noise measured on the data, independent of any motion: the spread of the target's points about
         # their local planes; two noisy samplings of one surface differ by sqrt(2) of that.
         self.sigma = np.sqrt(2.0) * surface_noise(target.points, self.tree)
@@ -290,16 +293,15 @@ class _Evidence:
 
         A point is hidden when the target's depth along its ray is nearer by more than two sampling
         steps, and the surface in front is one T accounts for: T's inverse takes it back onto the
-        source's surface, or behind it (a face the source could not see either). A box turning away
-        from the camera hides its far faces behind its near ones. A surface in front whose place the
-        source saw through (a lid swung towards the camera, a drawer pulled out over its old place)
-        is not an excuse: the point stays unexplained.
+        source's surface. A box turning away from the camera hides its far faces behind its near
+        ones. A surface in front that came from elsewhere (a lid swung towards the camera, a drawer
+        pulled out over its old place) is not an excuse: the point stays unexplained.
         """
         view = self.tgt_view
         out = np.zeros(len(moved), bool)
         if view is None or self.src_view is None:
             return out
-        gap, ui, vi, zt = _in_front(view, moved, pixels=True)
+        gap, ui, vi, zt = _in_front(view, moved)
         idx = np.flatnonzero(gap > 2 * self.spacing)
         if not len(idx):
             return out
@@ -375,10 +377,10 @@ def _backproject(K, u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
     return np.stack([(u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z], axis=1)
 
 
-def _in_front(view, points: np.ndarray, *, pixels: bool = False):
-    """How far in front of each point (m) the view's object surface lies along the point's ray: > 0
+def _in_front(view, points: np.ndarray):
+    """How far in front of each point (m) the view's object surface lies along the point's ray (> 0
     when the view sees the object nearer; -inf where it sees no object there or the ray leaves the
-    image. With ``pixels``, also the pixel columns, rows and depths read."""
+    image), and the pixel columns, rows and depths read."""
     K, (h, w) = view.intrinsics, view.depth_m.shape
     z = points[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -388,7 +390,7 @@ def _in_front(view, points: np.ndarray, *, pixels: bool = False):
     ui, vi = np.where(inside, u, 0).astype(int), np.where(inside, v, 0).astype(int)
     zt = np.where(inside, view.depth_m[vi, ui], 0.0)
     gap = np.where(zt > 0, z - zt, -np.inf)
-    return (gap, ui, vi, zt) if pixels else gap
+    return gap, ui, vi, zt
 
 
 def _explains(score: np.ndarray, best: np.ndarray, counts: np.ndarray, margin: float) -> np.ndarray:
