@@ -25,7 +25,8 @@ For a pair (i, i + k):
    reaches on c, plus two standard errors of the difference of two shares measured on c's points
    (a cell of 48 points where 3 fall beyond tau is not evidence of another motion). A flat or
    cylindrical (degenerate) cell is explained by every motion that keeps its surface in place, so
-   such cells constrain the answer but cannot create a motion of their own. Cells whose best share is below ``min_cell_score`` (occluded, out of view) carry no evidence.
+   such cells constrain the answer but cannot create a motion of their own. Cells whose best share
+   is below ``min_cell_score`` (occluded, out of view) carry no evidence.
    Depth cannot see a motion along a surface (a drawer's top sliding along itself, a lever turning in
    its own plane, a globe spinning): where the colour image has texture, the optical flow says where
    a point went (see ``flow.py``), and a motion must also bring the point within tau plus the flow's
