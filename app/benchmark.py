@@ -110,15 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     samples = Path(os.environ.get("ARTCLASS_SAMPLE_DATA") or ROOT / "sample_data")
     seq = open_sequences(registry, samples / name)[0]
     t0 = time.perf_counter()
-    if args.paper:
-        import dataclasses
-        pipeline = Config().pipeline
-        if hasattr(pipeline, "prealign"):
-            pipeline = dataclasses.replace(pipeline, prealign=False)
-        config = Config(preprocessor="paper", rule="paper", pipeline=pipeline)
-    else:
-        config = Config()
-    Pipeline(registry, config).run(seq)
+    Pipeline(registry, Config.paper() if args.paper else Config()).run(seq)
     rows.append(("for comparison: Pipeline.run (CLI path, no app)", time.perf_counter() - t0))
 
     print(f"app benchmark: {name} ({'·'.join(about[:3]).strip()}), rule {rule}; "

@@ -55,9 +55,7 @@ def stage_config(config: Config, stage: str) -> Config:
         return dataclasses.replace(base, **keep, pipeline=_reset(config.pipeline, _NOT_FRAME))
     keep.update(registrar=config.registrar, registrar_params=config.registrar_params)
     if stage == "register":
-        pipeline = _reset(config.pipeline, _NOT_REGISTER)
-        if hasattr(pipeline, "min_fitness"):
-            pipeline = dataclasses.replace(pipeline, min_fitness=_REGISTER_MIN_FITNESS)
+        pipeline = dataclasses.replace(_reset(config.pipeline, _NOT_REGISTER), min_fitness=_REGISTER_MIN_FITNESS)
         return dataclasses.replace(base, **keep, pipeline=pipeline)
     keep.update(rule=config.rule, rule_params=config.rule_params)
     if stage == "decide":

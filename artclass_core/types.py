@@ -48,8 +48,17 @@ class Intrinsics:
         if mask is not None:
             valid &= mask
         v, u = np.nonzero(valid)
-        z = depth_m[v, u].astype(np.float64)
+        return self.points(u, v, depth_m[v, u].astype(np.float64))
+
+    def points(self, u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Points (N, 3) at pixel columns ``u``, rows ``v`` and depths ``z`` (m)."""
         return np.column_stack(((u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z))
+
+    def pixels(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel columns and rows (not rounded) where ``points`` (N, 3) project; inf or NaN where z <= 0."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (self.fx * points[:, 0] / points[:, 2] + self.cx,
+                    self.fy * points[:, 1] / points[:, 2] + self.cy)
 
 
 @dataclass

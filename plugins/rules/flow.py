@@ -46,8 +46,8 @@ def flow_targets(source: Cloud, target: Cloud, points: np.ndarray, *, min_gradie
     forward, backward, texture = _flow(ga, gb, scale=scale)
 
     z = points[:, 2]
-    u = K.fx * points[:, 0] / z + K.cx - x0
-    v = K.fy * points[:, 1] / z + K.cy - y0
+    u, v = K.pixels(points)
+    u, v = u - x0, v - y0
     ui, vi = np.round(u).astype(int), np.round(v).astype(int)
     ok = (z > 0) & (ui >= 0) & (ui < x1 - x0) & (vi >= 0) & (vi < y1 - y0)
     ok[ok] &= texture[vi[ok], ui[ok]] >= min_gradient ** 2
@@ -62,9 +62,7 @@ def flow_targets(source: Cloud, target: Cloud, points: np.ndarray, *, min_gradie
     good = depth > 0
     idx = np.flatnonzero(ok)[good]
     zt = depth[good]
-    out[idx, 0] = (ut[idx] + x0 - K.cx) / K.fx * zt
-    out[idx, 1] = (vt[idx] + y0 - K.cy) / K.fy * zt
-    out[idx, 2] = zt
+    out[idx] = K.points(ut[idx] + x0, vt[idx] + y0, zt)
     shift_px = np.hypot(ut - u, vt - v)
     tol[idx] = (FLOW_ERROR_PX / scale + FLOW_ERROR_SHARE * shift_px[idx]) * points[idx, 2] / K.fx
     return out, tol

@@ -238,10 +238,10 @@ class _Evidence:
         # them alive (a streaming run drops each cloud, and with it this, as soon as its pairs are done).
         self.src_points, self.src_normals, self.src_view = source.points, source.normals, source.view
         self.tgt_points, self.tgt_normals, self.tgt_view = target.points, target.normals, target.view
-        self.spacing = float(source.info.get("v_m")
-                             or np.median(cKDTree(source.points).query(source.points, k=2)[0][:, 1]))
-        self.extent = float(np.linalg.norm(np.ptp(np.concatenate([source.points, target.points]), axis=0)))
         self.tree, self.source_tree = cKDTree(target.points), cKDTree(source.points)
+        self.spacing = float(source.info.get("v_m")
+                             or np.median(self.source_tree.query(source.points, k=2)[0][:, 1]))
+        self.extent = float(np.linalg.norm(np.ptp(np.concatenate([source.points, target.points]), axis=0)))
         self.tgt = to_o3d(target.points, target.normals)
         self.cell_idx = [cells[n].source_idx for n in matched]
         # Scoring points: every matched cell's source points, evenly subsampled.
@@ -307,7 +307,7 @@ class _Evidence:
         if not len(idx):
             return out
         K, ui, vi, zt = view.intrinsics, ui[idx], vi[idx], zt[idx]
-        q = transform(_backproject(K, ui, vi, zt), np.linalg.inv(T))
+        q = transform(K.points(ui, vi, zt), np.linalg.inv(T))
         d, _ = self.source_tree.query(q)
         out[idx] = d <= 2 * self.spacing
         return out
@@ -374,19 +374,13 @@ def joint_like(A: np.ndarray, B: np.ndarray, centre: np.ndarray, size: float) ->
     return bool(abs(slide) <= JOINT_MAX_SLIDE * size and np.linalg.norm(off - (off @ axis) * axis) <= 0.5 * size)
 
 
-def _backproject(K, u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
-    return np.stack([(u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z], axis=1)
-
-
 def _in_front(view, points: np.ndarray):
     """How far in front of each point (m) the view's object surface lies along the point's ray (> 0
     when the view sees the object nearer; -inf where it sees no object there or the ray leaves the
     image), and the pixel columns, rows and depths read."""
     K, (h, w) = view.intrinsics, view.depth_m.shape
     z = points[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.round(K.fx * points[:, 0] / z + K.cx)
-        v = np.round(K.fy * points[:, 1] / z + K.cy)
+    u, v = (np.round(c) for c in K.pixels(points))
     inside = (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     ui, vi = np.where(inside, u, 0).astype(int), np.where(inside, v, 0).astype(int)
     zt = np.where(inside, view.depth_m[vi, ui], 0.0)
