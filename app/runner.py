@@ -64,14 +64,14 @@ def stage_config(config: Config, stage: str) -> Config:
 
 
 def decide_registered(pipeline: Pipeline, i: int, j: int, cells: list[CellMotion], source: Cloud, target: Cloud,
-                      cell_size_m: float) -> PairResult:
+                      cell_size_m: float, between: tuple[Cloud | None, ...] = ()) -> PairResult:
     """Decide a pair registered by the ``register`` stage pipeline of :func:`stage_config`.
 
     That stage marks no cell as low-fitness; this applies ``pipeline``'s own fitness check
     (:meth:`Pipeline.checked_cells`, which copies the cells) and then :meth:`Pipeline.decide`. The
     result equals ``pipeline.decide`` on ``pipeline.register``'s cells. ``cells`` are not modified.
     """
-    return pipeline.decide(i, j, pipeline.checked_cells(cells), source, target, cell_size_m)
+    return pipeline.decide(i, j, pipeline.checked_cells(cells), source, target, cell_size_m, between)
 
 
 def stage_key(config: Config, stage: str) -> str:
@@ -83,7 +83,8 @@ def stage_key(config: Config, stage: str) -> str:
 def run_staged(sequence: Sequence, config: Config, summary: Pipeline, *,
                frame: Callable[[int], FrameResult],
                register: Callable[[FrameResult, FrameResult], tuple[list[CellMotion], float]],
-               decide: Callable[[FrameResult, FrameResult, list[CellMotion], float], PairResult],
+               decide: Callable[[FrameResult, FrameResult, list[CellMotion], float, tuple[FrameResult, ...]],
+                                PairResult],
                progress: Progress | None = None) -> RunResult:
     """Classify ``sequence`` stage by stage through the given (cached) stage functions.
 
@@ -94,8 +95,8 @@ def run_staged(sequence: Sequence, config: Config, summary: Pipeline, *,
     summary : a :class:`Pipeline` built on ``config``, used for :meth:`Pipeline.summarise`
     frame : ``i -> FrameResult`` with its cloud (``Pipeline.frame``)
     register : ``(frame_i, frame_j) -> (cells, x)`` (``Pipeline.register`` on the two clouds)
-    decide : ``(frame_i, frame_j, cells, x) -> PairResult`` (:func:`decide_registered`, or
-        ``Pipeline.decide``); it must not modify ``cells`` or the frames (neither does the core's),
+    decide : ``(frame_i, frame_j, cells, x, frames_between) -> PairResult`` (:func:`decide_registered` on
+        the frames' clouds); it must not modify ``cells`` or the frames (neither does the core's),
         since the app hands out the very same cached objects on every re-run
     progress : called as ``progress(stage, done, total)`` for stages ``frames``, ``registration``
         and ``decision``
@@ -137,7 +138,7 @@ def run_staged(sequence: Sequence, config: Config, summary: Pipeline, *,
             skipped = a if a.cloud is None else b
             pair = PairResult(a.index, b.index, "skipped", reason=f"frame {skipped.index} skipped: {skipped.skipped}")
         else:
-            pair = decide(a, b, *reg)
+            pair = decide(a, b, *reg, tuple(frames[a.index + 1:b.index]))
         pair.truth = sequence.pair_truth(a.index, b.index)
         results.append(pair)
         if progress:

@@ -125,9 +125,10 @@ def registered(seq_key: str, i: int, j: int, key: str, _config: Config, _source:
 
 @st.cache_data(max_entries=4000, show_spinner=False)
 def decided(seq_key: str, i: int, j: int, key: str, _config: Config, _source: FrameResult, _target: FrameResult,
-            _cells: tuple[CellMotion, ...], x: float) -> PairResult:
+            _cells: tuple[CellMotion, ...], x: float, _between: tuple[FrameResult, ...]) -> PairResult:
     """Fitness and alpha checks and the decision rule of the pair (:func:`app.runner.decide_registered`)."""
-    return decide_registered(stage_pipeline(_config, "decide"), i, j, list(_cells), _source.cloud, _target.cloud, x)
+    return decide_registered(stage_pipeline(_config, "decide"), i, j, list(_cells), _source.cloud, _target.cloud, x,
+                             tuple(f.cloud for f in _between))
 
 
 @st.cache_data(max_entries=64, show_spinner=False)
@@ -145,7 +146,7 @@ def run_sequence(seq: Sequence, config: Config, *, progress: Callable[[str, int,
         seq, config, Pipeline(registry(), config),
         frame=lambda i: frame_result(skey, i, fkey, seq, config),
         register=lambda a, b: registered(skey, a.index, b.index, rkey, config, a, b),
-        decide=lambda a, b, cells, x: decided(skey, a.index, b.index, dkey, config, a, b, cells, x),
+        decide=lambda a, b, cells, x, between: decided(skey, a.index, b.index, dkey, config, a, b, cells, x, between),
         progress=progress)
 
 

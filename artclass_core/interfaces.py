@@ -67,7 +67,12 @@ class RuleDecision:
 
 
 class DecisionRule(Plugin):
-    def decide(self, cells: list[CellMotion], *, source: Cloud, target: Cloud) -> RuleDecision:
+    #: True for a rule that wants the clouds of the frames between a pair's two as well (to follow the
+    #: images from frame to frame): the pipeline then passes them as ``between``, in frame order.
+    uses_frames_between: bool = False
+
+    def decide(self, cells: list[CellMotion], *, source: Cloud, target: Cloud,
+               between: tuple[Cloud, ...] = ()) -> RuleDecision:
         """Decide AM / RM / NM (or skipped) for a pair from its registered cells."""
         raise NotImplementedError
 

@@ -469,11 +469,13 @@ class Pipeline:
 
     # -- stage 4: registrations -> pair decision ----------------------------------------------
     def decide(self, i: int, j: int, cells: list[CellMotion], source: Cloud, target: Cloud,
-               cell_size_m: float) -> PairResult:
+               cell_size_m: float, between: Iterable[Cloud | None] = ()) -> PairResult:
         """Apply the alpha check and the decision rule to a registered pair.
 
         The cells are copied first (the returned pair holds the copies, with their clusters), so the
         same registered cells can be decided again, under another rule, without stale clusters.
+        ``between`` are the clouds of frames i + 1 .. j - 1, for a rule that uses them
+        (:attr:`DecisionRule.uses_frames_between`); it gets none when one of them is missing.
         """
         cells = [dataclasses.replace(c, cluster=None, key=None) for c in cells]
         pair = PairResult(i, j, "skipped", cells=cells, cell_size_m=cell_size_m)
@@ -481,7 +483,9 @@ class Pipeline:
         if not cells or n_matched == 0 or n_matched < self.params.alpha * len(cells):
             pair.reason = f"only {n_matched} of {len(cells)} cells matched (alpha = {self.params.alpha:g})"
             return pair
-        out = self.rule.decide(cells, source=source, target=target)
+        between = tuple(between)
+        extra = {"between": between} if self.rule.uses_frames_between and None not in between else {}
+        out = self.rule.decide(cells, source=source, target=target, **extra)
         if len(out.clusters) != len(cells):
             raise ArtclassError(f"rule {self.rule.name!r} returned {len(out.clusters)} clusters for {len(cells)} cells")
         for c, k in zip(cells, out.clusters):
@@ -490,9 +494,10 @@ class Pipeline:
         pair.decision, pair.reason, pair.info = out.decision, out.reason, out.info
         return pair
 
-    def pair(self, a: FrameResult, b: FrameResult, *, timing: dict[str, float] | None = None) -> PairResult:
-        """Register and decide the pair of two preprocessed frames."""
-        return self._pair(a, b, timing if timing is not None else {}, None, None)
+    def pair(self, a: FrameResult, b: FrameResult, *, timing: dict[str, float] | None = None,
+             between: Iterable[FrameResult] = ()) -> PairResult:
+        """Register and decide the pair of two preprocessed frames (``between``: the frames between them)."""
+        return self._pair(a, b, timing if timing is not None else {}, None, None, _clouds(between))
 
     def pair_key(self, sequence: Sequence, i: int, j: int, cache: StageCache) -> tuple:
         """The cache key of the registrations of pair (i, j): both frames' keys, the registrar and
@@ -502,7 +507,7 @@ class Pipeline:
                 self.params.cell_size_m, self.params.min_cell_points)
 
     def _pair(self, a: FrameResult, b: FrameResult, timing: dict[str, float], cache: StageCache | None,
-              key: tuple | None) -> PairResult:
+              key: tuple | None, between: tuple[Cloud | None, ...] = ()) -> PairResult:
         if a.cloud is None or b.cloud is None:
             skipped = a if a.cloud is None else b
             return PairResult(a.index, b.index, "skipped", reason=f"frame {skipped.index} skipped: {skipped.skipped}")
@@ -516,7 +521,7 @@ class Pipeline:
             raw, x = hit
         cells = self.checked_cells(raw)
         t1 = time.perf_counter()
-        pair = self.decide(a.index, b.index, cells, a.cloud, b.cloud, x)
+        pair = self.decide(a.index, b.index, cells, a.cloud, b.cloud, x, between)
         _add(timing, "register", t1 - t0)
         _add(timing, "decide", time.perf_counter() - t1)
         return pair
@@ -525,9 +530,10 @@ class Pipeline:
         timing: dict[str, float] = {}
         return _Job(self._raw_frame(sequence, i, timing, cache), timing)
 
-    def _pair_job(self, a: FrameResult, b: FrameResult, cache: StageCache | None, key: tuple | None) -> _Job:
+    def _pair_job(self, a: FrameResult, b: FrameResult, cache: StageCache | None, key: tuple | None,
+                  between: tuple[Cloud | None, ...]) -> _Job:
         timing: dict[str, float] = {}
-        return _Job(self._pair(a, b, timing, cache, key), timing)
+        return _Job(self._pair(a, b, timing, cache, key, between), timing)
 
     # -- the whole sequence ---------------------------------------------------------------------
     def run(self, sequence: Sequence, *, progress: Progress | None = None, keep_clouds: bool = False,
@@ -595,7 +601,8 @@ class Pipeline:
                     first = pending.pop(j - k)
                     key = (self.pair_key(sequence, j - k, j, cache)
                            if cache is not None and first.cloud is not None and fr.cloud is not None else None)
-                    pair_jobs.append((first, executor.submit(self._pair_job, first, fr, cache, key)))
+                    between = _clouds(pending[m] for m in range(j - k + 1, j))
+                    pair_jobs.append((first, executor.submit(self._pair_job, first, fr, cache, key, between)))
                 collect(block=len(pair_jobs) > 2 * workers)
             while pair_jobs:
                 collect(block=True)
@@ -630,7 +637,8 @@ class Pipeline:
         t_start = time.perf_counter()
         self._check_same_registrations(result)
         clouds = {f.index: f.cloud for f in result.frames if f.cloud is not None}
-        needed = sorted({i for p in result.pairs if p.cells for i in (p.i, p.j)} - clouds.keys())
+        span = (lambda p: range(p.i, p.j + 1)) if self.rule.uses_frames_between else (lambda p: (p.i, p.j))
+        needed = sorted({i for p in result.pairs if p.cells for i in span(p)} - clouds.keys())
         if needed:
             if cache is None or sequence is None:
                 raise ArtclassError(f"re-deciding needs the clouds of frames {needed[:5]}{'...' if len(needed) > 5 else ''}: "
@@ -644,7 +652,8 @@ class Pipeline:
                 pairs.append(dataclasses.replace(p))
                 continue
             t0 = time.perf_counter()
-            new = self.decide(p.i, p.j, self.checked_cells(p.cells), clouds[p.i], clouds[p.j], p.cell_size_m)
+            new = self.decide(p.i, p.j, self.checked_cells(p.cells), clouds[p.i], clouds[p.j], p.cell_size_m,
+                              (clouds.get(m) for m in range(p.i + 1, p.j)))
             _add(timing, "decide", time.perf_counter() - t0)
             new.truth = p.truth
             pairs.append(new)
@@ -690,6 +699,10 @@ class Pipeline:
             sequence=sequence_info, label=sequence_label(filtered), fractions=fractions(decided), pairs=pairs,
             filtered=filtered, frames=frames, params=params, plugins=plugins,
             timing_s={k: round(v, 4) for k, v in timing.items()}, version=_version())
+
+
+def _clouds(frames: Iterable[FrameResult]) -> tuple[Cloud | None, ...]:
+    return tuple(f.cloud for f in frames)
 
 
 def max_count_filter(decisions: list[str], *, w: int) -> list[str]:

@@ -531,8 +531,8 @@ def test_run_staged_equals_pipeline_run(registry, laptop, rule, min_fitness):
     result = runner.run_staged(
         laptop, config, Pipeline(registry, config), frame=lambda i: stage["frame"].frame(laptop, i),
         register=lambda a, b: stage["register"].register(a.cloud, b.cloud),
-        decide=lambda a, b, cells, x: runner.decide_registered(stage["decide"], a.index, b.index, cells, a.cloud,
-                                                               b.cloud, x),
+        decide=lambda a, b, cells, x, between: runner.decide_registered(
+            stage["decide"], a.index, b.index, cells, a.cloud, b.cloud, x, tuple(f.cloud for f in between)),
         progress=lambda stage_, done, total: seen.append((stage_, done, total)))
     assert result.label == expected.label and result.filtered == expected.filtered
     assert [p.decision for p in result.pairs] == [p.decision for p in expected.pairs]

@@ -135,6 +135,23 @@ def test_folder_reader(layouts, tmp_path):
     assert exc.value.path == str(bad / "mask")
 
 
+def test_folder_pair_truth_follows_what_the_sensor_sees_of_the_part(tmp_path):
+    seq_dir = write_folder(tmp_path, "seen")
+    truth = json.loads((seq_dir / "truth.json").read_text())
+    q = truth["joint_positions"]
+    assert abs(q[5] - q[0]) > np.radians(3)                  # the joint truth alone says AM
+
+    def truth_with(share, reach_m):
+        truth["part_visibility"] = [{"share": share, "axis_distance_m": reach_m}] * len(q)
+        (seq_dir / "truth.json").write_text(json.dumps(truth))
+        return first_sequence(seq_dir, "folder").pair_truth(0, 5)
+
+    assert truth_with(0.3, 0.10) == "AM"                      # a large part, its far end moves centimetres
+    assert truth_with(0.02, 0.10) is None                     # the part is barely in view (seen edge-on)
+    assert truth_with(0.3, 0.002) == "NM"                     # its visible points stay within a millimetre
+    assert truth_with(0.3, 0.008) is None                     # 1-5 mm: within the ambiguous band
+
+
 def test_ycbv_reader_on_fixture(layouts):
     seqs = REGISTRY.create("reader", "ycbv").sequences(layouts["ycbv"])
     assert [s.name for s in seqs] == ["0000/025_mug", "0000/061_foam_brick"]

@@ -60,9 +60,9 @@ def cloud(points: np.ndarray, *, noise_m: float, seed: int, index: int = 0) -> C
     return Cloud(index, noisy, camera_facing_normals(noisy, radius_m=3 * SPACING_M), {"v_m": SPACING_M})
 
 
-def decide(pipeline: Pipeline, a: Cloud, b: Cloud):
+def decide(pipeline: Pipeline, a: Cloud, b: Cloud, between: tuple[Cloud, ...] = ()):
     cells, x = pipeline.register(a, b)
-    return pipeline.decide(0, 1, cells, a, b, x)
+    return pipeline.decide(0, 1, cells, a, b, x, between)
 
 
 @pytest.fixture(scope="module")
@@ -189,13 +189,13 @@ INTRINSICS = Intrinsics(285.0, 285.0, 159.5, 119.5, 320, 240)
 ROWS, COLS, SPLIT, SLIDE_PX = slice(60, 180), slice(80, 240), 160, 8
 
 
-def belt_cloud(index: int, *, with_view: bool = True) -> Cloud:
+def belt_cloud(index: int, *, with_view: bool = True, slide_px: int = SLIDE_PX) -> Cloud:
     rng = np.random.default_rng(7)
     texture = cv2.GaussianBlur(rng.random((240, 360)).astype(np.float32), (0, 0), 1.5)
     texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
     gray = texture[:, 20:340].copy()
     if index:
-        gray[:, SPLIT:] = texture[:, 20 + SPLIT - SLIDE_PX:340 - SLIDE_PX]
+        gray[:, SPLIT:] = texture[:, 20 + SPLIT - index * slide_px:340 - index * slide_px]
     depth = np.zeros((240, 320), np.float32)
     depth[ROWS, COLS] = 1.0
     grid = np.zeros_like(depth, bool)
@@ -210,6 +210,15 @@ def test_optical_flow_sees_a_slide_that_keeps_the_surface_in_place(robust):
     assert pair.decision == "AM", pair.info
     blind = decide(robust, belt_cloud(0, with_view=False), belt_cloud(1, with_view=False))
     assert blind.decision == "NM", "without images, depth alone cannot see the slide"
+
+
+def test_optical_flow_is_followed_from_frame_to_frame_where_it_cannot_jump(robust):
+    """A belt sliding 4 px a frame has gone 20 px by frame 5: too far for the flow from frame 0 straight
+    to frame 5 on this fine texture, but followed through frames 1..4 the slide is seen."""
+    frames = [belt_cloud(i, slide_px=4) for i in range(6)]
+    assert decide(robust, frames[0], frames[5]).decision == "NM", "the direct flow was expected to fail here"
+    pair = decide(robust, frames[0], frames[5], tuple(frames[1:5]))
+    assert pair.decision == "AM", pair.info
 
 
 @pytest.mark.parametrize("relative, expected", [

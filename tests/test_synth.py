@@ -213,6 +213,11 @@ def test_articulate_moves_the_joint_and_keeps_the_base(tmp_path):
         assert q.min() >= lo - 1e-9 and q.max() <= hi + 1e-9
         poses = np.array(truth["object_poses"])
         np.testing.assert_allclose(poses, poses[:1].repeat(len(poses), 0), atol=1e-12)
+        # What the camera sees of the moving part, per frame, for the per-pair truth.
+        seen = truth["part_visibility"]
+        assert len(seen) == len(q) and all(0.0 < s["share"] < 1.0 for s in seen)
+        if name == "laptop":   # the lid's visible points reach centimetres from its hinge
+            assert all(0.03 < s["axis_distance_m"] < 0.5 for s in seen)
         # The moving part's poses realise exactly that joint travel.
         child = np.array(truth["moving_part_poses"])
         rel = np.linalg.inv(child[0]) @ child[-1]
@@ -391,8 +396,9 @@ def test_sample_data_matches_the_sample_preset():
         seq = plan_sequence(object_name=e["object_name"], motion=e["motion"], noise=e["noise"],
                             n_frames=e["n_frames"], seed=e["seed"], width=e["width"],
                             height=e["height"])
-        assert json.loads((root / e["name"] / "truth.json").read_text()) == json.loads(
-            json.dumps(seq.truth))
+        written = json.loads((root / e["name"] / "truth.json").read_text())
+        assert {k: written[k] for k in seq.truth} == json.loads(json.dumps(seq.truth))
+        assert ("part_visibility" in written) == (seq.truth["joint_positions"][0] is not None)
         assert meta == seq.meta
         frame = seq.render(e["n_frames"] - 1)
         mask = cv2.imread(str(root / e["name"] / "mask" / f"{e['n_frames'] - 1:06d}.png"),

@@ -8,7 +8,9 @@
     SEQ/depth/*.png   16-bit depth, matched to rgb/ by sorted file name
     SEQ/mask/*.png    optional, non-zero = object
     SEQ/truth.json    optional per-frame ground truth: "joint_positions" (rad or m, per frame) and
-                      "object_poses" (4x4 camera_from_object, per frame), for per-pair truth
+                      "object_poses" (4x4 camera_from_object, per frame), for per-pair truth;
+                      optional "part_visibility" (per frame: "share" of the object's pixels that are
+                      the moving part, "axis_distance_m" its visible points reach from the joint axis)
 """
 
 from __future__ import annotations
@@ -29,6 +31,9 @@ REVOLUTE_BAND_RAD = (np.radians(0.5), np.radians(3.0))
 PRISMATIC_BAND_M = (0.001, 0.005)
 MOVE_BAND_M = (0.001, 0.005)
 TURN_BAND_RAD = (np.radians(0.5), np.radians(2.0))
+# A joint motion is only "seen" when the moving part covers this share of the object's pixels in both
+# frames: a lid seen edge-on, or a handle hidden behind the other, shows the sensor no articulation.
+VISIBLE_PART_SHARE = 0.05
 
 
 def _images(folder: Path) -> list[Path]:
@@ -100,8 +105,17 @@ class FolderSequence(Sequence):
         joints = self.truth.get("joint_positions") or [None] * len(self)
         poses = self.truth.get("object_poses") or [None] * len(self)
         revolute = self.truth.get("joint_type") != "prismatic"
-        return pair_truth_from_states(joints[i], joints[j], poses[i], poses[j],
-                                      joint_eps=REVOLUTE_BAND_RAD if revolute else PRISMATIC_BAND_M,
+        joint_eps = REVOLUTE_BAND_RAD if revolute else PRISMATIC_BAND_M
+        a, b = joints[i], joints[j]
+        seen = self.truth.get("part_visibility")
+        if seen and a is not None and b is not None and _exceeds(abs(b - a), joint_eps):
+            # The joint moved: judge it by what the sensor can see of it, how far the visible part went.
+            if min(seen[i]["share"], seen[j]["share"]) < VISIBLE_PART_SHARE:
+                return None
+            reach = min(seen[i]["axis_distance_m"], seen[j]["axis_distance_m"])
+            a, b = 0.0, 2.0 * reach * np.sin(abs(b - a) / 2.0) if revolute else abs(b - a)
+            joint_eps = PRISMATIC_BAND_M
+        return pair_truth_from_states(a, b, poses[i], poses[j], joint_eps=joint_eps,
                                       move_eps_m=MOVE_BAND_M, turn_eps_rad=TURN_BAND_RAD)
 
 

@@ -29,8 +29,9 @@ For a pair (i, i + k):
    is below ``min_cell_score`` (occluded, out of view) carry no evidence.
    Depth cannot see a motion along a surface (a drawer's top sliding along itself, a lever turning in
    its own plane, a globe spinning): where the colour image has texture, the optical flow says where
-   a point went (see ``flow.py``), and a motion must also bring the point within tau plus the flow's
-   own tolerance of that place. A whole-object motion is not faulted for points that it hides behind
+   a point went (see ``flow.py``; followed through the frames between i and i + k where it cannot
+   jump straight), and a motion must also bring the point within tau plus the flow's own tolerance
+   of that place. A whole-object motion is not faulted for points that it hides behind
    the object's own surfaces (a box turning away from the camera hides its far faces); a surface
    in front that the motion does not account for (a lid swung towards the camera) is no excuse.
 4. NM when the identity explains ``static_share`` of the informative points.
@@ -125,20 +126,22 @@ class RobustRule(DecisionRule):
     name = "robust"
     description = "counts the rigid motions needed to explain the points, with noise-scaled thresholds (default)"
     Params = RobustRuleParams
+    uses_frames_between = True    # optical flow is followed from frame to frame where it cannot jump
 
-    def decide(self, cells: list[CellMotion], *, source: Cloud, target: Cloud) -> RuleDecision:
+    def decide(self, cells: list[CellMotion], *, source: Cloud, target: Cloud,
+               between: tuple[Cloud, ...] = ()) -> RuleDecision:
         p = self.params
         matched = [n for n, c in enumerate(cells) if c.matched]
         if not matched or source.normals is None or target.normals is None:
             return RuleDecision("skipped", [None] * len(cells), reason="no matched cell with normals")
         # What the thresholds do not change is computed once per pair and found again on re-deciding.
         memo = pair_memo(source, target)
-        key = ("robust", p.max_points_per_cell, p.use_flow,
+        key = ("robust", p.max_points_per_cell, p.use_flow, tuple(map(id, between)),
                tuple((cells[n].cell, id(cells[n].registration)) for n in matched))
         ev = memo.get(key)
         if ev is None:
             ev = memo[key] = _Evidence(cells, matched, source, target, max_points=p.max_points_per_cell,
-                                       use_flow=p.use_flow)
+                                       use_flow=p.use_flow, between=between)
         owner, counts = ev.owner, ev.counts
 
         tau = max(p.noise_floor_m, p.noise_factor * ev.sigma)
@@ -233,7 +236,7 @@ class _Evidence:
     far (memoised, so re-deciding under other thresholds repeats none of this work)."""
 
     def __init__(self, cells: list[CellMotion], matched: list[int], source: Cloud, target: Cloud, *,
-                 max_points: int, use_flow: bool = True):
+                 max_points: int, use_flow: bool = True, between: tuple[Cloud, ...] = ()):
         # Arrays, never the clouds themselves: this lives in the clouds' pair_memo, which must not keep
         # them alive (a streaming run drops each cloud, and with it this, as soon as its pairs are done).
         self.src_points, self.src_normals, self.src_view = source.points, source.normals, source.view
@@ -257,7 +260,7 @@ class _Evidence:
         self.hyps = [np.eye(4), icp_point_to_plane(src_all, self.tgt, np.eye(4), steps),
                      icp_point_to_plane(src_all, self.tgt, shift, steps)]
         # Where the optical flow says each scoring point went, and how far from there it may be.
-        self.flow, self.flow_tol = flow_targets(source, target, self.pts) if use_flow else \
+        self.flow, self.flow_tol = flow_targets(source, target, self.pts, between=between) if use_flow else \
             (np.full(self.pts.shape, np.nan), np.zeros(len(self.pts)))
         self.has_flow = np.isfinite(self.flow[:, 0])
         if self.has_flow.sum() >= MIN_FLOW_POINTS:

@@ -89,6 +89,25 @@ class SynthSequence:
         depth_m, rgb = add_sensor_noise(clean, noise=NOISE_LEVELS[self.noise], rng=rng)
         return SynthFrame(index, rgb, depth_m, clean.mask, clean)
 
+    def part_visibility(self, frame: SynthFrame) -> dict:
+        """How much of the moving part the camera sees in ``frame``: its share of the object's pixels,
+        and how far from the joint axis (m) its visible points reach (90th percentile; 0 when unseen).
+        A revolute part turned by dq moves its visible points by up to 2 r sin(dq / 2)."""
+        part = frame.clean.part_ids == 1
+        seen = int(np.count_nonzero(frame.clean.mask))
+        joint = OBJECTS[self.object_name].joint
+        reach = 0.0
+        if part.any() and joint is not None:
+            v, u = np.nonzero(part)
+            z = frame.clean.depth_m[v, u].astype(float)
+            K = self.intrinsics
+            cam = np.stack([(u - K.cx_px) * z / K.fx_px, (v - K.cy_px) * z / K.fy_px, z, np.ones_like(z)])
+            obj = (np.linalg.inv(self.trajectory.T_camera_from_object[frame.index]) @ cam)[:3].T
+            off = obj - np.asarray(joint.origin_m)
+            axis = np.asarray(joint.axis, float)
+            reach = float(np.percentile(np.linalg.norm(off - np.outer(off @ axis, axis), axis=1), 90))
+        return {"share": round(int(part.sum()) / max(seen, 1), 4), "axis_distance_m": round(reach, 4)}
+
     def frames(self) -> Iterator[SynthFrame]:
         """Render all frames in order."""
         for i in range(self.n_frames):
@@ -221,8 +240,13 @@ def generate_sequence(
     seq = plan_sequence(object_name=object_name, motion=motion, noise=noise,
                         n_frames=n_frames, seed=seed, width=width, height=height)
     out = prepare_sequence_dir(out_dir, overwrite=overwrite)
+    visibility = []
     for frame in seq.frames():
         write_frame(out, frame.index, rgb=frame.rgb, depth_m=frame.depth_m, mask=frame.mask)
-    write_json(out / "truth.json", seq.truth)
+        visibility.append(seq.part_visibility(frame))
+    truth = dict(seq.truth)
+    if seq.truth["joint_positions"][0] is not None:
+        truth["part_visibility"] = visibility
+    write_json(out / "truth.json", truth)
     write_json(out / "meta.json", seq.meta)
     return out
