@@ -47,7 +47,7 @@ def flow_targets(source: Cloud, target: Cloud, points: np.ndarray, *, between: S
         return out, tol
     K = source.view.intrinsics
     u0, v0 = K.pixels(points)
-    u, v, ok, scale = _link(source, target).follow(u0, v0, points[:, 2] > 0, min_gradient=min_gradient)
+    u, v, ok, scale = _Flow(source.view, target.view).follow(u0, v0, points[:, 2] > 0, min_gradient=min_gradient)
     steps = np.ones(len(points))
     if between and not ok.all():
         clouds = (source, *between, target)
@@ -66,8 +66,8 @@ def flow_targets(source: Cloud, target: Cloud, points: np.ndarray, *, between: S
 
 
 def _link(a: Cloud, b: Cloud) -> "_Flow":
-    """The flow between two clouds' images, computed once while both clouds live (a chain of k steps
-    shares each step with the other pairs that span it)."""
+    """The flow between two consecutive clouds' images, kept while both clouds live: the pairs
+    (i, i + k) that span the step share it."""
     memo = pair_memo(a, b)
     if "flow" not in memo:
         memo["flow"] = _Flow(a.view, b.view)
