@@ -33,7 +33,8 @@ For a pair (i, i + k):
    jump straight), and a motion must also bring the point within tau plus the flow's own tolerance
    of that place. A whole-object motion is not faulted for points that it hides behind
    the object's own surfaces (a box turning away from the camera hides its far faces); a surface
-   in front that the motion does not account for (a lid swung towards the camera) is no excuse.
+   in front that the motion does not account for (a lid swung towards the camera) is no excuse,
+   and neither is any hidden point when the motion is offered as a part's (step 5).
 4. NM when the identity explains ``static_share`` of the informative points.
 5. Otherwise a greedy cover: the hypothesis that explains most points, then the one that explains
    most of the rest, and so on. A further motion needs at least ``min_part_cells`` cells and
@@ -174,7 +175,12 @@ class RobustRule(DecisionRule):
                 clusters[matched[c]] = 0
             return RuleDecision("NM", clusters, ["no motion"], reason="the identity explains the points", info=info)
 
-        chosen, members = self._cover(explains, weight, total, informative)
+        # A further motion is a part's, and only the whole object's motion may hide points behind itself:
+        # a part is scored on the whole-object hypotheses without that excuse.
+        as_part = explains.copy()
+        plain = _per_cell(ev.plain <= tau, owner, counts)
+        as_part[:ev.n_global] = _explains(plain, best, counts, p.explain_margin) & informative
+        chosen, members = self._cover(explains, as_part, weight, total, informative)
         motions = [hyps[h] for h in chosen]
         for m in range(len(motions) - 1, 0, -1):
             A, B = motions[0], motions[m]
@@ -200,15 +206,16 @@ class RobustRule(DecisionRule):
             return RuleDecision("NM", clusters, keys, reason="the only motion is within noise", info=info)
         return RuleDecision("RM", clusters, keys, reason="one motion explains the points", info=info)
 
-    def _cover(self, explains, weight, total, informative):
-        """Greedy cover of the informative cells by motions (hypothesis indices) with enough support."""
+    def _cover(self, explains, as_part, weight, total, informative):
+        """Greedy cover of the informative cells by motions (hypothesis indices) with enough support: the
+        first by ``explains``, the further ones (parts) by ``as_part``."""
         p = self.params
         left = informative.copy()
         chosen, members = [], []
         while left.any():
-            gain = (explains & left) @ weight
-            h = int(np.argmax(gain))
-            cs = np.flatnonzero(explains[h] & left)
+            which = as_part if chosen else explains
+            h = int(np.argmax((which & left) @ weight))
+            cs = np.flatnonzero(which[h] & left)
             if chosen and (len(cs) < p.min_part_cells or weight[cs].sum() < p.min_part_share * total):
                 break
             chosen.append(h)
@@ -273,6 +280,7 @@ class _Evidence:
                 self.hyps.append(trimmed_kabsch(self.pts[use], self.flow[use]))
         self.geo = np.stack([self.residuals(T, whole=h < self.n_global)                # (H, P) metres
                              for h, T in enumerate(self.hyps)])
+        self.plain = np.stack([self.residuals(T) for T in self.hyps[:self.n_global]])  # without the excuse
         # Noise measured on the data, independent of any motion: the spread of the target's points about
         # their local planes; two noisy samplings of one surface differ by sqrt(2) of that.
         self.sigma = np.sqrt(2.0) * surface_noise(target.points, self.tree)
