@@ -278,16 +278,17 @@ class _Evidence:
             use = self.has_flow & (self.owner == c)
             if use.sum() >= MIN_FLOW_POINTS:
                 self.hyps.append(trimmed_kabsch(self.pts[use], self.flow[use]))
-        self.geo = np.stack([self.residuals(T, whole=h < self.n_global)                # (H, P) metres
-                             for h, T in enumerate(self.hyps)])
-        self.plain = np.stack([self.residuals(T) for T in self.hyps[:self.n_global]])  # without the excuse
+        plain = [self.residuals(T) for T in self.hyps]
+        self.plain = np.stack(plain[:self.n_global])       # whole-object motions scored as a part's
+        self.geo = np.stack([self.excuse(r, T) if h < self.n_global else r                  # (H, P) metres
+                             for h, (T, r) in enumerate(zip(self.hyps, plain))])
         # Noise measured on the data, independent of any motion: the spread of the target's points about
         # their local planes; two noisy samplings of one surface differ by sqrt(2) of that.
         self.sigma = np.sqrt(2.0) * surface_noise(target.points, self.tree)
         self._local: dict = {}
         self._refits: dict = {}
 
-    def residuals(self, T: np.ndarray, *, whole: bool = False) -> np.ndarray:
+    def residuals(self, T: np.ndarray) -> np.ndarray:
         """Each scoring point's misfit under T (m): distance to the nearest target point's tangent plane,
         or to the point itself less one sampling step if larger."""
         moved = transform(self.pts, T)
@@ -296,9 +297,12 @@ class _Evidence:
                        d - self.spacing)
         f = self.has_flow
         r[f] = np.maximum(r[f], np.linalg.norm(moved[f] - self.flow[f], axis=1) - self.flow_tol[f])
-        if whole:   # a motion of the whole object is not faulted for the points it hides itself
-            r[self.hidden(moved, T)] = 0.0
         return r
+
+    def excuse(self, r: np.ndarray, T: np.ndarray) -> np.ndarray:
+        """Residuals ``r`` under a motion T of the whole object, which is not faulted for the points
+        it hides itself (see ``hidden``)."""
+        return np.where(self.hidden(transform(self.pts, T), T), 0.0, r)
 
     def hidden(self, moved: np.ndarray, T: np.ndarray) -> np.ndarray:
         """Moved points that the target cannot see because T's own motion hides them.
@@ -353,7 +357,7 @@ class _Evidence:
             use = np.isin(self.owner, cells)
             T = icp_point_to_plane(to_o3d(self.pts[use]), self.tgt, T0,
                                    [self.extent / 10, 2 * self.spacing, self.spacing, 2 * tau])
-            self._refits[key] = (T, self.residuals(T, whole=True))
+            self._refits[key] = (T, self.excuse(self.residuals(T), T))
         return self._refits[key]
 
 
