@@ -638,7 +638,8 @@ class Pipeline:
         self._check_same_registrations(result)
         clouds = {f.index: f.cloud for f in result.frames if f.cloud is not None}
         span = (lambda p: range(p.i, p.j + 1)) if self.rule.uses_frames_between else (lambda p: (p.i, p.j))
-        needed = sorted({i for p in result.pairs if p.cells for i in span(p)} - clouds.keys())
+        skipped = {f.index for f in result.frames if f.skipped}     # as in the run, a pair goes without them
+        needed = sorted({i for p in result.pairs if p.cells for i in span(p)} - clouds.keys() - skipped)
         if needed:
             if cache is None or sequence is None:
                 raise ArtclassError(f"re-deciding needs the clouds of frames {needed[:5]}{'...' if len(needed) > 5 else ''}: "

@@ -298,6 +298,17 @@ def test_redecide_from_the_cache(registry):
     assert fingerprint(again) == fingerprint(Pipeline(registry, changed).run(make_sequence("hinge", n_frames=6)))
 
 
+def test_redecide_goes_without_a_skipped_frame_between(registry):
+    """A frame between a pair's two that was skipped (no object in it) is not needed to re-decide the
+    pair with a rule that looks at the frames between: the run went without it too."""
+    seq = make_sequence("hinge", n_frames=6, empty_frames=(2,))
+    first = Pipeline(registry, config(rule="robust")).run(seq, keep_clouds=True)
+    assert [f.index for f in first.frames if f.skipped] == [2]
+    changed = config(rule="robust", pipeline=PipelineParams(k=2, w=1))
+    assert fingerprint(Pipeline(registry, changed).redecide(first)) == \
+        fingerprint(Pipeline(registry, changed).run(seq))
+
+
 @pytest.mark.parametrize("change", [
     dict(pipeline=PipelineParams(k=1)),
     dict(pipeline=PipelineParams(k=2, cell_size_m=0.02)),
