@@ -135,6 +135,7 @@ class View:
     gray: np.ndarray                   # (H, W) uint8 intensity of the whole frame
     depth_m: np.ndarray                # (H, W) float32, metres, 0 outside the object's (eroded) mask
     intrinsics: Intrinsics
+    scene_depth_m: np.ndarray | None = None  # (H, W) float32, metres: the whole frame's depth (0 = none)
 
 
 @dataclass

@@ -98,8 +98,8 @@ class PaperPreprocessor(Preprocessor):
             points = mean_smooth(points, radius_m=r)
         normals = camera_facing_normals(points, radius_m=3 * v) if len(points) >= 3 else np.zeros_like(points)
         info.update(n_inliers=len(pcd.points), n_points=len(points), diameter_m=diameter, v_m=v, r_m=r)
-        view = View(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY), np.where(valid, frame.depth_m, 0).astype(np.float32),
-                    intrinsics)
+        scene = np.where(np.isfinite(frame.depth_m), frame.depth_m, 0).astype(np.float32)
+        view = View(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY), np.where(valid, scene, 0), intrinsics, scene)
         return Cloud(frame.index, points, normals, info, colors=np.asarray(down.colors), view=view)
 
     def sample(self, valid: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 from artclass_core import CellMotion, Cloud, Config, Intrinsics, Pipeline, Registration, View, open_sequences
 from artclass_core.geometry import transform
 from artclass_plugins.preprocessors import camera_facing_normals
+from artclass_plugins.rules import flow
 from artclass_plugins.rules.robust import RobustRule, joint_like, surface_noise
 from artclass_plugins.synth.generate import plan_sequence
 from artclass_plugins.synth.presets import preset_plans
@@ -192,13 +193,20 @@ INTRINSICS = Intrinsics(285.0, 285.0, 159.5, 119.5, 320, 240)
 ROWS, COLS, SPLIT, SLIDE_PX = slice(60, 180), slice(80, 240), 160, 8
 
 
-def belt_cloud(index: int, *, with_view: bool = True, slide_px: int = SLIDE_PX) -> Cloud:
+def belt_cloud(index: int, *, with_view: bool = True, slide_px: int = SLIDE_PX, stripes: bool = False) -> Cloud:
+    """Frame ``index`` of the belt; with ``stripes`` its texture varies across the slide only (vertical
+    stripes of random widths: an edge everywhere, never a corner), seen with a camera's pixel noise (on
+    a noise-free 1D texture DIS cannot solve even the flow across it)."""
     rng = np.random.default_rng(7)
-    texture = cv2.GaussianBlur(rng.random((240, 360)).astype(np.float32), (0, 0), 1.5)
+    noise = rng.random((1, 360) if stripes else (240, 360)).astype(np.float32)
+    texture = cv2.GaussianBlur(np.repeat(noise, 240, axis=0) if stripes else noise, (0, 0), 1.5)
     texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
     gray = texture[:, 20:340].copy()
     if index:
         gray[:, SPLIT:] = texture[:, 20 + SPLIT - index * slide_px:340 - index * slide_px]
+    if stripes:
+        pixel_noise = np.random.default_rng(index).normal(0.0, 2.0, gray.shape)
+        gray = np.clip(gray + pixel_noise, 0, 255).astype(np.uint8)
     depth = np.zeros((240, 320), np.float32)
     depth[ROWS, COLS] = 1.0
     grid = np.zeros_like(depth, bool)
@@ -215,6 +223,17 @@ def test_optical_flow_sees_a_slide_that_keeps_the_surface_in_place(robust):
     assert blind.decision == "NM", "without images, depth alone cannot see the slide"
 
 
+def test_optical_flow_across_stripes_sees_a_slide(robust, monkeypatch):
+    """On stripes the flow is known only across them (the aperture problem), and that is enough to see a
+    slide across them."""
+    a, b = belt_cloud(0, stripes=True), belt_cloud(1, stripes=True)
+    pair = decide(robust, a, b)
+    assert pair.decision == "AM", pair.info
+    monkeypatch.setattr(flow, "EDGE_FACTOR", np.inf)
+    assert decide(robust, belt_cloud(0, stripes=True), belt_cloud(1, stripes=True)).decision == "NM", \
+        "without edges, the stripes were expected to give the flow nothing to go on"
+
+
 def test_optical_flow_is_followed_from_frame_to_frame_where_it_cannot_jump(robust):
     """A belt sliding 4 px a frame has gone 20 px by frame 5: too far for the flow from frame 0 straight
     to frame 5 on this fine texture, but followed through frames 1..4 the slide is seen."""
@@ -222,6 +241,35 @@ def test_optical_flow_is_followed_from_frame_to_frame_where_it_cannot_jump(robus
     assert decide(robust, frames[0], frames[5]).decision == "NM", "the direct flow was expected to fail here"
     pair = decide(robust, frames[0], frames[5], tuple(frames[1:5]))
     assert pair.decision == "AM", pair.info
+
+
+def panel_cloud(index: int, *, behind: str = "wall") -> Cloud:
+    """A flat, untextured panel 1 m in front of the camera and of a wall at 1.5 m. In frame 1 the panel's
+    right half is gone, and where it was the camera sees the wall (``behind="wall"``: it moved off) or
+    a hand 20 cm in front of the panel (``"hand"``: it may be there, hidden)."""
+    scene = np.full((240, 320), 1.5, np.float32)
+    panel = np.zeros_like(scene, bool)
+    panel[ROWS, COLS] = True
+    if index:
+        panel[:, SPLIT:] = False
+        if behind == "hand":
+            scene[ROWS, SPLIT:COLS.stop] = 0.8
+    scene[panel] = 1.0
+    depth = np.where(panel, scene, 0.0).astype(np.float32)
+    grid = np.zeros_like(panel)
+    grid[::2, ::2] = True
+    points = INTRINSICS.backproject(depth, grid)
+    view = View(np.full((240, 320), 128, np.uint8), depth, INTRINSICS, scene)
+    return Cloud(index, points, camera_facing_normals(points, radius_m=0.02), {"v_m": 0.007}, view=view)
+
+
+@pytest.mark.parametrize("behind, expected", [("wall", "AM"), ("hand", "NM")])
+def test_a_part_is_gone_where_the_camera_sees_through_it(robust, behind, expected):
+    """Half the object is gone from where it was and nowhere to be seen (a lid turned edge-on, a part
+    moved out of view): no motion explains its points, but the camera now sees the wall through the place
+    where they were, so they did move. Behind a hand in front they may only be hidden."""
+    pair = decide(robust, panel_cloud(0), panel_cloud(1, behind=behind))
+    assert pair.decision == expected, pair.info
 
 
 @pytest.mark.parametrize("relative, expected", [

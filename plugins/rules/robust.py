@@ -8,8 +8,9 @@ fall anywhere. This rule asks instead how many rigid motions are needed to *expl
 For a pair (i, i + k):
 
 1. Hypotheses: the identity; a whole-object ICP started from the identity and from the centroid
-   shift (coarse to fine); the rigid fit to the optical flow (below); every matched cell's own ICP
-   transform and its own fit to the flow; and, for each cell the best
+   shift (coarse to fine); the rigid fit to the optical flow (below), and both ICPs refined to agree
+   with the depth and the flow together (``flow_fit``); every matched cell's own ICP transform, its
+   own fit to the flow and its ICP refined with the flow; and, for each cell the best
    whole-object motion leaves unexplained, a local ICP of that cell started from that motion and
    from the identity (the paper's per-cell ICP from the identity cannot capture a carried object's
    centimetres of motion).
@@ -31,12 +32,14 @@ For a pair (i, i + k):
    its own plane, a globe spinning): where the colour image has texture, the optical flow says where
    a point went (see ``flow.py``; followed through the frames between i and i + k where it cannot
    jump straight), and a motion must also bring the point within tau plus the flow's own tolerance
-   of that place. A whole-object motion is not faulted for points that it hides behind
-   the object's own surfaces (a box turning away from the camera hides its far faces); a surface
+   of that place (on an edge or a stripe, where the flow is known only across it, across the edge).
+   A whole-object motion is not faulted for points that it hides behind the object's own surfaces (a box turning away from the camera hides its far faces); a surface
    in front that the motion does not account for (a lid swung towards the camera) is no excuse,
    and neither is any hidden point when the motion is offered as a part's (step 5).
-4. NM when the identity explains ``static_share`` of the informative points.
-5. Otherwise a greedy cover: the hypothesis that explains most points, then the one that explains
+4. When the identity explains ``static_share`` of the informative points, the object as a whole
+   stood still: the identity is the cover's first motion (step 5), and the answer is NM unless a
+   part moved.
+5. A greedy cover: the hypothesis that explains most points, then the one that explains
    most of the rest, and so on. A further motion needs at least ``min_part_cells`` cells and
    ``min_part_share`` of the informative points: a lone outlier cell is not a part.
 6. Separation: a further motion that puts most of its points less than tau off the surface (or,
@@ -49,13 +52,18 @@ For a pair (i, i + k):
    supposed parts as well, there is one motion (on a cylinder or a plane the whole-object fit may
    have slid, and a region that pins the slide then looks like a part of its own).
 7. Two or more motions: AM. One motion: RM, or NM when it moves no point by more than tau
-   (a motion within noise is no motion).
+   (a motion within noise is no motion). Except when that motion (in step 4, the identity) puts a
+   part's worth of cells (``min_part_cells``, ``min_part_share``), matched or not, where the camera
+   now sees through them: the target's depth image shows a surface well behind where their points
+   would be. Then some part moved off where the data cannot follow it (a lid turned edge-on, a door
+   swung out of view): AM. A part hidden behind something in front is no such evidence.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
@@ -66,9 +74,10 @@ from artclass_core.geometry import rotation_angle_rad, transform
 from artclass_core.pipeline import pair_memo
 
 from ..preprocessors import to_o3d
-from .flow import flow_targets, kabsch
+from .flow import FlowEvidence, flow_targets, kabsch
 
 MIN_FLOW_POINTS = 6
+MIN_CELL_POINTS = 8       # a cell with fewer source points says nothing of its own
 JOINT_MIN_TURN_RAD, JOINT_MAX_SLIDE = np.radians(3.0), 0.1
 
 reg = o3d.pipelines.registration
@@ -170,17 +179,14 @@ class RobustRule(DecisionRule):
         weight = counts * informative
         total = weight.sum()
 
-        if (explains[0] * weight).sum() >= p.static_share * total:
-            for c in np.flatnonzero(informative):
-                clusters[matched[c]] = 0
-            return RuleDecision("NM", clusters, ["no motion"], reason="the identity explains the points", info=info)
-
+        # When the identity explains nearly everything, the object as a whole stood still; a part may not have.
+        still = (explains[0] * weight).sum() >= p.static_share * total
         # A further motion is a part's, and only the whole object's motion may hide points behind itself:
         # a part is scored on the whole-object hypotheses without that excuse.
         as_part = explains.copy()
         plain = _per_cell(ev.plain <= tau, owner, counts)
         as_part[:ev.n_global] = _explains(plain, best, counts, p.explain_margin) & informative
-        chosen, members = self._cover(explains, as_part, weight, total, informative)
+        chosen, members = self._cover(explains, as_part, weight, total, informative, first=0 if still else None)
         motions = [hyps[h] for h in chosen]
         for m in range(len(motions) - 1, 0, -1):
             A, B = motions[0], motions[m]
@@ -200,18 +206,31 @@ class RobustRule(DecisionRule):
         info.update(motions=keys, support=[round(float(weight[cs].sum() / total), 4) for cs in members])
         if len(motions) >= 2:
             return RuleDecision("AM", clusters, keys, reason=f"{len(motions)} distinct motions", info=info)
+        # Only a motion that accounts for most of the object can say that the rest went elsewhere.
+        gone = self._vanished(ev, motions[0]) if weight[members[0]].sum() >= 0.5 * total else []
+        if len(gone):
+            for n in gone:
+                clusters[n] = 1
+            info["seen_through"] = len(gone)
+            return RuleDecision("AM", clusters, keys + ["moved off"], info=info,
+                                reason=f"the camera sees through {len(gone)} cells where the motion puts them: a part moved off")
+        if still:
+            return RuleDecision("NM", clusters, ["no motion"], reason="the identity explains the points", info=info)
         shift_m = float(np.max(np.linalg.norm(transform(ev.pts, motions[0]) - ev.pts, axis=1)))
         info["max_displacement_m"] = round(shift_m, 6)
         if shift_m <= tau:
             return RuleDecision("NM", clusters, keys, reason="the only motion is within noise", info=info)
         return RuleDecision("RM", clusters, keys, reason="one motion explains the points", info=info)
 
-    def _cover(self, explains, as_part, weight, total, informative):
+    def _cover(self, explains, as_part, weight, total, informative, first=None):
         """Greedy cover of the informative cells by motions (hypothesis indices) with enough support: the
-        first by ``explains``, the further ones (parts) by ``as_part``."""
+        first by ``explains`` (or the given ``first``), the further ones (parts) by ``as_part``."""
         p = self.params
         left = informative.copy()
         chosen, members = [], []
+        if first is not None:
+            chosen, members = [first], [np.flatnonzero(explains[first] & left)]
+            left[members[0]] = False
         while left.any():
             which = as_part if chosen else explains
             h = int(np.argmax((which & left) @ weight))
@@ -222,6 +241,18 @@ class RobustRule(DecisionRule):
             members.append(cs)
             left[cs] = False
         return chosen, members
+
+    def _vanished(self, ev, T) -> list[int]:
+        """The cells (indices into the pair's cells) that T puts where the camera sees through them (most
+        of their points, see ``_Evidence.seen_through``), if they are enough for a part
+        (``min_part_cells``, ``min_part_share`` of the points); else none. The object did not all move
+        as T says: some part went elsewhere, where the data may not follow it (turned edge-on, away)."""
+        p = self.params
+        gone = ev.seen_through(T) > 0.5
+        w = ev.loose_counts
+        if gone.sum() < p.min_part_cells or w[gone].sum() < p.min_part_share * w.sum():
+            return []
+        return [ev.loose[c] for c in np.flatnonzero(gone)]
 
     def _single_motion(self, ev, hyps, seeds, members, best, weight, tau):
         """One rigid motion that explains all the supposed parts nearly as well, if there is one."""
@@ -259,6 +290,14 @@ class _Evidence:
         self.owner = np.repeat(np.arange(len(matched)), [len(i) for i in idx])
         self.pts, self.normals = source.points[np.concatenate(idx)], source.normals[np.concatenate(idx)]
         self.counts = np.bincount(self.owner, minlength=len(matched)).astype(float)
+        # For the free-space test: every cell with enough source points, matched or not (a part that moved
+        # far away leaves cells that no target point shares).
+        self.loose = [n for n, c in enumerate(cells) if len(c.source_idx) >= MIN_CELL_POINTS]
+        idx = [cells[n].source_idx for n in self.loose]
+        idx = [i[np.linspace(0, len(i) - 1, min(len(i), max_points)).astype(int)] for i in idx]
+        self.loose_owner = np.repeat(np.arange(len(idx)), [len(i) for i in idx])
+        self.loose_pts = source.points[np.concatenate(idx)] if idx else np.zeros((0, 3))
+        self.loose_counts = np.bincount(self.loose_owner, minlength=len(idx)).astype(float)
         # Whole-object motions, from the identity and from the centroid shift, coarse to fine.
         src_all = to_o3d(source.points, source.normals)
         steps = [self.extent / 5, self.extent / 10, self.extent / 20, 3 * self.spacing]
@@ -267,17 +306,22 @@ class _Evidence:
         self.hyps = [np.eye(4), icp_point_to_plane(src_all, self.tgt, np.eye(4), steps),
                      icp_point_to_plane(src_all, self.tgt, shift, steps)]
         # Where the optical flow says each scoring point went, and how far from there it may be.
-        self.flow, self.flow_tol = flow_targets(source, target, self.pts, between=between) if use_flow else \
-            (np.full(self.pts.shape, np.nan), np.zeros(len(self.pts)))
-        self.has_flow = np.isfinite(self.flow[:, 0])
+        self.flow = flow_targets(source, target, self.pts, between=between) if use_flow else \
+            FlowEvidence.none(len(self.pts))
+        self.has_flow = self.flow.full
+        seen = self.has_flow | self.flow.edge
         if self.has_flow.sum() >= MIN_FLOW_POINTS:
-            self.hyps.append(trimmed_kabsch(self.pts[self.has_flow], self.flow[self.has_flow]))
+            self.hyps.append(trimmed_kabsch(self.pts[self.has_flow], self.flow.target[self.has_flow]))
+        if seen.sum() >= MIN_FLOW_POINTS:
+            self.hyps += [self.flow_fit(T, np.ones(len(self.pts), bool)) for T in self.hyps[1:3]]
         self.n_global = len(self.hyps)
         self.hyps += [cells[n].registration.T_target_from_source for n in matched]
         for c in range(len(matched)):
             use = self.has_flow & (self.owner == c)
             if use.sum() >= MIN_FLOW_POINTS:
-                self.hyps.append(trimmed_kabsch(self.pts[use], self.flow[use]))
+                self.hyps.append(trimmed_kabsch(self.pts[use], self.flow.target[use]))
+            if (seen & (self.owner == c)).sum() >= MIN_FLOW_POINTS:
+                self.hyps.append(self.flow_fit(self.hyps[self.n_global + c], self.owner == c))
         plain = [self.residuals(T) for T in self.hyps]
         self.plain = np.stack(plain[:self.n_global])       # whole-object motions scored as a part's
         self.geo = np.stack([self.excuse(r, T) if h < self.n_global else r                  # (H, P) metres
@@ -295,9 +339,53 @@ class _Evidence:
         d, j = self.tree.query(moved)
         r = np.maximum(np.abs(np.einsum("ij,ij->i", moved - self.tgt_points[j], self.tgt_normals[j])),
                        d - self.spacing)
-        f = self.has_flow
-        r[f] = np.maximum(r[f], np.linalg.norm(moved[f] - self.flow[f], axis=1) - self.flow_tol[f])
-        return r
+        return np.maximum(r, self.flow.misfit(moved))
+
+    def flow_fit(self, T0: np.ndarray, use: np.ndarray, *, rounds: int = 4) -> np.ndarray:
+        """T0 refined on the scoring points ``use`` to agree with the depth (each moved point on the
+        tangent plane of its nearest target point) and with the optical flow (where it says the point
+        went; across the edge only, on an edge): damped Gauss-Newton steps about the points' centroid,
+        with Huber weights. What neither constrains (a slide along stripes) stays as T0 has it."""
+        rows, T = np.flatnonzero(use), T0
+        for _ in range(rounds):
+            moved = transform(self.pts[rows], T)
+            _, j = self.tree.query(moved)
+            m = self.tgt_normals[j]
+            at, g, b = self.flow.constraints(moved, rows)
+            at, g = np.concatenate([np.arange(len(rows)), at]), np.concatenate([m, g])
+            b = np.concatenate([np.einsum("ij,ij->i", m, self.tgt_points[j] - moved), b])
+            c = moved.mean(0)
+            A = np.hstack([np.cross(moved[at] - c, g), g])            # g . (w x (p - c) + t) = b
+            w = 1.0 / np.maximum(1.0, np.abs(b) / self.spacing)
+            H = A.T @ (w[:, None] * A)
+            H += 1e-3 * np.trace(H) / 6 * np.eye(6)
+            x = np.linalg.solve(H, A.T @ (w * b))
+            step = np.eye(4)
+            step[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
+            step[:3, 3] = c - step[:3, :3] @ c + x[3:]
+            T = step @ T
+        return T
+
+    def seen_through(self, T: np.ndarray) -> np.ndarray:
+        """Share of each loose cell's points that T puts where the target camera sees past them: the
+        nearest surface its depth image shows within a sampling step of the point's ray lies more than
+        two sampling steps behind the point. Whatever moves as T says may hide a point (behind itself,
+        behind a hand), but never leave the camera a clear view through it. Zeros without the target's
+        whole-frame depth."""
+        view, out = self.tgt_view, np.zeros(len(self.loose_counts))
+        if view is None or view.scene_depth_m is None or not len(self.loose_pts):
+            return out
+        K, (h, w) = view.intrinsics, view.scene_depth_m.shape
+        r = max(1, int(round(self.spacing * K.fx / np.median(self.tgt_points[:, 2]))))
+        depth = np.where(view.scene_depth_m > 0, view.scene_depth_m, np.inf).astype(np.float32)
+        near = cv2.erode(depth, np.ones((2 * r + 1, 2 * r + 1), np.uint8))   # not kept: 1 ms, 1 MB a pair
+        moved = transform(self.loose_pts, T)
+        u, v = (np.round(c) for c in K.pixels(moved))
+        inside = (moved[:, 2] > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        z_near = np.full(len(moved), np.inf)
+        z_near[inside] = near[v[inside].astype(int), u[inside].astype(int)]
+        through = np.isfinite(z_near) & (z_near - moved[:, 2] > 2 * self.spacing)
+        return np.bincount(self.loose_owner, weights=through, minlength=len(out)) / np.maximum(self.loose_counts, 1)
 
     def excuse(self, r: np.ndarray, T: np.ndarray) -> np.ndarray:
         """Residuals ``r`` under a motion T of the whole object, which is not faulted for the points
@@ -333,11 +421,9 @@ class _Evidence:
         Closer than that, both motions explain the same points and the data cannot tell them apart
         (a bottle turned 7 or 8 degrees about its axis)."""
         use = np.isin(self.owner, cells)
-        gap = transform(self.pts[use], A) - transform(self.pts[use], B)
-        across = np.abs(np.einsum("ij,ij->i", gap, self.normals[use]))
-        along = np.linalg.norm(gap - across[:, None] * self.normals[use], axis=1)
-        flow = self.has_flow[use]
-        apart = (across > tau) | (flow & (along > tau + self.flow_tol[use]))
+        a, b = transform(self.pts, A), transform(self.pts, B)
+        across = np.abs(np.einsum("ij,ij->i", a - b, self.normals))
+        apart = ((across > tau) | self.flow.apart(a, b, self.normals, tau))[use]
         return bool(apart.mean() > 0.5)
 
     def local(self, c: int, g: int) -> list[tuple[np.ndarray, np.ndarray]]:
