@@ -286,15 +286,14 @@ class _Evidence:
         self.tgt = to_o3d(target.points, target.normals)
         self.cell_idx = [cells[n].source_idx for n in matched]
         # Scoring points: every matched cell's source points, evenly subsampled.
-        idx = [i[np.linspace(0, len(i) - 1, min(len(i), max_points)).astype(int)] for i in self.cell_idx]
+        idx = [_evenly(i, max_points) for i in self.cell_idx]
         self.owner = np.repeat(np.arange(len(matched)), [len(i) for i in idx])
         self.pts, self.normals = source.points[np.concatenate(idx)], source.normals[np.concatenate(idx)]
         self.counts = np.bincount(self.owner, minlength=len(matched)).astype(float)
         # For the free-space test: every cell with enough source points, matched or not (a part that moved
         # far away leaves cells that no target point shares).
         self.loose = [n for n, c in enumerate(cells) if len(c.source_idx) >= MIN_CELL_POINTS]
-        idx = [cells[n].source_idx for n in self.loose]
-        idx = [i[np.linspace(0, len(i) - 1, min(len(i), max_points)).astype(int)] for i in idx]
+        idx = [_evenly(cells[n].source_idx, max_points) for n in self.loose]
         self.loose_owner = np.repeat(np.arange(len(idx)), [len(i) for i in idx])
         self.loose_pts = source.points[np.concatenate(idx)] if idx else np.zeros((0, 3))
         self.loose_counts = np.bincount(self.loose_owner, minlength=len(idx)).astype(float)
@@ -375,16 +374,12 @@ class _Evidence:
         view, out = self.tgt_view, np.zeros(len(self.loose_counts))
         if view is None or view.scene_depth_m is None or not len(self.loose_pts):
             return out
-        K, (h, w) = view.intrinsics, view.scene_depth_m.shape
+        K = view.intrinsics
         r = max(1, int(round(self.spacing * K.fx / np.median(self.tgt_points[:, 2]))))
         depth = np.where(view.scene_depth_m > 0, view.scene_depth_m, np.inf).astype(np.float32)
         near = cv2.erode(depth, np.ones((2 * r + 1, 2 * r + 1), np.uint8))   # not kept: 1 ms, 1 MB a pair
-        moved = transform(self.loose_pts, T)
-        u, v = (np.round(c) for c in K.pixels(moved))
-        inside = (moved[:, 2] > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        z_near = np.full(len(moved), np.inf)
-        z_near[inside] = near[v[inside].astype(int), u[inside].astype(int)]
-        through = np.isfinite(z_near) & (z_near - moved[:, 2] > 2 * self.spacing)
+        gap = _in_front(np.where(np.isfinite(near), near, 0.0), K, transform(self.loose_pts, T))[0]
+        through = np.isfinite(gap) & (-gap > 2 * self.spacing)
         return np.bincount(self.loose_owner, weights=through, minlength=len(out)) / np.maximum(self.loose_counts, 1)
 
     def excuse(self, r: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -405,7 +400,7 @@ class _Evidence:
         out = np.zeros(len(moved), bool)
         if view is None or self.src_view is None:
             return out
-        gap, ui, vi, zt = _in_front(view, moved)
+        gap, ui, vi, zt = _in_front(view.depth_m, view.intrinsics, moved)
         idx = np.flatnonzero(gap > 2 * self.spacing)
         if not len(idx):
             return out
@@ -475,18 +470,23 @@ def joint_like(A: np.ndarray, B: np.ndarray, centre: np.ndarray, size: float) ->
     return bool(abs(slide) <= JOINT_MAX_SLIDE * size and np.linalg.norm(off - (off @ axis) * axis) <= 0.5 * size)
 
 
-def _in_front(view, points: np.ndarray):
-    """How far in front of each point (m) the view's object surface lies along the point's ray (> 0
-    when the view sees the object nearer; -inf where it sees no object there or the ray leaves the
-    image), and the pixel columns, rows and depths read."""
-    K, (h, w) = view.intrinsics, view.depth_m.shape
+def _in_front(depth_m: np.ndarray, K, points: np.ndarray):
+    """How far in front of each point (m) the surface in the depth image lies along the point's ray
+    (> 0 when it is nearer; -inf where the image has no depth there or the ray leaves it), and the
+    pixel columns, rows and depths read."""
+    h, w = depth_m.shape
     z = points[:, 2]
     u, v = (np.round(c) for c in K.pixels(points))
     inside = (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     ui, vi = np.where(inside, u, 0).astype(int), np.where(inside, v, 0).astype(int)
-    zt = np.where(inside, view.depth_m[vi, ui], 0.0)
+    zt = np.where(inside, depth_m[vi, ui], 0.0)
     gap = np.where(zt > 0, z - zt, -np.inf)
     return gap, ui, vi, zt
+
+
+def _evenly(idx: np.ndarray, n: int) -> np.ndarray:
+    """At most n of the indices ``idx``, evenly spread over them."""
+    return idx[np.linspace(0, len(idx) - 1, min(len(idx), n)).astype(int)]
 
 
 def _explains(score: np.ndarray, best: np.ndarray, counts: np.ndarray, margin: float) -> np.ndarray:
