@@ -311,16 +311,22 @@ class _Evidence:
         seen = self.has_flow | self.flow.edge
         if self.has_flow.sum() >= MIN_FLOW_POINTS:
             self.hyps.append(trimmed_kabsch(self.pts[self.has_flow], self.flow.target[self.has_flow]))
-        if seen.sum() >= MIN_FLOW_POINTS:
-            self.hyps += [self.flow_fit(T, np.ones(len(self.pts), bool)) for T in self.hyps[1:3]]
+        # ICP refined with the flow: both whole-object motions on all points, each cell's on its own.
+        own = [cells[n].registration.T_target_from_source for n in matched]
+        whole = self.hyps[1:3] if seen.sum() >= MIN_FLOW_POINTS else []
+        fits = [c for c in range(len(matched)) if (seen & (self.owner == c)).sum() >= MIN_FLOW_POINTS]
+        refined = self.flow_fit(whole + [own[c] for c in fits], [np.arange(len(self.pts))] * len(whole)
+                                + [np.flatnonzero(self.owner == c) for c in fits])
+        self.hyps += refined[:len(whole)]
         self.n_global = len(self.hyps)
-        self.hyps += [cells[n].registration.T_target_from_source for n in matched]
+        self.hyps += own
+        refined_own = dict(zip(fits, refined[len(whole):]))
         for c in range(len(matched)):
             use = self.has_flow & (self.owner == c)
             if use.sum() >= MIN_FLOW_POINTS:
                 self.hyps.append(trimmed_kabsch(self.pts[use], self.flow.target[use]))
-            if (seen & (self.owner == c)).sum() >= MIN_FLOW_POINTS:
-                self.hyps.append(self.flow_fit(self.hyps[self.n_global + c], self.owner == c))
+            if c in refined_own:
+                self.hyps.append(refined_own[c])
         plain = [self.residuals(T) for T in self.hyps]
         self.plain = np.stack(plain[:self.n_global])       # whole-object motions scored as a part's
         self.geo = np.stack([self.excuse(r, T) if h < self.n_global else r                  # (H, P) metres
@@ -340,30 +346,38 @@ class _Evidence:
                        d - self.spacing)
         return np.maximum(r, self.flow.misfit(moved))
 
-    def flow_fit(self, T0: np.ndarray, use: np.ndarray, *, rounds: int = 4) -> np.ndarray:
-        """T0 refined on the scoring points ``use`` to agree with the depth (each moved point on the
-        tangent plane of its nearest target point) and with the optical flow (where it says the point
-        went; across the edge only, on an edge): damped Gauss-Newton steps about the points' centroid,
-        with Huber weights. What neither constrains (a slide along stripes) stays as T0 has it."""
-        rows, T = np.flatnonzero(use), T0
+    def flow_fit(self, T0: list[np.ndarray], groups: list[np.ndarray], *, rounds: int = 4) -> list[np.ndarray]:
+        """Each motion T0[i] refined on the scoring points ``groups[i]`` (indices) to agree with the depth
+        (each moved point on the tangent plane of its nearest target point) and with the optical flow
+        (where it says the point went; across the edge only, on an edge): damped Gauss-Newton steps
+        about the group's centroid, with Huber weights. What neither constrains (a slide along stripes)
+        stays as T0 has it. All groups are solved at once (one k-d tree query a round, not one per cell)."""
+        if not groups:
+            return []
+        n = len(groups)
+        rows = np.concatenate(groups)
+        group = np.repeat(np.arange(n), [len(g) for g in groups])
+        size = np.bincount(group, minlength=n)[:, None]
+        T = np.array(T0, dtype=float)
         for _ in range(rounds):
-            moved = transform(self.pts[rows], T)
+            moved = np.einsum("pij,pj->pi", T[group, :3, :3], self.pts[rows]) + T[group, :3, 3]
             _, j = self.tree.query(moved)
             m = self.tgt_normals[j]
             at, g, b = self.flow.constraints(moved, rows)
             at, g = np.concatenate([np.arange(len(rows)), at]), np.concatenate([m, g])
             b = np.concatenate([np.einsum("ij,ij->i", m, self.tgt_points[j] - moved), b])
-            c = moved.mean(0)
-            A = np.hstack([np.cross(moved[at] - c, g), g])            # g . (w x (p - c) + t) = b
+            c = np.stack([np.bincount(group, weights=moved[:, k], minlength=n) for k in range(3)], axis=1) / size
+            eq = group[at]
+            A = np.hstack([np.cross(moved[at] - c[eq], g), g])          # g . (w x (p - c) + t) = b
             w = 1.0 / np.maximum(1.0, np.abs(b) / self.spacing)
-            H = A.T @ (w[:, None] * A)
-            H += 1e-3 * np.trace(H) / 6 * np.eye(6)
-            x = np.linalg.solve(H, A.T @ (w * b))
-            step = np.eye(4)
-            step[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
-            step[:3, 3] = c - step[:3, :3] @ c + x[3:]
+            H = _sum_by(eq, (w[:, None, None] * A[:, :, None] * A[:, None, :]).reshape(-1, 36), n).reshape(n, 6, 6)
+            H += (1e-3 * np.trace(H, axis1=1, axis2=2) / 6)[:, None, None] * np.eye(6)
+            x = np.linalg.solve(H, _sum_by(eq, (w * b)[:, None] * A, n)[..., None])[..., 0]
+            step = np.tile(np.eye(4), (n, 1, 1))
+            step[:, :3, :3] = Rotation.from_rotvec(x[:, :3]).as_matrix()
+            step[:, :3, 3] = c - np.einsum("gij,gj->gi", step[:, :3, :3], c) + x[:, 3:]
             T = step @ T
-        return T
+        return list(T)
 
     def seen_through(self, T: np.ndarray) -> np.ndarray:
         """Share of each loose cell's points that T puts where the target camera sees past them: the
@@ -509,6 +523,13 @@ def surface_noise(points: np.ndarray, tree: cKDTree, *, n_samples: int = 400, k:
     _, s, vt = np.linalg.svd(hood, full_matrices=False)
     off = np.abs(np.einsum("skj,sj->sk", hood, vt[:, 2, :]))                  # distances to the plane
     return float(1.4826 * np.median(off) * np.sqrt(k / (k - 3)))             # 3 dof used by the fit
+
+
+def _sum_by(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Sums of the rows of ``values`` (M, D) by ``group`` (M,) -> (n, D)."""
+    d = values.shape[1]
+    flat = (group[:, None] * d + np.arange(d)).ravel()
+    return np.bincount(flat, weights=values.ravel(), minlength=n * d).reshape(n, d)
 
 
 def _per_cell(values: np.ndarray, owner: np.ndarray, counts: np.ndarray) -> np.ndarray:
