@@ -20,7 +20,7 @@ import pytest
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Pipeline, Config, Sequence, load_registry, open_sequences
 from artclass_plugins.segmenters.cache import PackedMask, params_hash
 from artclass_plugins.segmenters.depth_threshold import (DepthThresholdParams, DepthThresholdSegmenter, components,
-                                                        fill_dropouts)
+                                                        fill_dropouts, join_touching)
 from artclass_plugins.segmenters.selection import (choose_instance, change_scores, fallback_index, mask_iou,
                                                   match_instances)
 from artclass_plugins.segmenters.support import BackgroundParams, background_mask, fit_planes
@@ -225,6 +225,39 @@ def test_components_drop_small_regions_and_sort_by_area():
     m[5:7, 100:102] = True
     comps = components(m, open_px=0, min_area_fraction=0.002)
     assert [c.sum() for c in comps] == [2400, 900]
+
+
+def test_hysteresis_keeps_an_objects_low_part_and_what_it_connects():
+    """Two blocks 5 cm proud of a noisy table, joined by a bridge about 5 mm high: nearer the table
+    than plane_distance_m (12 mm), but well above its measured noise. The plane removal alone cuts
+    the bridge out and leaves two instances; hysteresis keeps it, and the blocks are one object."""
+    rng = np.random.default_rng(0)
+    depth = tilted_table() + rng.normal(0.0, 0.001, (H, W)).astype(np.float32)
+    a, bridge, b = (np.zeros((H, W), bool) for _ in range(3))
+    a[60:75, 30:60], bridge[64:70, 60:80], b[60:75, 80:110] = True, True, True
+    depth[a | b] -= 0.05
+    depth[bridge] -= 0.008
+    frame = Frame(0, "0", np.zeros((H, W, 3), np.uint8), depth)
+    seq = ArraySequence([frame])
+    planes = fit_planes(depth, INTR, params=BackgroundParams())
+    assert 0.0003 < planes[0].noise_m < 0.001           # 1 mm along the ray, about 0.64 mm off the plane
+    cut = DepthThresholdSegmenter(DepthThresholdParams(grow_sigmas=0.0, join_m=0.0)).instances(frame, sequence=seq)
+    assert sorted(mask_iou(m, a) > 0.9 or mask_iou(m, b) > 0.9 for m in cut) == [True, True]
+    whole = DepthThresholdSegmenter().instances(frame, sequence=seq)
+    assert len(whole) == 1 and mask_iou(whole[0], a | bridge | b) > 0.9
+    assert np.count_nonzero(whole[0] & ~(a | bridge | b)) < 20        # the table's noise does not leak in
+
+
+def test_instances_that_touch_in_3d_are_joined():
+    depth = np.full((H, W), 0.5, np.float32)             # a wall: one pixel is 3.3 mm across
+    left, right, far = (np.zeros((H, W), bool) for _ in range(3))
+    left[40:60, 20:50], right[40:60, 51:80], far[40:60, 100:130] = True, True, True
+    joined = join_touching([left, right, far], depth, INTR, join_m=0.01)
+    assert [int(m.sum()) for m in joined] == [int((left | right).sum()), int(far.sum())]
+    assert mask_iou(joined[0], left | right) == 1.0
+    depth[right] = 0.6                                     # 10 cm behind: not touching
+    assert len(join_touching([left, right, far], depth, INTR, join_m=0.01)) == 3
+    assert len(join_touching([left, right], np.full((H, W), 0.5, np.float32), INTR, join_m=0.0)) == 2
 
 
 # -- the depth_threshold segmenter on an in-memory sequence ----------------------------------------

@@ -3,9 +3,14 @@
 Per frame: keep the depth readings inside ``[near_m, far_m]``; remove the large background planes
 (the support plane, the points behind it such as the floor beyond a table's edge, and a second large
 plane such as a wall; see :mod:`.support`); open the remaining mask by ``open_px``; its connected
-components of at least ``min_area_fraction`` of the image are the instances, each with the
-dropouts (pixels without a reading) that a closing of radius ``fill_px`` puts inside it; the shared
-selection (:mod:`.selection`) picks the one being manipulated.
+components of at least ``min_area_fraction`` of the image are the instances. Each then takes back,
+by hysteresis, the pixels within ``plane_distance_m`` of a plane that still stand out of it by more
+than ``grow_sigmas`` times its measured noise and connect to the instance (the lower centimetre of
+an object lying on a table; instances they connect become one: the two levers of pliers lying flat,
+whose pivot is too low to survive the plane removal). Instances whose 3-D points still come within
+``join_m`` of each other are one object: the parts of an articulated object touch at their joint.
+Last, each instance takes the dropouts (pixels without a reading) that a closing of radius
+``fill_px`` puts inside it. The shared selection (:mod:`.selection`) picks the one being manipulated.
 """
 
 from __future__ import annotations
@@ -14,13 +19,14 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
-from artclass_core import Frame, Sequence, param
+from artclass_core import Frame, Intrinsics, Sequence, param
 
 from .selection import InstanceSegmenter, SelectionParams
-from .support import BackgroundParams, background_mask, fit_planes
+from .support import BackgroundParams, above_planes, background_mask, clean_depth, fit_planes
 
-__all__ = ["DepthThresholdParams", "DepthThresholdSegmenter", "components", "fill_dropouts"]
+__all__ = ["DepthThresholdParams", "DepthThresholdSegmenter", "components", "fill_dropouts", "grow", "join_touching"]
 
 
 @dataclass(frozen=True)
@@ -34,6 +40,15 @@ class DepthThresholdParams(SelectionParams, BackgroundParams):
     fill_px: int = param(2, unit="px", bounds=(0, 20),
                          help="Pixels without a depth reading that a closing of this radius puts inside an "
                               "instance join it (sensor dropouts on the object; they carry no points).")
+    grow_sigmas: float = param(4.0, unit="sigma", bounds=(0.0, 100.0),
+                               help="Hysteresis: pixels nearer than plane_distance_m to a background plane that "
+                                    "stand out of it by more than this many times its measured depth noise join "
+                                    "the instances they connect to (an object's lower centimetre on a table). "
+                                    "0 = off.")
+    join_m: float = param(0.01, unit="m", bounds=(0.0, 0.5),
+                          help="Instances whose 3-D points come this close are one object: the parts of an "
+                               "articulated object touch at the joint (the levers of pliers lying flat are cut "
+                               "apart 3-4 mm at a pivot too low to stand out of the table). 0 = never join.")
 
 
 def fill_dropouts(instances: list[np.ndarray], valid: np.ndarray, *, fill_px: int) -> list[np.ndarray]:
@@ -54,6 +69,35 @@ def fill_dropouts(instances: list[np.ndarray], valid: np.ndarray, *, fill_px: in
         filled[y0:y1, x0:x1] |= closed & ~valid[y0:y1, x0:x1]
         out.append(filled)
     return out
+
+
+def grow(instances: list[np.ndarray], low: np.ndarray) -> list[np.ndarray]:
+    """Hysteresis: each instance with the ``low`` pixels connected (8-connected) to it; instances the low
+    pixels connect become one. Largest first; low pixels that touch no instance are dropped."""
+    seeds = np.logical_or.reduce(instances)
+    _, labels, stats, _ = cv2.connectedComponentsWithStats((seeds | low).astype(np.uint8), connectivity=8)
+    keep = sorted(np.unique(labels[seeds]), key=lambda k: (-stats[k, cv2.CC_STAT_AREA], k))
+    return [labels == k for k in keep]
+
+
+def join_touching(instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: Intrinsics, *,
+                  join_m: float) -> list[np.ndarray]:
+    """Instances whose 3-D points (those on the mask's boundary, where two instances meet) come within
+    ``join_m`` of each other, directly or through others, made one. Largest first."""
+    if len(instances) < 2 or join_m <= 0:
+        return instances
+    kernel = np.ones((3, 3), np.uint8)
+    rims = [intrinsics.backproject(depth_m, m & ~(cv2.erode(m.astype(np.uint8), kernel) > 0) & (depth_m > 0))
+            for m in instances]
+    group = list(range(len(instances)))
+    for a in range(len(instances)):
+        tree = cKDTree(rims[a]) if len(rims[a]) else None
+        for b in range(a + 1, len(instances)):
+            if tree is not None and len(rims[b]) and np.isfinite(tree.query(rims[b], distance_upper_bound=join_m)[0]).any():
+                old, new = group[b], group[a]
+                group = [new if g == old else g for g in group]
+    joined = [np.logical_or.reduce([m for m, g in zip(instances, group) if g == k]) for k in sorted(set(group))]
+    return sorted(joined, key=lambda m: -int(m.sum()))
 
 
 def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> list[np.ndarray]:
@@ -93,14 +137,12 @@ class DepthThresholdSegmenter(InstanceSegmenter):
     description = "depth range + background-plane removal + connected components, moving instance chosen"
     Params = DepthThresholdParams
 
-    def candidates(self, frame: Frame, *, sequence: Sequence) -> tuple[np.ndarray, np.ndarray]:
-        """Pixels with a depth reading that are not background, and pixels with a reading: bool (H, W)."""
-        planes = fit_planes(frame.depth_m, sequence.intrinsics, params=self.params)
-        background, valid = background_mask(frame.depth_m, sequence.intrinsics, planes, params=self.params)
-        return valid & ~background, valid
-
     def instances(self, frame: Frame, *, sequence: Sequence) -> list[np.ndarray]:
-        p = self.params
-        foreground, valid = self.candidates(frame, sequence=sequence)
-        found = components(foreground, open_px=p.open_px, min_area_fraction=p.min_area_fraction)
+        p, K = self.params, sequence.intrinsics
+        planes = fit_planes(frame.depth_m, K, params=p)
+        background, valid = background_mask(frame.depth_m, K, planes, params=p)
+        found = components(valid & ~background, open_px=p.open_px, min_area_fraction=p.min_area_fraction)
+        if found and p.grow_sigmas > 0:
+            found = grow(found, background & above_planes(frame.depth_m, K, planes, params=p, sigmas=p.grow_sigmas))
+        found = join_touching(found, clean_depth(frame.depth_m), K, join_m=p.join_m)
         return fill_dropouts(found, valid, fill_px=p.fill_px)

@@ -19,7 +19,7 @@ import numpy as np
 
 from artclass_core import Intrinsics, Params, param
 
-__all__ = ["BackgroundParams", "Plane", "fit_planes", "background_mask", "range_mask", "ransac_plane", "clean_depth"]
+__all__ = ["BackgroundParams", "Plane", "fit_planes", "background_mask", "above_planes", "range_mask", "ransac_plane", "clean_depth"]
 
 
 @dataclass(frozen=True)
@@ -33,6 +33,7 @@ class Plane:
     normal: tuple[float, float, float]
     offset_m: float
     inlier_fraction: float   # share of the sampled valid points on the plane
+    noise_m: float = 0.0     # robust spread of its inliers' distances to it (1.4826 x median)
 
     def signed_distance_m(self, points: np.ndarray) -> np.ndarray:
         """Signed distance (metres) of points (N, 3): > 0 on the camera's side."""
@@ -178,9 +179,16 @@ def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: Backgroun
             break   # the support plane is (partly) behind it: an object's face or a slice, not background
         if not planes:
             support = pts[inliers]
-        planes.append(Plane(tuple(float(v) for v in normal), offset, float(fraction)))
+        noise = 1.4826 * float(np.median(np.abs(pts[inliers] @ normal + offset)))
+        planes.append(Plane(tuple(float(v) for v in normal), offset, float(fraction), noise))
         pts = pts[~inliers & (pts @ normal + offset >= -params.plane_distance_m)]
     return planes
+
+
+def _signed(d: np.ndarray, rays: tuple[np.ndarray, np.ndarray], plane: Plane) -> np.ndarray:
+    """Per-pixel signed distance (m) of the back-projected depth ``d`` to ``plane`` (> 0 in front)."""
+    nx, ny, nz = (np.float32(v) for v in plane.normal)
+    return d * (nx * rays[0] + ny * rays[1] + nz) + np.float32(plane.offset_m)
 
 
 def background_mask(depth_m: np.ndarray, intrinsics: Intrinsics, planes: list[Plane], *,
@@ -206,7 +214,22 @@ def background_mask(depth_m: np.ndarray, intrinsics: Intrinsics, planes: list[Pl
     background = valid & ((d < params.near_m) | (d > params.far_m))
     rx, ry = _rays(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height)
     for plane in planes:
-        nx, ny, nz = (np.float32(v) for v in plane.normal)
-        signed = d * (nx * rx + ny * ry + nz) + np.float32(plane.offset_m)
-        background |= valid & (signed < params.plane_distance_m)
+        background |= valid & (_signed(d, (rx, ry), plane) < params.plane_distance_m)
     return background, valid
+
+
+# Depth images store millimetres: a plane's own pixels stray this far from it with no noise at all.
+DEPTH_STEP_M = 0.001
+
+
+def above_planes(depth_m: np.ndarray, intrinsics: Intrinsics, planes: list[Plane], *, params: BackgroundParams,
+                 sigmas: float) -> np.ndarray:
+    """Pixels inside ``[near_m, far_m]`` that lie in front of every plane by more than ``sigmas``
+    times its measured noise (``Plane.noise_m``, at least DEPTH_STEP_M): off the plane by more than
+    its noise explains, though maybe nearer than ``plane_distance_m``. bool (H, W)."""
+    d = clean_depth(depth_m)
+    out = (d >= params.near_m) & (d <= params.far_m) & (d > 0)
+    rays = _rays(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height)
+    for plane in planes:
+        out &= _signed(d, rays, plane) > sigmas * max(plane.noise_m, DEPTH_STEP_M)
+    return out
