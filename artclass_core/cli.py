@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from functools import partial
 from typing import Any
@@ -41,6 +42,9 @@ def _pipeline_options(p: argparse.ArgumentParser) -> None:
                    help="set a parameter by name or paper symbol (v, r, s, x, q_bar, t_bar, k, w, alpha); "
                         "'auto' restores an automatic value; repeatable")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="threads that process frames and pairs; the result is the same for any number "
+                        "(default: one per CPU, %(default)s here)")
 
 
 def config_from_args(registry: Registry, args: argparse.Namespace, **replace: str) -> Config:
@@ -65,7 +69,7 @@ def cmd_classify(registry: Registry, args) -> int:
         raise ArtclassError(f"{args.path} holds {len(sequences)} sequences ({names}); choose one with "
                             f"PATH#NAME, or run `artclass evaluate` over them")
     seq = sequences[0]
-    result = Pipeline(registry, config).run(seq, progress=_progress(sys.stderr.isatty()))
+    result = Pipeline(registry, config).run(seq, progress=_progress(sys.stderr.isatty()), workers=args.workers)
     if args.json:
         print(json.dumps(result.to_dict(cells=not args.no_cells)))
         return 0
@@ -95,7 +99,8 @@ def cmd_evaluate(registry: Registry, args) -> int:
     if args.compare_paper:
         configs.append(config_from_args(registry, args, preprocessor="paper", rule="paper")
                        .with_overrides(registry, {"prealign": False}))
-    evals = [evaluate(registry, sequences, c, progress=_progress(sys.stderr.isatty())) for c in configs]
+    evals = [evaluate(registry, sequences, c, progress=_progress(sys.stderr.isatty()), workers=args.workers)
+             for c in configs]
     if args.json:
         print(json.dumps(dict(evaluations=[e.to_dict() for e in evals]), indent=1))
     else:

@@ -86,15 +86,16 @@ def _mean(values: list[float]) -> float:
     return sum(values) / len(values) if values else 0.0
 
 
-def evaluate(registry: Registry, sequences: list[Sequence], config: Config, *, progress=None) -> Evaluation:
-    """Run every sequence; a sequence that fails is recorded with its error, not fatal."""
+def evaluate(registry: Registry, sequences: list[Sequence], config: Config, *, progress=None,
+             workers: int = 1) -> Evaluation:
+    """Run every sequence (on ``workers`` threads); a sequence that fails is recorded with its error, not fatal."""
     pipeline = Pipeline(registry, config)
     outcomes = []
     for n, seq in enumerate(sequences):
         o = SequenceOutcome(seq.name, seq.object_name, seq.label, tuple(seq.accepted_labels), None)
         t0 = time.perf_counter()
         try:
-            result = pipeline.run(seq)
+            result = pipeline.run(seq, workers=workers)
         except ArtclassError as exc:
             o.error = str(exc)
         else:

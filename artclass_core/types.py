@@ -55,10 +55,10 @@ class Intrinsics:
         return np.column_stack(((u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z))
 
     def pixels(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel columns and rows (not rounded) where ``points`` (N, 3) project; inf or NaN where z <= 0."""
+        """Pixel columns and rows (not rounded) where ``points`` (..., 3) project; inf or NaN where z <= 0."""
         with np.errstate(divide="ignore", invalid="ignore"):
-            return (self.fx * points[:, 0] / points[:, 2] + self.cx,
-                    self.fy * points[:, 1] / points[:, 2] + self.cy)
+            return (self.fx * points[..., 0] / points[..., 2] + self.cx,
+                    self.fy * points[..., 1] / points[..., 2] + self.cy)
 
 
 @dataclass

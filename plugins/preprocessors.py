@@ -11,7 +11,7 @@ from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 from artclass_core import Cloud, Frame, Intrinsics, Params, Preprocessor, View, hookimpl, param
-from artclass_core.geometry import largest_distance
+from artclass_core.geometry import largest_distance, statistical_inliers
 
 MIN_POINTS = 10
 
@@ -85,10 +85,9 @@ class PaperPreprocessor(Preprocessor):
         info = dict(n_raw=len(points))
         if len(points) < MIN_POINTS:
             return Cloud(frame.index, np.zeros((0, 3)), np.zeros((0, 3)), info, colors=np.zeros((0, 3)))
-        pcd = to_o3d(points)
-        pcd.colors = o3d.utility.Vector3dVector(frame.rgb[used].astype(np.float64) / 255.0)
-        pcd, _ = pcd.remove_statistical_outlier(nb_neighbors=min(p.sor_neighbours, len(points) - 1),
-                                                std_ratio=p.std_ratio)
+        keep = statistical_inliers(points, neighbours=min(p.sor_neighbours, len(points) - 1), std_ratio=p.std_ratio)
+        pcd = to_o3d(points[keep])
+        pcd.colors = o3d.utility.Vector3dVector(frame.rgb[used][keep].astype(np.float64) / 255.0)
         diameter = largest_distance(np.asarray(pcd.points))
         v = p.voxel_size_m if p.voxel_size_m is not None else max(diameter / p.voxels_per_diameter, 1e-4)
         r = p.smoothing_radius_m if p.smoothing_radius_m is not None else p.smoothing_voxels * v

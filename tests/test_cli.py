@@ -66,6 +66,18 @@ def test_classify_json(capsys, seq):
     check_result(json.loads(out), name=seq.name)
 
 
+def test_classify_workers_give_the_same_result(capsys):
+    runs = []
+    for workers in ("1", "2"):
+        status, out, err = run_cli(capsys, "classify", SAMPLES[0], "--json", "--no-cells", "--workers", workers)
+        assert status == 0, err
+        d = json.loads(out)
+        runs.append((d["label"], [(p["decision"], p["info"]) for p in d["pairs"]]))
+    assert runs[0] == runs[1]
+    status, out, err = run_cli(capsys, "classify", SAMPLES[0], "--workers", "0")
+    assert status != 0 and "workers = 0 must be a positive integer" in err and "Traceback" not in err
+
+
 def test_classify_summary(capsys):
     seq = SAMPLES[0]
     status, out, err = run_cli(capsys, "classify", seq)

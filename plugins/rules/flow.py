@@ -29,6 +29,7 @@ _MARGIN_PX = 24
 # coarser image, and a hand-held object moves tens of pixels between frames i and i + k at 640x480.
 FLOW_WIDTH_PX = 320
 FLOW_ERROR_PX, FLOW_ERROR_SHARE = 1.5, 0.15
+FLOW_EDGE_ERROR_PX = 1.5
 # An edge (one strong gradient direction) is used when its gradient is this many times min_gradient.
 EDGE_FACTOR = 3.0
 
@@ -72,12 +73,13 @@ class FlowEvidence:
 
     def misfit(self, moved: np.ndarray) -> np.ndarray:
         """How far (m) each moved point lands from where the flow says it went, beyond the flow's
-        tolerance (-inf where the flow says nothing); at edge points, measured across the edge."""
-        out = np.full(len(moved), -np.inf)
+        tolerance (-inf where the flow says nothing); at edge points, measured across the edge.
+        ``moved`` is (P, 3), or (H, P, 3) for H placements of the points at once."""
+        out = np.full(moved.shape[:-1], -np.inf)
         f, e = self.full, self.edge
-        out[f] = np.linalg.norm(moved[f] - self.target[f], axis=1) - self.tol[f]
+        out[..., f] = np.linalg.norm(moved[..., f, :] - self.target[f], axis=-1) - self.tol[f]
         if e.any():
-            out[e] = self._across(moved[e], self.pixel[e], e) - self.tol[e]
+            out[..., e] = self._across(moved[..., e, :], self.pixel[e], e) - self.tol[e]
         return out
 
     def apart(self, a: np.ndarray, b: np.ndarray, normals: np.ndarray, tau: float) -> np.ndarray:
@@ -117,15 +119,16 @@ class FlowEvidence:
         across the edge of each row."""
         u, v = self.intrinsics.pixels(moved)
         off = np.abs((u - pixel[:, 0]) * self.normal[rows, 0] + (v - pixel[:, 1]) * self.normal[rows, 1])
-        return off * np.abs(moved[:, 2]) / self.intrinsics.fx
+        return off * np.abs(moved[..., 2]) / self.intrinsics.fx
 
 
 def flow_targets(source: Cloud, target: Cloud, points: np.ndarray, *, between: Sequence[Cloud] = (),
                  min_gradient: float = 1.0) -> FlowEvidence:
     """Where the optical flow says source ``points`` (P, 3) went (see :class:`FlowEvidence`), and how
     far from there (m) each may truly have gone: FLOW_ERROR_PX pixels of the flow's image per flow step
-    plus FLOW_ERROR_SHARE of the displacement (measured on the synthetic carries: DIS is good to about a
-    pixel on slow motions and drifts by 2-3 pixels on 20-pixel ones).
+    (FLOW_EDGE_ERROR_PX across an edge) plus FLOW_ERROR_SHARE of the displacement (measured on the
+    synthetic carries: DIS is good to about a pixel on slow motions and drifts by 2-3 pixels on 20-pixel
+    ones).
 
     Points are used on texture: two-dimensional (both eigenvalues of the structure tensor at least
     ``min_gradient`` grey levels per pixel, squared) or an edge (the larger one at least EDGE_FACTOR
@@ -160,7 +163,8 @@ def flow_targets(source: Cloud, target: Cloud, points: np.ndarray, *, between: S
     du, dv = u - u0, v - v0
     shift_px = np.where(edge, np.abs(du * np.nan_to_num(normal[:, 0]) + dv * np.nan_to_num(normal[:, 1])),
                         np.hypot(du, dv))                      # along an edge the flow is a guess
-    tol = np.where(ok, (FLOW_ERROR_PX * np.sqrt(steps) / first.scale + FLOW_ERROR_SHARE * shift_px)
+    base = np.where(edge, FLOW_EDGE_ERROR_PX, FLOW_ERROR_PX)
+    tol = np.where(ok, (base * np.sqrt(steps) / first.scale + FLOW_ERROR_SHARE * shift_px)
                    * points[:, 2] / K.fx, 0.0)
     pixel = np.where(ok[:, None], np.stack([u, v], axis=1), np.nan)
     target_pts = np.full((len(points), 3), np.nan)

@@ -327,8 +327,8 @@ class _Evidence:
                 self.hyps.append(trimmed_kabsch(self.pts[use], self.flow.target[use]))
             if c in refined_own:
                 self.hyps.append(refined_own[c])
-        plain = [self.residuals(T) for T in self.hyps]
-        self.plain = np.stack(plain[:self.n_global])       # whole-object motions scored as a part's
+        plain = self.residuals(self.hyps)
+        self.plain = plain[:self.n_global]                  # whole-object motions scored as a part's
         self.geo = np.stack([self.excuse(r, T) if h < self.n_global else r                  # (H, P) metres
                              for h, (T, r) in enumerate(zip(self.hyps, plain))])
         # Noise measured on the data, independent of any motion: the spread of the target's points about
@@ -337,14 +337,18 @@ class _Evidence:
         self._local: dict = {}
         self._refits: dict = {}
 
-    def residuals(self, T: np.ndarray) -> np.ndarray:
-        """Each scoring point's misfit under T (m): distance to the nearest target point's tangent plane,
-        or to the point itself less one sampling step if larger."""
-        moved = transform(self.pts, T)
-        d, j = self.tree.query(moved)
-        r = np.maximum(np.abs(np.einsum("ij,ij->i", moved - self.tgt_points[j], self.tgt_normals[j])),
+    def residuals(self, Ts: list[np.ndarray]) -> np.ndarray:
+        """Each scoring point's misfit (m) under each motion of ``Ts``, (H, P): distance to the nearest
+        target point's tangent plane, or to the point itself less one sampling step if larger, or beyond
+        the flow's tolerance from where the flow says it went, whichever is largest. All H motions
+        at once: one k-d tree query."""
+        Ts = np.asarray(Ts)
+        moved = np.einsum("hij,pj->hpi", Ts[:, :3, :3], self.pts) + Ts[:, None, :3, 3]
+        flat = moved.reshape(-1, 3)
+        d, j = self.tree.query(flat)
+        r = np.maximum(np.abs(np.einsum("ij,ij->i", flat - self.tgt_points[j], self.tgt_normals[j])),
                        d - self.spacing)
-        return np.maximum(r, self.flow.misfit(moved))
+        return np.maximum(r.reshape(moved.shape[:2]), self.flow.misfit(moved))
 
     def flow_fit(self, T0: list[np.ndarray], groups: list[np.ndarray], *, rounds: int = 4) -> list[np.ndarray]:
         """Each motion T0[i] refined on the scoring points ``groups[i]`` (indices) to agree with the depth
@@ -442,7 +446,7 @@ class _Evidence:
             src = to_o3d(self.src_points[i], self.src_normals[i])
             near = [4 * self.spacing, 2 * self.spacing]
             Ts = [icp_point_to_plane(src, self.tgt, self.hyps[g], near), icp_point_to_plane(src, self.tgt, np.eye(4), near)]
-            self._local[(c, g)] = [(T, self.residuals(T)) for T in Ts]
+            self._local[(c, g)] = list(zip(Ts, self.residuals(Ts)))
         return self._local[(c, g)]
 
     def refit(self, cells: tuple, T0: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
@@ -452,7 +456,7 @@ class _Evidence:
             use = np.isin(self.owner, cells)
             T = icp_point_to_plane(to_o3d(self.pts[use]), self.tgt, T0,
                                    [self.extent / 10, 2 * self.spacing, self.spacing, 2 * tau])
-            self._refits[key] = (T, self.excuse(self.residuals(T), T))
+            self._refits[key] = (T, self.excuse(self.residuals([T])[0], T))
         return self._refits[key]
 
 
