@@ -40,6 +40,7 @@ def open_sequences(registry: Registry, path: str | Path, *, reader: str | None =
 def find_sequences(registry: Registry, root: str | Path, *, reader: str | None = None,
                    labelled_only: bool = True) -> tuple[list[Sequence], list[InputError]]:
     """Every sequence under ``root`` that a reader recognises (a recognised folder is not descended).
+    Symbolic links to folders are followed (each real folder visited once, so a link loop ends).
 
     With ``labelled_only`` only sequences that carry a ground-truth label are returned. Folders that a
     reader recognises but cannot read are returned as errors, so one bad folder does not stop a sweep.
@@ -51,7 +52,13 @@ def find_sequences(registry: Registry, root: str | Path, *, reader: str | None =
     readers = [registry.create("reader", n) for n in names]
     out: list[Sequence] = []
     errors: list[InputError] = []
-    for here, dirs, _files in os.walk(root):
+    visited: set[str] = set()
+    for here, dirs, _files in os.walk(root, followlinks=True):
+        real = os.path.realpath(here)
+        if real in visited:
+            dirs.clear()
+            continue
+        visited.add(real)
         dirs.sort()
         for r in readers:
             try:

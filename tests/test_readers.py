@@ -297,6 +297,17 @@ def test_find_sequences_over_mixed_layouts(tmp_path):
     assert paths["tum"].is_dir()
 
 
+def test_find_sequences_follows_links_and_ends_a_link_loop(tmp_path):
+    data = tmp_path / "data"
+    write_folder(data / "real", "seq")
+    picked = tmp_path / "picked"
+    picked.mkdir()
+    (picked / "seq").symlink_to(data / "real" / "seq", target_is_directory=True)   # a hand-picked subset
+    (picked / "again").symlink_to(picked, target_is_directory=True)                 # a loop
+    found, errors = find_sequences(REGISTRY, picked, labelled_only=False)
+    assert [s.name for s in found] == ["seq"] and not errors
+
+
 def test_open_sequences_selects_by_name(layouts):
     scene = layouts["ycbv"]
     assert [s.name for s in open_sequences(REGISTRY, f"{scene}#025_mug")] == ["0000/025_mug"]
