@@ -66,8 +66,9 @@ def main() -> None:
         err, shift, tol, edge = (np.concatenate(x) for x in zip(*parts))
         for name, kind in (("2-D texture", ~edge), ("edge, across", edge)):
             e, s, t = err[kind], shift[kind], tol[kind]
-            print(f"{noise} noise, {name}: {len(e)} points, error px p50/p90/p95/p99 "
-                  f"{' / '.join(f'{x:.2f}' for x in np.percentile(e, [50, 90, 95, 99]))}, beyond tolerance {np.mean(e > t):.1%}")
+            pct = " / ".join(f"{x:.2f}" for x in np.percentile(e, [50, 90, 95, 99]))
+            print(f"{noise} noise, {name}: {len(e)} points, error px p50/p90/p95/p99 {pct}, "
+                  f"beyond tolerance {np.mean(e > t):.1%}")
             for lo, hi in ((0, 5), (5, 15), (15, 40), (40, np.inf)):
                 sel = (s >= lo) & (s < hi)
                 if sel.sum() >= 20:

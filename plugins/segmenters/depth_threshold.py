@@ -91,9 +91,11 @@ def join_touching(instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: 
             for m in instances]
     group = list(range(len(instances)))
     for a in range(len(instances)):
-        tree = cKDTree(rims[a]) if len(rims[a]) else None
+        if not len(rims[a]):
+            continue
+        tree = cKDTree(rims[a])
         for b in range(a + 1, len(instances)):
-            if tree is not None and len(rims[b]) and np.isfinite(tree.query(rims[b], distance_upper_bound=join_m)[0]).any():
+            if len(rims[b]) and np.isfinite(tree.query(rims[b], distance_upper_bound=join_m)[0]).any():
                 old, new = group[b], group[a]
                 group = [new if g == old else g for g in group]
     joined = [np.logical_or.reduce([m for m, g in zip(instances, group) if g == k]) for k in sorted(set(group))]

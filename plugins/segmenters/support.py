@@ -19,7 +19,8 @@ import numpy as np
 
 from artclass_core import Intrinsics, Params, param
 
-__all__ = ["BackgroundParams", "Plane", "fit_planes", "background_mask", "above_planes", "range_mask", "ransac_plane", "clean_depth"]
+__all__ = ["BackgroundParams", "Plane", "fit_planes", "background_mask", "above_planes", "range_mask",
+           "ransac_plane", "clean_depth"]
 
 
 @dataclass(frozen=True)
