@@ -154,7 +154,8 @@ def statistical_inliers(points: np.ndarray, *, neighbours: int, std_ratio: float
     counts it) is compared with the mean ``mu`` and the sample standard deviation ``sigma`` of those
     means over the cloud; a point is kept when its mean is above 0 and below ``mu + std_ratio *
     sigma``. Computed with SciPy's KD-tree, which releases the GIL, so several frames can be
-    processed in parallel threads (Open3D's version holds it).
+    processed in parallel threads (Open3D's version holds it); its search uses every CPU, which
+    makes it faster than Open3D's on a pipeline run with one worker too.
 
     Parameters
     ----------
@@ -170,7 +171,7 @@ def statistical_inliers(points: np.ndarray, *, neighbours: int, std_ratio: float
     if n == 0 or neighbours < 1:
         return np.arange(0)
     k = min(neighbours, n)
-    distances, _ = cKDTree(points).query(points, k=k)
+    distances, _ = cKDTree(points).query(points, k=k, workers=-1)
     distances = distances.reshape(n, k)
     mean = distances.sum(axis=1) / k
     valid = mean > 0
