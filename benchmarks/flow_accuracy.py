@@ -21,7 +21,7 @@ import numpy as np
 
 from artclass_core import Config, Pipeline, find_sequences, load_registry
 from artclass_core.geometry import transform
-from artclass_plugins.rules.flow import flow_targets
+from artclass_plugins.rules.flow import flow_targets, offset_px
 
 
 def errors(pipe: Pipeline, seq, poses: list[np.ndarray], k: int):
@@ -40,9 +40,7 @@ def errors(pipe: Pipeline, seq, poses: list[np.ndarray], k: int):
         inside = (ui >= 0) & (ui < depth.shape[1]) & (vi >= 0) & (vi < depth.shape[0])
         seen = np.zeros(len(true), bool)
         seen[inside] = np.abs(depth[vi[inside], ui[inside]] - true[inside, 2]) < 0.01
-        du, dv = ev.pixel[:, 0] - ut, ev.pixel[:, 1] - vt
-        err = np.where(ev.edge, np.abs(du * np.nan_to_num(ev.normal[:, 0]) + dv * np.nan_to_num(ev.normal[:, 1])),
-                       np.hypot(du, dv))
+        err = offset_px(ev.pixel[:, 0] - ut, ev.pixel[:, 1] - vt, ev.normal)
         use = seen & np.isfinite(ev.pixel[:, 0])
         yield (err[use], np.hypot(ut - u0, vt - v0)[use], (ev.tol * K.fx / src.points[:, 2])[use], ev.edge[use])
 

@@ -161,15 +161,20 @@ def flow_targets(source: Cloud, target: Cloud, points: np.ndarray, *, between: S
     full &= depth > 0
     ok &= full | ~corner
     edge = ok & ~corner
-    du, dv = u - u0, v - v0
-    shift_px = np.where(edge, np.abs(du * np.nan_to_num(normal[:, 0]) + dv * np.nan_to_num(normal[:, 1])),
-                        np.hypot(du, dv))                      # along an edge the flow is a guess
+    shift_px = offset_px(u - u0, v - v0, normal)               # along an edge the flow is a guess
     tol = np.where(ok, (FLOW_ERROR_PX * np.sqrt(steps) / first.scale + FLOW_ERROR_SHARE * shift_px)
                    * points[:, 2] / K.fx, 0.0)
     pixel = np.where(ok[:, None], np.stack([u, v], axis=1), np.nan)
     target_pts = np.full((len(points), 3), np.nan)
     target_pts[full] = K.points(u[full], v[full], depth[full])
     return FlowEvidence(target_pts, pixel, np.where(edge[:, None], normal, np.nan), tol, K)
+
+
+def offset_px(du: np.ndarray, dv: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Length (px) of image offsets (du, dv): across the edge where ``normal`` (N, 2) gives its
+    direction, in full where it is NaN (no edge)."""
+    across = np.abs(du * np.nan_to_num(normal[:, 0]) + dv * np.nan_to_num(normal[:, 1]))
+    return np.where(np.isfinite(normal[:, 0]), across, np.hypot(du, dv))
 
 
 def _link(a: Cloud, b: Cloud) -> "_Flow":
@@ -241,11 +246,7 @@ class _Flow:
         xt, yt = xs[ok] + fx, ys[ok] + fy
         inside = (xt >= 0) & (xt <= w - 1) & (yt >= 0) & (yt <= h - 1)
         bx, by = _sample(self.backward, np.clip(xt, 0, w - 1), np.clip(yt, 0, h - 1)).T
-        dx, dy, n = xt + bx - xs[ok], yt + by - ys[ok], normal[ok]
-        edge = np.isfinite(n[:, 0])
-        across = np.abs(dx * np.nan_to_num(n[:, 0]) + dy * np.nan_to_num(n[:, 1]))
-        miss = np.where(edge, across, np.hypot(dx, dy))
-        good = inside & (miss <= max_round_trip_px)
+        good = inside & (offset_px(xt + bx - xs[ok], yt + by - ys[ok], normal[ok]) <= max_round_trip_px)
         idx = np.flatnonzero(ok)
         u[idx], v[idx] = xt / self.scale + self.x0, yt / self.scale + self.y0
         ok[idx[~good]] = False

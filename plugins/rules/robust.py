@@ -33,9 +33,10 @@ For a pair (i, i + k):
    a point went (see ``flow.py``; followed through the frames between i and i + k where it cannot
    jump straight), and a motion must also bring the point within tau plus the flow's own tolerance
    of that place (on an edge or a stripe, where the flow is known only across it, across the edge).
-   A whole-object motion is not faulted for points that it hides behind the object's own surfaces (a box turning away from the camera hides its far faces); a surface
-   in front that the motion does not account for (a lid swung towards the camera) is no excuse,
-   and neither is any hidden point when the motion is offered as a part's (step 5).
+   A whole-object motion is not faulted for points that it hides behind the object's own surfaces
+   (a box turning away from the camera hides its far faces); a surface in front that the motion
+   does not account for (a lid swung towards the camera) is no excuse, and neither is any hidden
+   point when the motion is offered as a part's (step 5).
 4. When the identity explains ``static_share`` of the informative points, the object as a whole
    stood still: the identity is the cover's first motion (step 5), and the answer is NM unless a
    part moved.
