@@ -42,7 +42,10 @@ For a pair (i, i + k):
    part moved.
 5. A greedy cover: the hypothesis that explains most points, then the one that explains
    most of the rest, and so on. A further motion needs at least ``min_part_cells`` cells and
-   ``min_part_share`` of the informative points: a lone outlier cell is not a part.
+   ``min_part_share`` of the informative points: a lone outlier cell is not a part. When the object
+   as a whole did not move (the first motion moves no point by more than tau), ``min_still_part_share``
+   (a door seen edge-on): no motion of the object's own then hides or shows its surfaces to fake a
+   part, and in step 4 a part has at most the 1 - ``static_share`` that the identity leaves.
 6. Separation: a further motion that puts most of its points less than tau off the surface (or,
    where flow sees them, less than tau plus the flow's tolerance along it) from where the first
    motion puts them is not a motion of its own: the data cannot tell the two apart (a bottle turned
@@ -54,7 +57,7 @@ For a pair (i, i + k):
    have slid, and a region that pins the slide then looks like a part of its own).
 7. Two or more motions: AM. One motion: RM, or NM when it moves no point by more than tau
    (a motion within noise is no motion). Except when that motion (in step 4, the identity) puts a
-   part's worth of cells (``min_part_cells``, ``min_part_share``), matched or not, where the camera
+   part's worth of cells (``min_part_cells`` and the share of step 5), matched or not, where the camera
    now sees through them: the target's depth image shows a surface well behind where their points
    would be. Then some part moved off where the data cannot follow it (a lid turned edge-on, a door
    swung out of view): AM. A part hidden behind something in front is no such evidence.
@@ -107,6 +110,10 @@ class RobustRuleParams(Params):
                                 help="A second motion needs at least this many cells of its own.")
     min_part_share: float = param(0.15, unit="fraction", bounds=(0.0, 0.5),
                                   help="A second motion needs at least this share of the informative points.")
+    min_still_part_share: float = param(0.05, unit="fraction", bounds=(0.0, 0.5),
+                                        help="The same when the object as a whole did not move (its first motion "
+                                             "moves no point by more than tau): no motion of its own then hides "
+                                             "or shows its surfaces to fake a part.")
     use_flow: bool = param(True, help="Use optical flow between the two colour images as evidence of motions "
                                       "that keep a surface in place (sliding, spinning).")
     max_points_per_cell: int = param(48, unit="points", bounds=(4, 10000),
@@ -187,7 +194,11 @@ class RobustRule(DecisionRule):
         as_part = explains.copy()
         plain = _per_cell(ev.plain <= tau, owner, counts)
         as_part[:ev.n_global] = _explains(plain, best, counts, p.explain_margin) & informative
-        chosen, members = self._cover(explains, as_part, weight, total, informative, first=0 if still else None)
+        first = 0 if still else int(np.argmax(explains @ weight))
+        # A part of an object that moved must be bigger: the object's own motion hides and shows its surfaces
+        # (a mug's inner wall over its rim), which can look like a small part moving.
+        part_share = p.min_part_share if _displacement(ev.pts, hyps[first]) > tau else p.min_still_part_share
+        chosen, members = self._cover(explains, as_part, weight, total, informative, part_share, first)
         motions = [hyps[h] for h in chosen]
         for m in range(len(motions) - 1, 0, -1):
             A, B = motions[0], motions[m]
@@ -196,7 +207,8 @@ class RobustRule(DecisionRule):
                 motions.pop(m)
                 info["unresolved"] = True
         if len(motions) >= 2:
-            merged = self._single_motion(ev, hyps, list(range(ev.n_global)) + chosen, members, best, weight, tau)
+            merged = self._single_motion(ev, hyps, list(range(ev.n_global)) + chosen, members, best, weight, tau,
+                                         part_share)
             if merged is not None:
                 motions, members = [merged[0]], [merged[1]]
                 info["merged"] = True
@@ -208,7 +220,7 @@ class RobustRule(DecisionRule):
         if len(motions) >= 2:
             return RuleDecision("AM", clusters, keys, reason=f"{len(motions)} distinct motions", info=info)
         # Only a motion that accounts for most of the object can say that the rest went elsewhere.
-        gone = self._vanished(ev, motions[0]) if weight[members[0]].sum() >= 0.5 * total else []
+        gone = self._vanished(ev, motions[0], part_share) if weight[members[0]].sum() >= 0.5 * total else []
         if len(gone):
             for n in gone:
                 clusters[n] = 1
@@ -217,46 +229,43 @@ class RobustRule(DecisionRule):
                                 reason=f"the camera sees through {len(gone)} cells where the motion puts them: a part moved off")
         if still:
             return RuleDecision("NM", clusters, ["no motion"], reason="the identity explains the points", info=info)
-        shift_m = float(np.max(np.linalg.norm(transform(ev.pts, motions[0]) - ev.pts, axis=1)))
+        shift_m = _displacement(ev.pts, motions[0])
         info["max_displacement_m"] = round(shift_m, 6)
         if shift_m <= tau:
             return RuleDecision("NM", clusters, keys, reason="the only motion is within noise", info=info)
         return RuleDecision("RM", clusters, keys, reason="one motion explains the points", info=info)
 
-    def _cover(self, explains, as_part, weight, total, informative, first=None):
+    def _cover(self, explains, as_part, weight, total, informative, part_share, first):
         """Greedy cover of the informative cells by motions (hypothesis indices) with enough support: the
-        first by ``explains`` (or the given ``first``), the further ones (parts) by ``as_part``."""
+        ``first``, then further ones (parts) by ``as_part``, each with ``part_share`` of the weight."""
         p = self.params
         left = informative.copy()
-        chosen, members = [], []
-        if first is not None:
-            chosen, members = [first], [np.flatnonzero(explains[first] & left)]
-            left[members[0]] = False
+        chosen, members = [first], [np.flatnonzero(explains[first] & left)]
+        left[members[0]] = False
         while left.any():
-            which = as_part if chosen else explains
-            h = int(np.argmax((which & left) @ weight))
-            cs = np.flatnonzero(which[h] & left)
-            if chosen and (len(cs) < p.min_part_cells or weight[cs].sum() < p.min_part_share * total):
+            h = int(np.argmax((as_part & left) @ weight))
+            cs = np.flatnonzero(as_part[h] & left)
+            if len(cs) < p.min_part_cells or weight[cs].sum() < part_share * total:
                 break
             chosen.append(h)
             members.append(cs)
             left[cs] = False
         return chosen, members
 
-    def _vanished(self, ev, T) -> list[int]:
+    def _vanished(self, ev, T, part_share) -> list[int]:
         """The cells (indices into the pair's cells) that T puts where the camera sees through them (most
         of their points, see ``_Evidence.seen_through``), if they are enough for a part
-        (``min_part_cells``, ``min_part_share`` of the points); else none. The object did not all move
+        (``min_part_cells``, ``part_share`` of the points); else none. The object did not all move
         as T says: some part went elsewhere, where the data may not follow it (turned edge-on, away)."""
         p = self.params
         gone = ev.seen_through(T) > 0.5
         w = ev.loose_counts
-        if gone.sum() < p.min_part_cells or w[gone].sum() < p.min_part_share * w.sum():
+        if gone.sum() < p.min_part_cells or w[gone].sum() < part_share * w.sum():
             return []
         return [ev.loose[c] for c in np.flatnonzero(gone)]
 
-    def _single_motion(self, ev, hyps, seeds, members, best, weight, tau):
-        """One rigid motion that explains all the supposed parts nearly as well, if there is one."""
+    def _single_motion(self, ev, hyps, seeds, members, best, weight, tau, part_share):
+        """One rigid motion that explains all the supposed parts but less than ``part_share``, if there is one."""
         p = self.params
         cells = np.concatenate(members)
         total = weight[cells].sum()
@@ -264,7 +273,7 @@ class RobustRule(DecisionRule):
             T, r = ev.refit(tuple(sorted(cells.tolist())), hyps[h], tau)
             share = _per_cell((r <= tau)[None], ev.owner, ev.counts)[0]
             ok = _explains(share[None, cells], best[cells], ev.counts[cells], p.explain_margin)[0]
-            if weight[cells][ok].sum() >= (1.0 - p.min_part_share) * total:
+            if weight[cells][ok].sum() >= (1.0 - part_share) * total:
                 return T, cells
         return None
 
@@ -541,6 +550,11 @@ def _per_cell(values: np.ndarray, owner: np.ndarray, counts: np.ndarray) -> np.n
     """Mean of ``values`` (H, P) over each cell's points -> (H, C)."""
     out = np.stack([np.bincount(owner, weights=v.astype(float), minlength=len(counts)) for v in values])
     return out / np.maximum(counts, 1)
+
+
+def _displacement(points: np.ndarray, T: np.ndarray) -> float:
+    """How far (m) T moves the farthest of ``points``."""
+    return float(np.max(np.linalg.norm(transform(points, T) - points, axis=1)))
 
 
 def _describe(T: np.ndarray) -> str:
