@@ -20,7 +20,7 @@ import pytest
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Pipeline, Config, Sequence, load_registry, open_sequences
 from artclass_plugins.segmenters.cache import PackedMask, params_hash
 from artclass_plugins.segmenters.depth_threshold import (DepthThresholdParams, DepthThresholdSegmenter, components,
-                                                        fill_dropouts, join_touching)
+                                                        fill_dropouts, fill_floors, join_touching)
 from artclass_plugins.segmenters.selection import (choose_instance, change_scores, fallback_index, mask_iou,
                                                   match_instances)
 from artclass_plugins.segmenters.support import BackgroundParams, background_mask, fit_planes
@@ -258,6 +258,21 @@ def test_instances_that_touch_in_3d_are_joined():
     depth[right] = 0.6                                     # 10 cm behind: not touching
     assert len(join_touching([left, right, far], depth, INTR, join_m=0.01)) == 3
     assert len(join_touching([left, right], np.full((H, W), 0.5, np.float32), INTR, join_m=0.0)) == 2
+
+
+@pytest.mark.parametrize("rim_m, filled", [(0.01, True), (0.04, False)])
+def test_a_hole_is_filled_where_its_rim_meets_the_object(rim_m, filled):
+    """A tray's floor lies on the table, so the plane removal takes it with its walls' lower centimetre:
+    a hole in the tray's mask whose rim is within a centimetre of the walls' remaining edge. Through a
+    ring held 4 cm in front of the table the camera sees the table: a hole 4 cm behind its rim, kept out."""
+    depth = tilted_table()
+    ring, hole = np.zeros((H, W), bool), np.zeros((H, W), bool)
+    ring[40:80, 40:100], hole[44:76, 44:96] = True, True
+    ring &= ~hole
+    depth[ring] -= rim_m
+    depth[hole] -= 0.002
+    out = fill_floors([ring], depth, INTR, gap_m=0.012)[0]
+    assert np.array_equal(out, ring | hole if filled else ring)
 
 
 # -- the depth_threshold segmenter on an in-memory sequence ----------------------------------------

@@ -9,8 +9,10 @@ than ``grow_sigmas`` times its measured noise and connect to the instance (the l
 an object lying on a table; instances they connect become one: the two levers of pliers lying flat,
 whose pivot is too low to survive the plane removal). Instances whose 3-D points still come within
 ``join_m`` of each other are one object: the parts of an articulated object touch at their joint.
-Last, each instance takes the dropouts (pixels without a reading) that a closing of radius
-``fill_px`` puts inside it. The shared selection (:mod:`.selection`) picks the one being manipulated.
+Each instance takes back the holes it encloses whose rim meets it within ``plane_distance_m`` in 3-D
+(a tray's floor lying on the table; not the table seen through a handle). Last, it takes the
+dropouts (pixels without a reading) that a closing of radius ``fill_px`` puts inside it. The shared
+selection (:mod:`.selection`) picks the one being manipulated.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from artclass_core import Frame, Intrinsics, Sequence, param
@@ -26,7 +29,8 @@ from artclass_core import Frame, Intrinsics, Sequence, param
 from .selection import InstanceSegmenter, SelectionParams
 from .support import BackgroundParams, above_planes, background_mask, clean_depth, fit_planes
 
-__all__ = ["DepthThresholdParams", "DepthThresholdSegmenter", "components", "fill_dropouts", "grow", "join_touching"]
+__all__ = ["DepthThresholdParams", "DepthThresholdSegmenter", "components", "fill_dropouts", "fill_floors", "grow",
+           "join_touching"]
 
 
 @dataclass(frozen=True)
@@ -102,6 +106,41 @@ def join_touching(instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: 
     return sorted(joined, key=lambda m: -int(m.sum()))
 
 
+def fill_floors(instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: Intrinsics, *,
+                gap_m: float) -> list[np.ndarray]:
+    """Add to each instance the holes it encloses whose rim mostly (the median of its pixels) comes within
+    ``gap_m`` in 3-D of the instance's own pixels around the hole: a surface of the object that the plane
+    removal took (a tray's floor lying on the table, its walls' lower centimetre gone with it), not the
+    background seen through the object (the table through a mug's handle, centimetres behind the
+    handle). Instances are not modified."""
+    kernel = np.ones((3, 3), np.uint8)
+    out = []
+    for mask in instances:
+        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+        box = np.s_[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+        m = mask[box]
+        holes = ndimage.binary_fill_holes(m) & ~m
+        n, labels = cv2.connectedComponents(holes.astype(np.uint8), connectivity=8)
+        if n < 2:
+            out.append(mask)
+            continue
+        seen = depth_m[box] > 0
+        around, rim = np.zeros_like(mask), np.zeros_like(mask)
+        around[box] = m & (cv2.dilate(holes.astype(np.uint8), kernel) > 0) & seen
+        rim[box] = holes & (cv2.dilate(m.astype(np.uint8), kernel) > 0) & seen
+        if not rim.any() or not around.any():
+            out.append(mask)
+            continue
+        gaps = cKDTree(intrinsics.backproject(depth_m, around)).query(intrinsics.backproject(depth_m, rim))[0]
+        which, holes_k = labels[rim[box]], np.arange(1, n)        # backproject's order is row-major, as this
+        has_rim = np.bincount(which, minlength=n)[1:] > 0
+        good = holes_k[has_rim & (np.asarray(ndimage.median(gaps, which, holes_k)) <= gap_m)]
+        filled = mask.copy()
+        filled[box] |= np.isin(labels, good)
+        out.append(filled)
+    return out
+
+
 def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> list[np.ndarray]:
     """The connected components (8-connected) of a mask after an opening, largest first.
 
@@ -146,5 +185,7 @@ class DepthThresholdSegmenter(InstanceSegmenter):
         found = components(valid & ~background, open_px=p.open_px, min_area_fraction=p.min_area_fraction)
         if found and p.grow_sigmas > 0:
             found = grow(found, background & above_planes(frame.depth_m, K, planes, params=p, sigmas=p.grow_sigmas))
-        found = join_touching(found, clean_depth(frame.depth_m), K, join_m=p.join_m)
+        depth = clean_depth(frame.depth_m)
+        found = join_touching(found, depth, K, join_m=p.join_m)
+        found = fill_floors(found, depth, K, gap_m=p.plane_distance_m)
         return fill_dropouts(found, valid, fill_px=p.fill_px)
