@@ -12,7 +12,9 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 
 from artclass_core import (CellMotion, Cloud, Config, FrameResult, InputError, PairResult, Pipeline,
                            PipelineParams, RunResult, Sequence)
@@ -85,7 +87,7 @@ def run_staged(sequence: Sequence, config: Config, summary: Pipeline, *,
                register: Callable[[FrameResult, FrameResult], tuple[list[CellMotion], float]],
                decide: Callable[[FrameResult, FrameResult, list[CellMotion], float, tuple[FrameResult, ...]],
                                 PairResult],
-               progress: Progress | None = None) -> RunResult:
+               progress: Progress | None = None, workers: int = 1) -> RunResult:
     """Classify ``sequence`` stage by stage through the given (cached) stage functions.
 
     Parameters
@@ -99,7 +101,9 @@ def run_staged(sequence: Sequence, config: Config, summary: Pipeline, *,
         the frames' clouds); it must not modify ``cells`` or the frames (neither does the core's),
         since the app hands out the very same cached objects on every re-run
     progress : called as ``progress(stage, done, total)`` for stages ``frames``, ``registration``
-        and ``decision``
+        and ``decision``, in the calling thread
+    workers : threads that call the stage functions (frames, then pairs, are independent); the
+        result is the same for any number
 
     Returns
     -------
@@ -115,34 +119,49 @@ def run_staged(sequence: Sequence, config: Config, summary: Pipeline, *,
     if n < k + 1:
         raise InputError(f"sequence has {n} frames; k = {k} needs at least {k + 1}", path=sequence.path)
     t0 = time.perf_counter()
-    frames: list[FrameResult] = []
-    for i in range(n):
-        frames.append(frame(i))
-        if progress:
-            progress("frames", i + 1, n)
+    frames: list[FrameResult] = _each(frame, range(n), workers, progress, "frames")
     if all(f.skipped for f in frames):
         reason = Counter(f.skipped for f in frames).most_common(1)[0][0]
         raise InputError(f"no object in any of the {n} frames (segmenter "
                          f"{summary.segmenter_name(sequence)!r}: {reason})", path=sequence.path)
     t1 = time.perf_counter()
     pairs = [(frames[i], frames[i + k]) for i in range(n - k)]
-    registered: list[tuple[list[CellMotion], float] | None] = []
-    for done, (a, b) in enumerate(pairs, 1):
-        registered.append(None if a.cloud is None or b.cloud is None else register(a, b))
-        if progress:
-            progress("registration", done, len(pairs))
+
+    def registration(pair: tuple[FrameResult, FrameResult]) -> tuple[list[CellMotion], float] | None:
+        a, b = pair
+        return None if a.cloud is None or b.cloud is None else register(a, b)
+
+    registered = _each(registration, pairs, workers, progress, "registration")
     t2 = time.perf_counter()
-    results: list[PairResult] = []
-    for done, ((a, b), reg) in enumerate(zip(pairs, registered), 1):
+
+    def decision(job: tuple[tuple[FrameResult, FrameResult], tuple[list[CellMotion], float] | None]) -> PairResult:
+        (a, b), reg = job
         if reg is None:
             skipped = a if a.cloud is None else b
             pair = PairResult(a.index, b.index, "skipped", reason=f"frame {skipped.index} skipped: {skipped.skipped}")
         else:
             pair = decide(a, b, *reg, tuple(frames[a.index + 1:b.index]))
         pair.truth = sequence.pair_truth(a.index, b.index)
-        results.append(pair)
-        if progress:
-            progress("decision", done, len(pairs))
+        return pair
+
+    results = _each(decision, list(zip(pairs, registered)), workers, progress, "decision")
     t3 = time.perf_counter()
     timing = dict(frames=t1 - t0, register=t2 - t1, decide=t3 - t2, total=t3 - t0)
     return summary.summarise(sequence, frames, results, timing)
+
+
+def _each(fn: Callable, items: Iterable, workers: int, progress: Progress | None, stage: str) -> list:
+    """``fn`` of each item, in order, on ``workers`` threads; ``progress`` in the calling thread."""
+    items = list(items)
+    out = []
+    with ThreadPoolExecutor(workers) if workers > 1 else nullcontext() as executor:
+        try:
+            for done, result in enumerate(executor.map(fn, items) if executor else map(fn, items), 1):
+                out.append(result)
+                if progress:
+                    progress(stage, done, len(items))
+        except BaseException:
+            if executor:                   # a bad frame: stop at once, not after every other one
+                executor.shutdown(cancel_futures=True)
+            raise
+    return out

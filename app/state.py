@@ -24,11 +24,13 @@ from __future__ import annotations
 import os
 import statistics
 import sys
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import streamlit as st
+from streamlit.runtime.scriptrunner import add_script_run_ctx, get_script_run_ctx
 
 from artclass_core import (ArtclassError, CellMotion, Config, FrameResult, InputError, PairResult, Pipeline,
                            PipelineParams, Registry, RunResult, Sequence, describe, find_sequences, load_registry,
@@ -139,15 +141,28 @@ def frame_mask(seq_key: str, i: int, key: str, _sequence: Sequence, _config: Con
 
 
 def run_sequence(seq: Sequence, config: Config, *, progress: Callable[[str, int, int], None] | None = None) -> RunResult:
-    """Classify ``seq`` through the stage caches (see :func:`app.runner.run_staged`)."""
+    """Classify ``seq`` through the stage caches (see :func:`app.runner.run_staged`), on every CPU.
+    The worker threads share the script run's context, as Streamlit's caches expect of their callers
+    (https://docs.streamlit.io/develop/concepts/design/multithreading); they call nothing else of
+    Streamlit's."""
     skey = sequence_key(seq)
     fkey, rkey, dkey = (stage_key(config, s) for s in ("frame", "register", "decide"))
+    ctx = get_script_run_ctx()
+
+    def in_ctx(fn: Callable) -> Callable:
+        def run(*args):
+            if ctx is not None and get_script_run_ctx(suppress_warning=True) is None:
+                add_script_run_ctx(threading.current_thread(), ctx)
+            return fn(*args)
+        return run
+
     return run_staged(
         seq, config, Pipeline(registry(), config),
-        frame=lambda i: frame_result(skey, i, fkey, seq, config),
-        register=lambda a, b: registered(skey, a.index, b.index, rkey, config, a, b),
-        decide=lambda a, b, cells, x, between: decided(skey, a.index, b.index, dkey, config, a, b, cells, x, between),
-        progress=progress)
+        frame=in_ctx(lambda i: frame_result(skey, i, fkey, seq, config)),
+        register=in_ctx(lambda a, b: registered(skey, a.index, b.index, rkey, config, a, b)),
+        decide=in_ctx(lambda a, b, cells, x, between: decided(skey, a.index, b.index, dkey, config, a, b, cells, x,
+                                                              between)),
+        progress=progress, workers=os.cpu_count() or 1)
 
 
 def mask_of(seq: Sequence, i: int, config: Config) -> np.ndarray | None:

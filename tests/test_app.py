@@ -267,6 +267,19 @@ def test_bad_folder_is_an_error_message_and_the_app_keeps_working(app, data_root
     assert [t.value for t in app.title] == ["mug_carry"]
 
 
+def test_a_corrupt_frame_is_an_error_message(app, data_root, tmp_path, monkeypatch):
+    """The app reads frames on several threads: a corrupt one still ends the run with a message that
+    names it, and no traceback."""
+    seq = tmp_path / "root" / "mug_carry"
+    shutil.copytree(data_root / "mug_carry", seq)
+    bad = sorted((seq / "rgb").iterdir())[3]
+    bad.write_bytes(b"not an image")
+    monkeypatch.setenv("ARTCLASS_DATA_ROOTS", str(tmp_path / "root"))
+    open_folder(ok(app.run()), seq)
+    assert not app.exception
+    assert any(bad.name in e for e in errors(app)), errors(app)
+
+
 def test_path_outside_the_data_roots_is_refused(app, data_root, tmp_path):
     outside = tmp_path / "elsewhere"
     shutil.copytree(data_root / "mug_carry", outside)
@@ -518,10 +531,12 @@ def laptop_run(registry, laptop):
     return Pipeline(registry, Config()).run(laptop, keep_clouds=True)
 
 
-@pytest.mark.parametrize("rule, min_fitness", [("paper", 0.3), ("paper", 0.95), (None, 0.3), (None, 0.95)])
-def test_run_staged_equals_pipeline_run(registry, laptop, rule, min_fitness):
-    """Through the stage pipelines and the fitness check at decision time, as the app runs. A tight
-    ICP correspondence distance spreads the cells' fitness below 1, so min_fitness rejects some."""
+@pytest.mark.parametrize("rule, min_fitness, workers", [("paper", 0.3, 1), ("paper", 0.95, 2), (None, 0.3, 2),
+                                                        (None, 0.95, 1)])
+def test_run_staged_equals_pipeline_run(registry, laptop, rule, min_fitness, workers):
+    """Through the stage pipelines and the fitness check at decision time, as the app runs, on one
+    thread or two. A tight ICP correspondence distance spreads the cells' fitness below 1, so
+    min_fitness rejects some."""
     icp = registry.get("registrar", "icp_point_to_point").Params(max_correspondence_cells=0.1)
     config = Config(rule=rule or Config().rule, registrar="icp_point_to_point", registrar_params=icp,
                     pipeline=PipelineParams(k=3, w=1, min_fitness=min_fitness))
@@ -533,7 +548,7 @@ def test_run_staged_equals_pipeline_run(registry, laptop, rule, min_fitness):
         register=lambda a, b: stage["register"].register(a.cloud, b.cloud),
         decide=lambda a, b, cells, x, between: runner.decide_registered(
             stage["decide"], a.index, b.index, cells, a.cloud, b.cloud, x, tuple(f.cloud for f in between)),
-        progress=lambda stage_, done, total: seen.append((stage_, done, total)))
+        progress=lambda stage_, done, total: seen.append((stage_, done, total)), workers=workers)
     assert result.label == expected.label and result.filtered == expected.filtered
     assert [p.decision for p in result.pairs] == [p.decision for p in expected.pairs]
     assert [[c.skipped for c in p.cells] for p in result.pairs] == [[c.skipped for c in p.cells] for p in expected.pairs]
