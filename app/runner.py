@@ -144,7 +144,7 @@ def run_staged(sequence: Sequence, config: Config, summary: Pipeline, *,
         pair.truth = sequence.pair_truth(a.index, b.index)
         return pair
 
-    results = _each(decision, list(zip(pairs, registered)), workers, progress, "decision")
+    results = _each(decision, zip(pairs, registered), workers, progress, "decision")
     t3 = time.perf_counter()
     timing = dict(frames=t1 - t0, register=t2 - t1, decide=t3 - t2, total=t3 - t0)
     return summary.summarise(sequence, frames, results, timing)
