@@ -306,7 +306,6 @@ def test_only_the_whole_object_may_hide_points_behind_itself(registry, tmp_path)
     assert "AM" not in [p.decision for p in result.pairs] and result.label == "rigid"
 
 
-
 @pytest.mark.parametrize("still_share, part_found", [(None, True), (0.15, False)])
 def test_a_small_part_moves_while_the_object_stands_still(registry, tmp_path, still_share, part_found):
     """Regression, on the first 12 frames of the 640x480 benchmark's `10_microwave_articulate_low`:
