@@ -103,6 +103,8 @@ class FlowEvidence:
         fi, ei = np.flatnonzero(f), np.flatnonzero(e)
         g_full = np.tile(np.eye(3), (len(fi), 1))
         b_full = (self.target[rows[fi]] - moved[fi]).ravel()
+        if not len(ei):
+            return np.repeat(fi, 3), g_full, b_full
         P, n = moved[ei], self.normal[rows[ei]]
         K, z = self.intrinsics, np.abs(moved[ei, 2])
         u, v = K.pixels(P)

@@ -13,7 +13,11 @@ For a pair (i, i + k):
    own fit to the flow and its ICP refined with the flow; and, for each cell the best
    whole-object motion leaves unexplained, a local ICP of that cell started from that motion and
    from the identity (the paper's per-cell ICP from the identity cannot capture a carried object's
-   centimetres of motion).
+   centimetres of motion). Once the first motion is known (steps 4 and 5), the cells it leaves
+   unexplained get motions fitted to all their points together, from the identity, the first motion
+   and each cell's best, and the rigid fit and the plain slide their optical flow shows: a part whose
+   cells each fit poorly on their own (a tray sliding out along its own faces: each small cell's fit
+   turns where the part only slid) is one motion.
 2. Every hypothesis h is scored on every cell c by the share of c's points that h brings within
    tau of the target surface: the residual of a moved point is its distance to the tangent plane of
    the nearest target point, or its distance to that point less one sampling step v if larger (a
@@ -42,7 +46,9 @@ For a pair (i, i + k):
    part moved.
 5. A greedy cover: the hypothesis that explains most points, then the one that explains
    most of the rest, and so on. A further motion needs at least ``min_part_cells`` cells and
-   ``min_part_share`` of the informative points: a lone outlier cell is not a part. When the object
+   ``min_part_share`` of the informative points: a lone outlier cell is not a part. It must also be
+   distinct from the first motion (step 6); one that is not is passed over and the next best tried
+   (the best fit to a few cells may be a turn no joint makes where a slide also explains them). When the object
    as a whole did not move (the first motion moves no point by more than tau), ``min_still_part_share``
    (a door seen edge-on): no motion of the object's own then hides or shows its surfaces to fake a
    part, and in step 4 a part has at most the 1 - ``static_share`` that the identity leaves.
@@ -176,36 +182,58 @@ class RobustRule(DecisionRule):
             geo = np.concatenate([geo, np.stack([r for pair in extra for _, r in pair])])
             score = _per_cell(geo <= tau, owner, counts)
 
-        best = score.max(axis=0)
-        informative = best >= p.min_cell_score
+        plain = _per_cell(ev.plain <= tau, owner, counts)
+
+        def weigh(score):
+            """Which motions explain which cells, and the first motion (step 4)."""
+            best = score.max(axis=0)
+            informative = best >= p.min_cell_score
+            explains = _explains(score, best, counts, p.explain_margin) & informative   # (H, C)
+            weight = counts * informative
+            # When the identity explains nearly everything, the object as a whole stood still; a part may not have.
+            still = (explains[0] * weight).sum() >= p.static_share * weight.sum()
+            # A further motion is a part's, and only the whole object's motion may hide points behind itself:
+            # a part is scored on the whole-object hypotheses without that excuse.
+            as_part = explains.copy()
+            as_part[:ev.n_global] = _explains(plain, best, counts, p.explain_margin) & informative
+            first = 0 if still else int(np.argmax(explains @ weight))
+            return best, informative, explains, weight, still, as_part, first
+
+        best, informative, explains, weight, still, as_part, first = weigh(score)
+        # The cells the first motion leaves unexplained (informative or not: none may fit them yet) may be
+        # one part whose cells each fit poorly on their own (a tray sliding along its faces): motions
+        # fitted to all of them together.
+        left = np.flatnonzero(~explains[first] & (counts >= MIN_CELL_POINTS))
+        if len(left) >= p.min_part_cells:
+            seeds = dict.fromkeys([0, first] + [int(np.argmax(as_part[:, c] * score[:, c])) for c in left])
+            joint = ev.union(tuple(left.tolist()), [hyps[h] for h in seeds])
+            hyps += [T for T, _ in joint]
+            geo = np.concatenate([geo, np.stack([r for _, r in joint])])
+            score = _per_cell(geo <= tau, owner, counts)
+            best, informative, explains, weight, still, as_part, first = weigh(score)
         info = dict(tau_m=round(tau, 6), sigma_m=round(float(ev.sigma), 6), n_informative=int(informative.sum()),
                     n_hypotheses=len(hyps))
         clusters: list[int | None] = [None] * len(cells)
         if not informative.any():
             return RuleDecision("skipped", clusters, reason="no cell is explained by any motion", info=info)
-        explains = _explains(score, best, counts, p.explain_margin) & informative   # (H, C)
-        weight = counts * informative
         total = weight.sum()
-
-        # When the identity explains nearly everything, the object as a whole stood still; a part may not have.
-        still = (explains[0] * weight).sum() >= p.static_share * total
-        # A further motion is a part's, and only the whole object's motion may hide points behind itself:
-        # a part is scored on the whole-object hypotheses without that excuse.
-        as_part = explains.copy()
-        plain = _per_cell(ev.plain <= tau, owner, counts)
-        as_part[:ev.n_global] = _explains(plain, best, counts, p.explain_margin) & informative
-        first = 0 if still else int(np.argmax(explains @ weight))
         # A part of an object that moved must be bigger: the object's own motion hides and shows its surfaces
         # (a mug's inner wall over its rim), which can look like a small part moving.
         part_share = p.min_part_share if _displacement(ev.pts, hyps[first]) > tau else p.min_still_part_share
-        chosen, members = self._cover(explains, as_part, weight, total, informative, part_share, first)
+
+        def distinct(h, cells):
+            """Whether motion h is a part of its own on ``cells``: None when the data cannot tell it from
+            the first motion there, False when no joint moves so."""
+            A, B = hyps[first], hyps[h]
+            if not ev.separated(A, B, cells, tau):
+                return None
+            return joint_like(A, B, ev.pts.mean(0), ev.extent)
+
+        chosen, members, passed = self._cover(explains, as_part, weight, total, informative, part_share, first,
+                                              distinct)
         motions = [hyps[h] for h in chosen]
-        for m in range(len(motions) - 1, 0, -1):
-            A, B = motions[0], motions[m]
-            if not (ev.separated(A, B, members[m], tau) and joint_like(A, B, ev.pts.mean(0), ev.extent)):
-                members[0] = np.concatenate([members[0], members.pop(m)])
-                motions.pop(m)
-                info["unresolved"] = True
+        if passed:
+            info["passed_over"] = passed
         if len(motions) >= 2:
             merged = self._single_motion(ev, hyps, list(range(ev.n_global)) + chosen, members, best, weight, tau,
                                          part_share)
@@ -235,22 +263,36 @@ class RobustRule(DecisionRule):
             return RuleDecision("NM", clusters, keys, reason="the only motion is within noise", info=info)
         return RuleDecision("RM", clusters, keys, reason="one motion explains the points", info=info)
 
-    def _cover(self, explains, as_part, weight, total, informative, part_share, first):
+    def _cover(self, explains, as_part, weight, total, informative, part_share, first, distinct):
         """Greedy cover of the informative cells by motions (hypothesis indices) with enough support: the
-        ``first``, then further ones (parts) by ``as_part``, each with ``part_share`` of the weight."""
+        ``first``, then further ones (parts) by ``as_part``, each with ``part_share`` of the weight and
+        ``distinct(h, cells)`` from the first (a motion that is not, because the data cannot tell it from
+        the first or no joint moves so, is passed over for the next best). Returns the motions, their
+        cells and how many motions were passed over."""
         p = self.params
-        left = informative.copy()
-        chosen, members = [first], [np.flatnonzero(explains[first] & left)]
+        left, candidate = informative.copy(), np.ones(len(explains), bool)
+        chosen, members, passed = [first], [np.flatnonzero(explains[first] & left)], np.zeros_like(left)
         left[members[0]] = False
         while left.any():
-            h = int(np.argmax((as_part & left) @ weight))
+            h = int(np.argmax(np.where(candidate, (as_part & left) @ weight, -1.0)))
             cs = np.flatnonzero(as_part[h] & left)
             if len(cs) < p.min_part_cells or weight[cs].sum() < part_share * total:
                 break
-            chosen.append(h)
-            members.append(cs)
-            left[cs] = False
-        return chosen, members
+            candidate[h] = False
+            verdict = distinct(h, cs)
+            if verdict:
+                chosen.append(h)
+                members.append(cs)
+                left[cs] = False
+                continue
+            if verdict is None:         # these cells moved as the first motion did, as far as the data tells
+                members[0] = np.concatenate([members[0], cs])
+                left[cs] = False
+            else:
+                passed[cs] = True
+        # Cells of a motion that no joint makes, which no part took, stay with the first too.
+        members[0] = np.concatenate([members[0], np.flatnonzero(passed & left)])
+        return chosen, members, int((~candidate).sum()) - len(chosen) + 1
 
     def _vanished(self, ev, T, part_share) -> list[int]:
         """The cells (indices into the pair's cells) that T puts where the camera sees through them (most
@@ -346,6 +388,7 @@ class _Evidence:
         self.sigma = np.sqrt(2.0) * surface_noise(target.points, self.tree)
         self._local: dict = {}
         self._refits: dict = {}
+        self._unions: dict = {}
 
     def residuals(self, Ts: list[np.ndarray]) -> np.ndarray:
         """Each scoring point's misfit (m) under each motion of ``Ts``, (H, P): distance to the nearest
@@ -458,6 +501,23 @@ class _Evidence:
             Ts = [icp_point_to_plane(src, self.tgt, self.hyps[g], near), icp_point_to_plane(src, self.tgt, np.eye(4), near)]
             self._local[(c, g)] = list(zip(Ts, self.residuals(Ts)))
         return self._local[(c, g)]
+
+    def union(self, cells: tuple, seeds: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Motions fitted to the points of ``cells`` together (depth and flow), from each of ``seeds``,
+        with the residuals of all points."""
+        key = (cells, tuple(T.tobytes() for T in seeds))
+        if key not in self._unions:
+            group = np.flatnonzero(np.isin(self.owner, cells))
+            use = group[self.has_flow[group]]
+            direct = []                 # what the flow alone says: a rigid fit, and a plain slide
+            if len(use) >= MIN_FLOW_POINTS:
+                slide = np.eye(4)
+                slide[:3, 3] = np.median(self.flow.target[use] - self.pts[use], axis=0)
+                direct = [trimmed_kabsch(self.pts[use], self.flow.target[use]), slide]
+            seeds = seeds + direct
+            Ts = direct + self.flow_fit(seeds, [group] * len(seeds), rounds=8)
+            self._unions[key] = list(zip(Ts, self.residuals(Ts)))
+        return self._unions[key]
 
     def refit(self, cells: tuple, T0: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
         """One ICP refit from T0 on the scoring points of ``cells``, with the residuals of all points."""
