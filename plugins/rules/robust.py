@@ -169,8 +169,8 @@ class RobustRule(DecisionRule):
         owner, counts = ev.owner, ev.counts
 
         tau = max(p.noise_floor_m, p.noise_factor * ev.sigma)
-        hyps, geo = list(ev.hyps), ev.geo
-        score = _per_cell(geo <= tau, owner, counts)                       # (H, C) inlier share
+        hyps = list(ev.hyps)
+        score = _per_cell(ev.geo <= tau, owner, counts)                    # (H, C) inlier share
 
         # Cells the best whole-object motion leaves unexplained get local hypotheses of their own.
         g = 1 + int(np.argmax(score[1:ev.n_global] @ counts))
@@ -179,8 +179,8 @@ class RobustRule(DecisionRule):
         extra = [ev.local(c, g) for c in poor]
         if extra:
             hyps += [T for pair in extra for T, _ in pair]
-            geo = np.concatenate([geo, np.stack([r for pair in extra for _, r in pair])])
-            score = _per_cell(geo <= tau, owner, counts)
+            more = np.stack([r for pair in extra for _, r in pair])
+            score = np.vstack([score, _per_cell(more <= tau, owner, counts)])
 
         plain = _per_cell(ev.plain <= tau, owner, counts)
 
@@ -208,8 +208,7 @@ class RobustRule(DecisionRule):
             seeds = dict.fromkeys([0, first] + [int(np.argmax(as_part[:, c] * score[:, c])) for c in left])
             joint = ev.union(tuple(left.tolist()), [hyps[h] for h in seeds])
             hyps += [T for T, _ in joint]
-            geo = np.concatenate([geo, np.stack([r for _, r in joint])])
-            score = _per_cell(geo <= tau, owner, counts)
+            score = np.vstack([score, _per_cell(np.stack([r for _, r in joint]) <= tau, owner, counts)])
             best, informative, explains, weight, still, as_part, first = weigh(score)
         info = dict(tau_m=round(tau, 6), sigma_m=round(float(ev.sigma), 6), n_informative=int(informative.sum()),
                     n_hypotheses=len(hyps))
@@ -271,7 +270,8 @@ class RobustRule(DecisionRule):
         cells and how many motions were passed over."""
         p = self.params
         left, candidate = informative.copy(), np.ones(len(explains), bool)
-        chosen, members, passed = [first], [np.flatnonzero(explains[first] & left)], np.zeros_like(left)
+        chosen, members = [first], [np.flatnonzero(explains[first] & left)]
+        passed, n_passed = np.zeros_like(left), 0
         left[members[0]] = False
         while left.any():
             h = int(np.argmax(np.where(candidate, (as_part & left) @ weight, -1.0)))
@@ -285,6 +285,7 @@ class RobustRule(DecisionRule):
                 members.append(cs)
                 left[cs] = False
                 continue
+            n_passed += 1
             if verdict is None:         # these cells moved as the first motion did, as far as the data tells
                 members[0] = np.concatenate([members[0], cs])
                 left[cs] = False
@@ -292,7 +293,7 @@ class RobustRule(DecisionRule):
                 passed[cs] = True
         # Cells of a motion that no joint makes, which no part took, stay with the first too.
         members[0] = np.concatenate([members[0], np.flatnonzero(passed & left)])
-        return chosen, members, int((~candidate).sum()) - len(chosen) + 1
+        return chosen, members, n_passed
 
     def _vanished(self, ev, T, part_share) -> list[int]:
         """The cells (indices into the pair's cells) that T puts where the camera sees through them (most
