@@ -237,6 +237,13 @@ class _Job:
     timing: dict[str, float]
 
 
+def _executor(workers: int):
+    """Runs jobs on ``workers`` threads, or at once in the calling thread for one."""
+    if not (isinstance(workers, int) and workers >= 1):
+        raise ParamError(f"workers = {workers!r} must be a positive integer")
+    return _Inline() if workers == 1 else ThreadPoolExecutor(workers, thread_name_prefix="artclass")
+
+
 class _Inline:
     """The executor of ``workers=1``: runs each job at once, in the calling thread."""
 
@@ -559,15 +566,13 @@ class Pipeline:
         n = len(sequence)
         if n < k + 1:
             raise InputError(f"sequence has {n} frames; k = {k} needs at least {k + 1}", path=sequence.path)
-        if not (isinstance(workers, int) and workers >= 1):
-            raise ParamError(f"workers = {workers!r} must be a positive integer")
         t_start = time.perf_counter()
         timing = {s: 0.0 for s in STAGES}
         frames: list[FrameResult] = []
         pairs: list[PairResult] = []
         pending: dict[int, FrameResult] = {}
         self.segmenter(sequence)                      # created once, before any worker asks for it
-        executor = _Inline() if workers == 1 else ThreadPoolExecutor(workers, thread_name_prefix="artclass")
+        executor = _executor(workers)
         ahead = 0 if workers == 1 else 2 * workers    # frames read ahead of the one being collected
         frame_jobs: dict[int, Future] = {}
         pair_jobs: deque[tuple[FrameResult, Future]] = deque()
@@ -619,13 +624,14 @@ class Pipeline:
         return self.summarise(sequence, frames, pairs, timing)
 
     def redecide(self, result: RunResult, *, sequence: Sequence | None = None,
-                 cache: StageCache | None = None) -> RunResult:
+                 cache: StageCache | None = None, workers: int = 1) -> RunResult:
         """Decide a finished run again under this pipeline's decision settings, reusing its registrations.
 
         The decision settings are the rule and its params, ``alpha``, ``min_fitness`` and ``w``; no
         frame is read and no ICP runs. The rule is given the pair's clouds: they come from
         ``result.frames`` (a run with ``keep_clouds=True``) or, failing that, from ``cache`` (the
-        :class:`StageCache` the run used, with its ``sequence``).
+        :class:`StageCache` the run used, with its ``sequence``). ``workers`` threads decide the pairs;
+        the result is identical for any number.
 
         Raises
         ------
@@ -636,6 +642,7 @@ class Pipeline:
         """
         t_start = time.perf_counter()
         self._check_same_registrations(result)
+        executor = _executor(workers)
         clouds = {f.index: f.cloud for f in result.frames if f.cloud is not None}
         span = (lambda p: range(p.i, p.j + 1)) if self.rule.uses_frames_between else (lambda p: (p.i, p.j))
         skipped = {f.index for f in result.frames if f.skipped}     # as in the run, a pair goes without them
@@ -646,18 +653,22 @@ class Pipeline:
                                     f"run with keep_clouds=True, or pass the run's StageCache and its sequence")
             for i in needed:
                 clouds[i] = self.frame(sequence, i, cache=cache).cloud
-        timing = {"decide": 0.0}
-        pairs = []
-        for p in result.pairs:
+
+        def again(p: PairResult) -> tuple[PairResult, float]:
             if not p.cells:   # a frame of the pair was skipped: nothing was registered
-                pairs.append(dataclasses.replace(p))
-                continue
+                return dataclasses.replace(p), 0.0
             t0 = time.perf_counter()
             new = self.decide(p.i, p.j, self.checked_cells(p.cells), clouds[p.i], clouds[p.j], p.cell_size_m,
-                              (clouds.get(m) for m in range(p.i + 1, p.j)))
-            _add(timing, "decide", time.perf_counter() - t0)
+                              tuple(clouds.get(m) for m in range(p.i + 1, p.j)))
             new.truth = p.truth
-            pairs.append(new)
+            return new, time.perf_counter() - t0
+
+        try:
+            done = [f.result() for f in [executor.submit(again, p) for p in result.pairs]]
+        finally:
+            executor.shutdown(wait=True, cancel_futures=True)
+        pairs = [p for p, _ in done]
+        timing = {"decide": sum(seconds for _, seconds in done)}
         frames = [dataclasses.replace(f) for f in result.frames]
         timing["total"] = time.perf_counter() - t_start
         return self._summarise(dict(result.sequence), result.plugins["segmenter"], frames, pairs, timing)

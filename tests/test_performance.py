@@ -274,6 +274,18 @@ def test_redecide_equals_a_fresh_run_and_leaves_the_first_result_alone(registry,
     assert redecided.params["rule"]["q_bar"] == 0.5 and redecided.params["pipeline"]["alpha"] == 0.6
 
 
+def test_redecide_is_the_same_whatever_the_number_of_workers(registry, hinge):
+    cfg = dataclasses.replace(Config(), pipeline=PipelineParams(k=2))
+    changed = cfg.with_overrides(registry, {"noise_floor_m": "0.0025"})    # moves tau: new local fits
+    one, two = (Pipeline(registry, changed).redecide(Pipeline(registry, cfg).run(hinge, keep_clouds=True),
+                                                     workers=w) for w in (1, 2))
+    fresh = Pipeline(registry, changed).run(hinge)
+    assert fingerprint(two) == fingerprint(one) == fingerprint(fresh)
+    assert [p.info for p in two.pairs] == [p.info for p in one.pairs] == [p.info for p in fresh.pairs]
+    with pytest.raises(ArtclassError, match="workers"):
+        Pipeline(registry, changed).redecide(one, workers=0)
+
+
 def test_redecide_with_another_rule_and_back(registry, hinge):
     rules = [r for r in registry.names("rule") if r != "paper"]
     if not rules:

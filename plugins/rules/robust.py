@@ -199,12 +199,17 @@ class RobustRule(DecisionRule):
             first = 0 if still else int(np.argmax(explains @ weight))
             return best, informative, explains, weight, still, as_part, first
 
+        # A part of an object that moved must be bigger: the object's own motion hides and shows its surfaces
+        # (a mug's inner wall over its rim), which can look like a small part moving.
+        def share_of(first):
+            return p.min_part_share if _displacement(ev.pts, hyps[first]) > tau else p.min_still_part_share
+
         best, informative, explains, weight, still, as_part, first = weigh(score)
         # The cells the first motion leaves unexplained (informative or not: none may fit them yet) may be
         # one part whose cells each fit poorly on their own (a tray sliding along its faces): motions
-        # fitted to all of them together.
+        # fitted to all of them together, when they have the points for a part.
         left = np.flatnonzero(~explains[first] & (counts >= MIN_CELL_POINTS))
-        if len(left) >= p.min_part_cells:
+        if len(left) >= p.min_part_cells and counts[left].sum() >= share_of(first) * weight.sum():
             seeds = dict.fromkeys([0, first] + [int(np.argmax(as_part[:, c] * score[:, c])) for c in left])
             joint = ev.union(tuple(left.tolist()), [hyps[h] for h in seeds])
             hyps += [T for T, _ in joint]
@@ -216,9 +221,7 @@ class RobustRule(DecisionRule):
         if not informative.any():
             return RuleDecision("skipped", clusters, reason="no cell is explained by any motion", info=info)
         total = weight.sum()
-        # A part of an object that moved must be bigger: the object's own motion hides and shows its surfaces
-        # (a mug's inner wall over its rim), which can look like a small part moving.
-        part_share = p.min_part_share if _displacement(ev.pts, hyps[first]) > tau else p.min_still_part_share
+        part_share = share_of(first)
 
         def distinct(h, cells):
             """Whether motion h is a part of its own on ``cells``: None when the data cannot tell it from
