@@ -14,10 +14,11 @@ For a pair (i, i + k):
    whole-object motion leaves unexplained, a local ICP of that cell started from that motion and
    from the identity (the paper's per-cell ICP from the identity cannot capture a carried object's
    centimetres of motion). Once the first motion is known (steps 4 and 5), the cells it leaves
-   unexplained get motions fitted to all their points together, from the identity, the first motion
-   and each cell's best, and the rigid fit and the plain slide their optical flow shows: a part whose
-   cells each fit poorly on their own (a tray sliding out along its own faces: each small cell's fit
-   turns where the part only slid) is one motion.
+   unexplained, if they have the points for a part (step 5), get motions fitted to all their points
+   together, from the identity, the first motion and each cell's best, and the rigid fit and the
+   plain slide their optical flow shows: a part whose cells each fit poorly on their own (a tray
+   sliding out along its own faces: each small cell's fit turns where the part only slid) is one
+   motion.
 2. Every hypothesis h is scored on every cell c by the share of c's points that h brings within
    tau of the target surface: the residual of a moved point is its distance to the tangent plane of
    the nearest target point, or its distance to that point less one sampling step v if larger (a
@@ -524,14 +525,18 @@ class _Evidence:
         return self._unions[key]
 
     def refit(self, cells: tuple, T0: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
-        """One ICP refit from T0 on the scoring points of ``cells``, with the residuals of all points."""
-        key = (cells, T0.tobytes(), tau)
+        """One ICP refit from T0 on the scoring points of ``cells``, with the residuals of all points. Its
+        coarse stages do not depend on tau and are kept apart: a new tau only runs the last one."""
+        key = (cells, T0.tobytes())
         if key not in self._refits:
-            use = np.isin(self.owner, cells)
-            T = icp_point_to_plane(to_o3d(self.pts[use]), self.tgt, T0,
-                                   [self.extent / 10, 2 * self.spacing, self.spacing, 2 * tau])
-            self._refits[key] = (T, self.excuse(self.residuals([T])[0], T))
-        return self._refits[key]
+            src = to_o3d(self.pts[np.isin(self.owner, cells)])
+            self._refits[key] = (src, icp_point_to_plane(src, self.tgt, T0, [self.extent / 10, 2 * self.spacing,
+                                                                               self.spacing]), {})
+        src, coarse, fine = self._refits[key]
+        if tau not in fine:
+            T = icp_point_to_plane(src, self.tgt, coarse, [2 * tau])
+            fine[tau] = (T, self.excuse(self.residuals([T])[0], T))
+        return fine[tau]
 
 
 def trimmed_kabsch(p: np.ndarray, q: np.ndarray, *, keep: float = 0.7, rounds: int = 3) -> np.ndarray:
