@@ -211,6 +211,23 @@ def test_fit_planes_does_not_take_a_plane_in_front_of_the_support_for_background
     assert np.count_nonzero(slab & ~background) > 0.95 * np.count_nonzero(slab)
 
 
+def test_fit_planes_finds_a_wall_past_an_object_face_that_hides_most_of_it():
+    """A board standing on the table 10 cm before the wall (an opening box lid) hides most of the
+    wall: the search looks past the board, which has table behind it, and still takes the wall
+    (10 % of the pixels, less than a support plane needs) for background."""
+    depth = tilted_table()
+    board = np.zeros((H, W), bool)
+    board[:, :100] = depth[:, :100] > 0.9
+    depth[board] = 0.9
+    p = BackgroundParams()
+    planes = fit_planes(depth, INTR, params=p)
+    assert len(planes) == 2 and abs(planes[1].normal[2] + 1) < 1e-3 and abs(planes[1].offset_m - 1.0) < 1e-3
+    assert planes[1].inlier_fraction < p.min_plane_fraction
+    background, _ = background_mask(depth, INTR, planes, params=p)
+    assert background[depth >= 0.999].all()
+    assert np.count_nonzero(board & ~background) > 0.9 * np.count_nonzero(board)
+
+
 def test_background_params_are_validated():
     with pytest.raises(ParamError, match="far_m"):
         DepthThresholdParams(near_m=2.0, far_m=1.0)

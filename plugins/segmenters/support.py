@@ -58,6 +58,11 @@ class BackgroundParams(Params):
     min_plane_fraction: float = param(0.15, unit="fraction", bounds=(0.01, 1.0),
                                       help="A plane is background only if it holds at least this share of "
                                            "the valid depth pixels (a handled object's face is smaller).")
+    min_wall_fraction: float = param(0.05, unit="fraction", bounds=(0.01, 1.0),
+                                     help="A further plane with the whole support plane in front of it (a wall, "
+                                          "the floor) is background from this share of the valid depth pixels: "
+                                          "no handled object's face has the table in front of it, and a wall an "
+                                          "opening lid hides in part is still a wall.")
     plane_stride_px: int = param(4, unit="px", bounds=(1, 32),
                                  help="The plane fit uses every n-th pixel in x and y (speed).")
     plane_iterations: int = param(150, unit="iterations", bounds=(10, 5000),
@@ -136,15 +141,20 @@ def ransac_plane(points: np.ndarray, *, distance_m: float, iterations: int, rng:
     return normal, float(offset), inliers
 
 
+# Object faces or slices through the objects the plane search looks past for a wall before it gives up.
+MAX_FACES_PASSED = 2
+
+
 def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: BackgroundParams) -> list[Plane]:
     """The large background planes of a depth image, largest first.
 
     The first (largest) plane is the support plane. Each plane found removes its inliers and the
     points behind it before the next is sought. A further plane is background (a wall, the floor)
     only if the support plane lies in front of it (95 % of the support's inliers on its camera side);
-    a plane with the support partly behind it is an object's face or a slice through the objects,
-    and ends the search. The search also stops at ``max_planes`` or when a plane holds fewer than
-    ``min_plane_fraction`` of the sampled valid points.
+    a plane with the support partly behind it is an object's face or a slice through the objects:
+    its points are set aside and the search goes on past it (at most ``MAX_FACES_PASSED`` times).
+    The search stops at ``max_planes`` or when a plane holds fewer than ``min_plane_fraction`` (the
+    support) or ``min_wall_fraction`` (a further plane) of the sampled valid points.
 
     Parameters
     ----------
@@ -166,18 +176,23 @@ def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: Backgroun
     total = len(pts)
     rng = np.random.default_rng(params.plane_seed)
     planes: list[Plane] = []
-    for _ in range(params.max_planes):
-        if total == 0 or len(pts) < max(3, params.min_plane_fraction * total):
+    faces = 0
+    while len(planes) < params.max_planes and faces <= MAX_FACES_PASSED:
+        least = params.min_wall_fraction if planes else params.min_plane_fraction
+        if total == 0 or len(pts) < max(3, least * total):
             break
         found = ransac_plane(pts, distance_m=params.plane_distance_m, iterations=params.plane_iterations, rng=rng)
         if found is None:
             break
         normal, offset, inliers = found
         fraction = inliers.sum() / total
-        if fraction < params.min_plane_fraction:
+        if fraction < least:
             break
         if planes and np.mean(support @ normal + offset > -params.plane_distance_m) < 0.95:
-            break   # the support plane is (partly) behind it: an object's face or a slice, not background
+            # the support plane is (partly) behind it: an object's face or a slice through the objects,
+            # not background; a wall may still lie beyond it
+            pts, faces = pts[~inliers], faces + 1
+            continue
         if not planes:
             support = pts[inliers]
         noise = 1.4826 * float(np.median(np.abs(pts[inliers] @ normal + offset)))
