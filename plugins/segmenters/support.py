@@ -141,8 +141,8 @@ def ransac_plane(points: np.ndarray, *, distance_m: float, iterations: int, rng:
     return normal, float(offset), inliers
 
 
-# Object faces or slices through the objects the plane search looks past for a wall before it gives up.
-MAX_FACES_PASSED = 2
+# The plane search gives up on finding a wall behind the support after this many object faces or slices.
+MAX_FACES_PASSED = 3
 
 
 def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: BackgroundParams) -> list[Plane]:
@@ -152,7 +152,7 @@ def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: Backgroun
     points behind it before the next is sought. A further plane is background (a wall, the floor)
     only if the support plane lies in front of it (95 % of the support's inliers on its camera side);
     a plane with the support partly behind it is an object's face or a slice through the objects:
-    its points are set aside and the search goes on past it (at most ``MAX_FACES_PASSED`` times).
+    its points are set aside and the search goes on past it (it gives up after ``MAX_FACES_PASSED``).
     The search stops at ``max_planes`` or when a plane holds fewer than ``min_plane_fraction`` (the
     support) or ``min_wall_fraction`` (a further plane) of the sampled valid points.
 
@@ -177,7 +177,7 @@ def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: Backgroun
     rng = np.random.default_rng(params.plane_seed)
     planes: list[Plane] = []
     faces = 0
-    while len(planes) < params.max_planes and faces <= MAX_FACES_PASSED:
+    while len(planes) < params.max_planes and faces < MAX_FACES_PASSED:
         least = params.min_wall_fraction if planes else params.min_plane_fraction
         if total == 0 or len(pts) < max(3, least * total):
             break
