@@ -33,6 +33,7 @@ import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
 from artclass_core import Cloud, Frame, PairResult, RunResult
+from artclass_core.geometry import transform
 
 __all__ = ["DECISION_COLOURS", "LABEL_COLOURS", "CLUSTER_COLOURS", "decision_timeline", "class_fractions",
            "motion_arrows", "frame_images", "cells_table", "confusion_figure", "figures_html",
@@ -249,6 +250,11 @@ def motion_arrows(pair: PairResult, source: Cloud, target: Cloud, *, max_points:
         title += f"  ·  cell size x = {1000 * pair.cell_size_m:.1f} mm"
     if len(disp):
         title += f"  ·  arrows ×{gain:.0f}" if gain >= 1.5 else ""
+    return _scene(fig, title, pair)
+
+
+def _scene(fig: go.Figure, title: str, pair: PairResult) -> go.Figure:
+    """The 3D layout of a pair's figure: camera view, axes in metres, legend at the right."""
     axis = dict(showbackground=True, backgroundcolor="#F4F6F8", gridcolor="#DDDDDD", zerolinecolor="#CCCCCC",
                 tickformat=".2f")
     return _layout(fig, height=560, title=dict(text=title, x=0.01),
@@ -258,6 +264,66 @@ def motion_arrows(pair: PairResult, source: Cloud, target: Cloud, *, max_points:
                               zaxis=dict(title="z (m)", **axis),
                               camera=dict(up=dict(x=0, y=-1, z=0), eye=dict(x=0.35, y=-0.45, z=-1.5))),
                    uirevision=f"pair-{pair.i}-{pair.j}")
+
+
+def motion_parts(pair: PairResult, target: Cloud, *, max_points: int = 6000, magnify: float | None = None) -> go.Figure:
+    """A pair decided from motions: the source points coloured by the motion that explains them, the
+    target cloud in grey, and one arrow per motion (from its points' centroid, along its displacement).
+
+    Parameters
+    ----------
+    pair : a pair with ``motions`` and ``labels`` (and the ``evidence`` the labels index)
+    target : the cloud of frame ``pair.j``, metres
+    max_points : at most this many points of each cloud are drawn (evenly spaced, deterministic)
+    magnify : arrow length / true displacement; default: the longest arrow is a fifth of the object
+
+    Returns
+    -------
+    Figure with traces ``frame j`` (grey points), one ``motion N · M points`` trace per motion (its points
+    and its arrow share a legend entry), and ``no evidence`` for points no motion explains.
+    """
+    fig = go.Figure()
+    pts = _subsample(np.asarray(target.points), max_points)
+    fig.add_trace(go.Scatter3d(x=pts[:, 0], y=pts[:, 1], z=pts[:, 2], mode="markers", name=f"frame {pair.j}",
+                               marker=dict(size=1.4, color="#B8B8B8", opacity=0.35), hoverinfo="skip"))
+    ev, labels = pair.evidence, pair.labels
+    size = float(np.linalg.norm(np.ptp(ev.points, axis=0))) if len(ev.points) else 0.1
+    moved = [ev.points[labels == n] for n in range(len(pair.motions))]
+    centroids = [m.mean(axis=0) if len(m) else np.zeros(3) for m in moved]
+    shifts = [transform(c[None], m.T_target_from_source)[0] - c for c, m in zip(centroids, pair.motions)]
+    longest = max((float(np.linalg.norm(d)) for d in shifts), default=0.0)
+    gain = magnify if magnify is not None else (float(np.clip(0.2 * size / longest, 1.0, 500.0)) if longest > 0 else 1.0)
+    step = max(1, len(ev.points) // max_points)
+    for n, (motion, own, c, d) in enumerate(zip(pair.motions, moved, centroids, shifts)):
+        colour = CLUSTER_COLOURS[n % len(CLUSTER_COLOURS)]
+        name = f"motion {n} · {motion.n_points} points"
+        text = (f"motion {n} ({html.escape(motion.name)})<br>rotation {motion.to_dict()['rotation_deg']:.1f}°"
+                f"<br>points moved {1000 * motion.displacement_m:.1f} mm (median)")
+        own = own[::step]
+        fig.add_trace(go.Scatter3d(x=own[:, 0], y=own[:, 1], z=own[:, 2], mode="markers", name=name,
+                                   legendgroup=f"m{n}", marker=dict(size=2.2, color=colour, opacity=0.8),
+                                   text=[text] * len(own), hovertemplate="%{text}<extra></extra>"))
+        if len(moved[n]):
+            v = d * gain
+            fig.add_trace(go.Cone(x=[c[0]], y=[c[1]], z=[c[2]], u=[v[0]], v=[v[1]], w=[v[2]], sizemode="raw",
+                                  sizeref=1.0, anchor="tail", colorscale=[[0, colour], [1, colour]], showscale=False,
+                                  name=name, legendgroup=f"m{n}", showlegend=False, text=[text],
+                                  hovertemplate="%{text}<extra></extra>"))
+    loose = ev.points[labels < 0][::step]
+    if len(loose):
+        fig.add_trace(go.Scatter3d(x=loose[:, 0], y=loose[:, 1], z=loose[:, 2], mode="markers",
+                                   name=f"no evidence ({int((labels < 0).sum())})", hoverinfo="skip",
+                                   marker=dict(size=1.6, color="#555555", opacity=0.6)))
+    title = f"Pair {pair.i} → {pair.j}: <b style='color:{DECISION_COLOURS[pair.decision]}'>{pair.decision}</b>"
+    title += f"  ·  {len(pair.motions)} motion{'s' if len(pair.motions) != 1 else ''}"
+    title += f"  ·  arrows ×{gain:.0f}" if gain >= 1.5 else ""
+    return _scene(fig, title, pair)
+
+
+def motions_table(pair: PairResult) -> list[dict[str, Any]]:
+    """One row per selected motion: where it came from, its points, rotation and displacement."""
+    return [dict(motion=n, **{k: v for k, v in m.to_dict().items() if k != "T_target_from_source"})
+            for n, m in enumerate(pair.motions)]
 
 
 # -- frames --------------------------------------------------------------------------------------------

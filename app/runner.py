@@ -16,8 +16,8 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 
-from artclass_core import (CellMotion, Cloud, Config, FrameResult, InputError, PairResult, Pipeline,
-                           PipelineParams, RunResult, Sequence)
+from artclass_core import (CellMotion, Cloud, Config, FrameResult, InputError, MotionEvidence, PairResult,
+                           Pipeline, PipelineParams, RunResult, Sequence)
 
 # Pipeline parameters a stage's output does NOT depend on. Everything else is part of the stage's
 # key, so a parameter added to PipelineParams later invalidates every stage (safe, if slower).
@@ -73,6 +73,8 @@ def decide_registered(pipeline: Pipeline, i: int, j: int, cells: list[CellMotion
     (:meth:`Pipeline.checked_cells`, which copies the cells) and then :meth:`Pipeline.decide`. The
     result equals ``pipeline.decide`` on ``pipeline.register``'s cells. ``cells`` are not modified.
     """
+    if isinstance(cells, MotionEvidence):      # a pair registrar's evidence: no cells, no fitness check
+        return pipeline.decide_motions(i, j, cells)
     return pipeline.decide(i, j, pipeline.checked_cells(cells), source, target, cell_size_m, between)
 
 

@@ -32,8 +32,8 @@ import numpy as np
 import streamlit as st
 from streamlit.runtime.scriptrunner import add_script_run_ctx, get_script_run_ctx
 
-from artclass_core import (ArtclassError, CellMotion, Config, FrameResult, InputError, PairResult, Pipeline,
-                           PipelineParams, Registry, RunResult, Sequence, describe, find_sequences, load_registry,
+from artclass_core import (ArtclassError, CellMotion, Config, FrameResult, InputError, MotionEvidence, PairResult,
+                           Pipeline, PipelineParams, Registry, RunResult, Sequence, describe, find_sequences, load_registry,
                            open_sequences)
 from artclass_core.pipeline import AUTO_SEGMENTER
 
@@ -118,18 +118,20 @@ def frame_result(seq_key: str, i: int, key: str, _sequence: Sequence, _config: C
 
 @st.cache_resource(max_entries=2000, show_spinner=False)
 def registered(seq_key: str, i: int, j: int, key: str, _config: Config, _source: FrameResult,
-               _target: FrameResult) -> tuple[tuple[CellMotion, ...], float]:
-    """Per-cell ICP of the pair (i, j) (``Pipeline.register`` without the fitness check): cells and
-    the cell size x. Shared: read only."""
+               _target: FrameResult) -> tuple[tuple[CellMotion, ...] | MotionEvidence, float | None]:
+    """Registration of the pair (i, j) (``Pipeline.register`` without the fitness check): the cells
+    and the cell size x, or a pair registrar's motion evidence. Shared: read only."""
     cells, x = stage_pipeline(_config, "register").register(_source.cloud, _target.cloud)
-    return tuple(cells), x
+    return (cells if isinstance(cells, MotionEvidence) else tuple(cells)), x
 
 
 @st.cache_data(max_entries=4000, show_spinner=False)
 def decided(seq_key: str, i: int, j: int, key: str, _config: Config, _source: FrameResult, _target: FrameResult,
-            _cells: tuple[CellMotion, ...], x: float, _between: tuple[FrameResult, ...]) -> PairResult:
+            _cells: tuple[CellMotion, ...] | MotionEvidence, x: float | None,
+            _between: tuple[FrameResult, ...]) -> PairResult:
     """Fitness and alpha checks and the decision rule of the pair (:func:`app.runner.decide_registered`)."""
-    return decide_registered(stage_pipeline(_config, "decide"), i, j, list(_cells), _source.cloud, _target.cloud, x,
+    cells = _cells if isinstance(_cells, MotionEvidence) else list(_cells)
+    return decide_registered(stage_pipeline(_config, "decide"), i, j, cells, _source.cloud, _target.cloud, x,
                              tuple(f.cloud for f in _between))
 
 

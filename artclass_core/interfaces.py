@@ -13,7 +13,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .params import Params
-from .types import CellMotion, Cloud, Decision, Frame, Intrinsics, Registration, Sequence
+from .types import CellMotion, Cloud, Decision, Frame, Intrinsics, Motion, MotionEvidence, Registration, Sequence
 
 
 class Plugin:
@@ -49,24 +49,49 @@ class Preprocessor(Plugin):
 
 
 class Registrar(Plugin):
+    #: What registration gives the rule: ``"cells"`` (a motion per grid cell, from :meth:`register`) or
+    #: ``"motions"`` (a :class:`MotionEvidence` for the whole pair, from :meth:`PairRegistrar.register_pair`).
+    gives: ClassVar[str] = "cells"
+
     def register(self, source: np.ndarray, target: np.ndarray, *, source_normals: np.ndarray | None,
                  target_normals: np.ndarray | None, cell_size_m: float) -> Registration:
         """Register the source points of one cell onto the target points, starting from identity."""
         raise NotImplementedError
 
 
+class PairRegistrar(Registrar):
+    """A registrar that explains the whole pair at once: rigid-motion hypotheses and, for every source
+    point, how well each of them explains it (no grid of cells)."""
+
+    gives = "motions"
+
+    def register_pair(self, source: Cloud, target: Cloud) -> MotionEvidence:
+        """The motion hypotheses of the pair and the evidence for and against each."""
+        raise NotImplementedError
+
+    def register(self, source, target, *, source_normals, target_normals, cell_size_m) -> Registration:
+        raise NotImplementedError(f"registrar {self.name!r} registers whole pairs (register_pair), not cells")
+
+
 @dataclass
 class RuleDecision:
-    """What a decision rule says about one pair. ``clusters`` has one entry per cell (None = none)."""
+    """What a decision rule says about one pair. ``clusters`` has one entry per cell (None = none);
+    a rule that decides from motions gives ``motions`` and each evidence point's ``labels`` instead."""
 
     decision: Decision
     clusters: list[int | None]
     keys: list[str] = field(default_factory=list)   # readable name of each cluster, by cluster index
     reason: str = ""
     info: dict[str, Any] = field(default_factory=dict)
+    motions: list[Motion] = field(default_factory=list)
+    labels: np.ndarray | None = None
 
 
 class DecisionRule(Plugin):
+    #: What the rule decides from: ``"cells"`` (``decide(cells, ...)``) or ``"motions"``
+    #: (``decide(evidence, ...)`` with the :class:`MotionEvidence` of a :class:`PairRegistrar`).
+    needs: ClassVar[str] = "cells"
+
     #: True for a rule that wants the clouds of the frames between a pair's two as well (to follow the
     #: images from frame to frame): the pipeline then passes them as ``between``, in frame order.
     uses_frames_between: bool = False

@@ -73,7 +73,7 @@ from .errors import ArtclassError, InputError, ParamError
 from .geometry import diameter_of_vertices, grid_cells, hull_vertices, transform
 from .params import Params, PipelineParams, as_dict, describe, parse_value
 from .plugins import Registry
-from .types import DECISIONS, CellMotion, Cloud, FrameResult, PairResult, RunResult, Sequence
+from .types import DECISIONS, CellMotion, Cloud, FrameResult, MotionEvidence, PairResult, RunResult, Sequence
 
 SEVERITY = {"NM": 0, "RM": 1, "AM": 2}
 STAGES = ("read", "segment", "preprocess", "register", "decide")
@@ -87,15 +87,15 @@ Progress = Callable[[str, int, int], None]
 class Config:
     """Which plugins run and with which parameters. Frozen and hashable: a safe cache key.
 
-    A plugin's params left as ``None`` mean that plugin's defaults. The defaults are the pipeline
-    that is right on real data (``fine`` preprocessing, pre-aligned cells, the ``robust`` rule);
-    :meth:`paper` gives the paper's pipeline as written, for comparison.
+    A plugin's params left as ``None`` mean that plugin's defaults. The defaults are the dense
+    pipeline (``image`` preprocessing, ``dense`` motion hypotheses for the whole pair, the ``dense``
+    model-selection rule); :meth:`paper` gives the paper's pipeline as written, for comparison.
     """
 
     segmenter: str = AUTO_SEGMENTER
-    preprocessor: str = "fine"
-    registrar: str = "icp_point_to_point"
-    rule: str = "robust"
+    preprocessor: str = "image"
+    registrar: str = "dense"
+    rule: str = "dense"
     pipeline: PipelineParams = field(default_factory=PipelineParams)
     segmenter_params: Params | None = None
     preprocessor_params: Params | None = None
@@ -106,7 +106,8 @@ class Config:
     def paper(cls) -> "Config":
         """The paper's pipeline as written: Algorithm 1 at D/20 and 5v, per-cell ICP from the identity,
         Algorithm 2's quantise-and-hash rule."""
-        return cls(preprocessor="paper", rule="paper", pipeline=PipelineParams(prealign=False))
+        return cls(preprocessor="paper", registrar="icp_point_to_point", rule="paper",
+                   pipeline=PipelineParams(prealign=False))
 
     def plugin_params(self, registry: Registry, kind: str, name: str | None = None) -> Params:
         """The params of the chosen plugin of ``kind`` (its defaults when none were set)."""
@@ -328,6 +329,10 @@ class Pipeline:
         for kind in ("preprocessor", "registrar", "rule"):
             setattr(self, kind, registry.create(kind, getattr(self.config, kind),
                                                 self.config.plugin_params(registry, kind)))
+        if self.registrar.gives != self.rule.needs:
+            raise ParamError(f"rule {self.rule.name!r} decides from {self.rule.needs}, but registrar "
+                             f"{self.registrar.name!r} gives {self.registrar.gives}: choose a matching pair "
+                             f"(artclass plugins lists them)")
         self._segmenters: dict[str, object] = {}
         self._lock = threading.Lock()
 
@@ -406,14 +411,15 @@ class Pipeline:
             return self.params.cell_size_m
         return max(diameter_of_vertices(np.concatenate([cloud_hull(source), cloud_hull(target)])) / 5.0, 1e-4)
 
-    def register(self, source: Cloud, target: Cloud) -> tuple[list[CellMotion], float]:
-        """Split both clouds over one grid of cells of size x and register each cell with ICP.
+    def register(self, source: Cloud, target: Cloud) -> tuple[list[CellMotion] | MotionEvidence, float | None]:
+        """Split both clouds over one grid of cells of size x and register each cell with ICP (or, with
+        a pair registrar, its :class:`MotionEvidence` and no cell size).
 
         Cells with fewer than ``min_cell_points`` points in either cloud are not registered; cells
         without a correspondence or with a fitness below ``min_fitness`` are marked skipped.
         """
         cells, x = self._register_raw(source, target)
-        return self.checked_cells(cells), x
+        return (cells, x) if isinstance(cells, MotionEvidence) else (self.checked_cells(cells), x)
 
     def prealign(self, source: Cloud, target: Cloud) -> np.ndarray:
         """Whole-cloud motion ``T_target_from_source`` found with the chosen registrar, coarse to fine,
@@ -435,13 +441,16 @@ class Pipeline:
                 best, best_key = T, (reg.fitness, -reg.rmse_m)
         return best
 
-    def _register_raw(self, source: Cloud, target: Cloud) -> tuple[tuple[CellMotion, ...], float]:
-        """Per-cell ICP, without the fitness check (which depends on ``min_fitness`` only).
+    def _register_raw(self, source: Cloud, target: Cloud) -> tuple[tuple[CellMotion, ...] | MotionEvidence, float | None]:
+        """Per-cell ICP, without the fitness check (which depends on ``min_fitness`` only), or the
+        whole pair's :class:`MotionEvidence` from a pair registrar (then no cell size).
 
         With ``prealign`` the source is first moved by the whole-cloud motion, so each cell's ICP,
         which starts from the identity, only has to find the residual; the cell's transform is the
         composition, and its centre is given in the source frame.
         """
+        if self.registrar.gives == "motions":
+            return self.registrar.register_pair(source, target), None
         x = self.cell_size(source, target)
         p = self.params
         T0 = self.prealign(source, target)
@@ -501,6 +510,12 @@ class Pipeline:
         pair.decision, pair.reason, pair.info = out.decision, out.reason, out.info
         return pair
 
+    def decide_motions(self, i: int, j: int, evidence: MotionEvidence) -> PairResult:
+        """Apply the decision rule to a pair's motion evidence (from a pair registrar)."""
+        out = self.rule.decide(evidence)
+        return PairResult(i, j, out.decision, out.reason, info=out.info, motions=out.motions, labels=out.labels,
+                          evidence=evidence)
+
     def pair(self, a: FrameResult, b: FrameResult, *, timing: dict[str, float] | None = None,
              between: Iterable[FrameResult] = ()) -> PairResult:
         """Register and decide the pair of two preprocessed frames (``between``: the frames between them)."""
@@ -526,9 +541,11 @@ class Pipeline:
                 cache._put(cache._pairs, key, (raw, x), cache.max_pairs)
         else:
             raw, x = hit
-        cells = self.checked_cells(raw)
         t1 = time.perf_counter()
-        pair = self.decide(a.index, b.index, cells, a.cloud, b.cloud, x, between)
+        if isinstance(raw, MotionEvidence):
+            pair = self.decide_motions(a.index, b.index, raw)
+        else:
+            pair = self.decide(a.index, b.index, self.checked_cells(raw), a.cloud, b.cloud, x, between)
         _add(timing, "register", t1 - t0)
         _add(timing, "decide", time.perf_counter() - t1)
         return pair
@@ -588,6 +605,7 @@ class Pipeline:
                 pairs.append(pair)
                 if not keep_clouds:
                     first.cloud = None
+                    pair.evidence = None
                 if progress:
                     progress("pairs", len(pairs), n - k)
                 block = block and len(pair_jobs) > 2 * workers
@@ -655,9 +673,20 @@ class Pipeline:
                 clouds[i] = self.frame(sequence, i, cache=cache).cloud
 
         def again(p: PairResult) -> tuple[PairResult, float]:
+            t0 = time.perf_counter()
+            evidence = p.evidence
+            if evidence is None and p.motions and cache is not None and sequence is not None:
+                hit = cache._get(cache._pairs, self.pair_key(sequence, p.i, p.j, cache), "register")
+                evidence = None if hit is None else hit[0]
+            if evidence is not None:
+                new = self.decide_motions(p.i, p.j, evidence)
+                new.truth = p.truth
+                return new, time.perf_counter() - t0
+            if p.motions:
+                raise ArtclassError(f"re-deciding pair {p.i}-{p.j} needs its motion evidence: run with "
+                                    f"keep_clouds=True, or pass the run's StageCache and its sequence")
             if not p.cells:   # a frame of the pair was skipped: nothing was registered
                 return dataclasses.replace(p), 0.0
-            t0 = time.perf_counter()
             new = self.decide(p.i, p.j, self.checked_cells(p.cells), clouds[p.i], clouds[p.j], p.cell_size_m,
                               tuple(clouds.get(m) for m in range(p.i + 1, p.j)))
             new.truth = p.truth

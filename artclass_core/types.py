@@ -136,6 +136,8 @@ class View:
     depth_m: np.ndarray                # (H, W) float32, metres, 0 outside the object's (eroded) mask
     intrinsics: Intrinsics
     scene_depth_m: np.ndarray | None = None  # (H, W) float32, metres: the whole frame's depth (0 = none)
+    mask: np.ndarray | None = None           # (H, W) bool: the segmenter's object mask, before any erosion
+    normals: np.ndarray | None = None        # (H, W, 3) float32 unit normals of depth_m's pixels (0 = none)
 
 
 @dataclass
@@ -148,6 +150,7 @@ class Cloud:
     info: dict[str, Any] = field(default_factory=dict)  # resolved v, r, diameter, counts ...
     colors: np.ndarray | None = None   # (N, 3) float RGB in [0, 1], if the preprocessor keeps colour
     view: View | None = None           # the frame's image, if the preprocessor keeps it
+    pixels: np.ndarray | None = None   # (N, 2) int (column, row) of each point, for an image-space cloud
 
     def __len__(self) -> int:
         return len(self.points)
@@ -196,6 +199,75 @@ class CellMotion:
         return d
 
 
+#: What a moved point finds at the target pixel it projects onto (:class:`MotionEvidence` ``status``).
+SURFACE, OCCLUDED, FREE_SPACE, OFF_OBJECT, UNSEEN = range(5)
+STATUS_NAMES = ("surface", "occluded", "free space", "off object", "unseen")
+
+
+@dataclass
+class MotionEvidence:
+    """A pair's rigid-motion hypotheses and how well each explains every source point.
+
+    Made by a pair registrar (:class:`~artclass_core.interfaces.PairRegistrar`) and read by a rule
+    that decides from motions. Nothing in it depends on a decision threshold, so a rule can be run
+    again under other thresholds from the same evidence.
+
+    Attributes
+    ----------
+    motions : ndarray, shape (H, 4, 4)
+        ``T_target_from_source`` of each hypothesis; the first is the identity.
+    names : list of str, length H
+        Where each hypothesis came from (``identity``, ``object``, ``cell 3``, ``refit 1`` ...).
+    residual_m : ndarray, shape (H, N), float32, metres
+        Distance of each moved source point to the target surface along its normal, where the point
+        lands on the object's surface (``status == SURFACE``); NaN elsewhere.
+    status : ndarray, shape (H, N), int8
+        What the moved point finds at its target pixel: ``SURFACE`` (a surface within reach),
+        ``OCCLUDED`` (something in front of it: no evidence), ``FREE_SPACE`` (the camera sees past
+        where the point should be: evidence against the motion), ``OFF_OBJECT`` (a surface at the
+        right depth that is not the object), ``UNSEEN`` (out of the image or no depth).
+    flow_px : ndarray, shape (H, N), float32, pixels
+        Distance between where the motion puts a point in the target image and where optical flow
+        says it went; NaN where the colour image has no texture to follow.
+    noise_m : float
+        The depth noise measured on the pair (robust spread of the best motion's residuals).
+    points : ndarray, shape (N, 3), metres
+        The source points the evidence is about.
+    pixels : ndarray, shape (N, 2), int
+        Their (column, row) in the source image.
+    pixel_m : float
+        The size of one pixel on the object (median depth / focal length), metres.
+    """
+
+    motions: np.ndarray
+    names: list[str]
+    residual_m: np.ndarray
+    status: np.ndarray
+    flow_px: np.ndarray
+    noise_m: float
+    points: np.ndarray
+    pixels: np.ndarray
+    pixel_m: float
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Motion:
+    """One rigid motion a rule selected for a pair, and the source points it moves."""
+
+    T_target_from_source: np.ndarray   # (4, 4)
+    name: str
+    n_points: int
+    displacement_m: float              # median displacement of its points
+
+    def to_dict(self) -> dict[str, Any]:
+        from .geometry import rotation_angle_rad
+        T = self.T_target_from_source
+        return dict(name=self.name, n_points=self.n_points, displacement_m=round(float(self.displacement_m), 6),
+                    rotation_deg=round(float(np.degrees(rotation_angle_rad(T[:3, :3]))), 4),
+                    T_target_from_source=[_floats(row) for row in T])
+
+
 @dataclass
 class PairResult:
     """The decision for the frame pair (i, j = i + k) and the cells behind it."""
@@ -208,11 +280,16 @@ class PairResult:
     cell_size_m: float | None = None
     info: dict[str, Any] = field(default_factory=dict)  # rule-specific evidence (JSON-ready)
     truth: Decision | None = None
+    motions: list[Motion] = field(default_factory=list)   # the selected motions (rules that decide from motions)
+    labels: np.ndarray | None = None   # (N,) int: each evidence point's motion (index into motions), -1 = none
+    evidence: MotionEvidence | None = field(default=None, repr=False)   # what the motions were selected from
 
     def to_dict(self, *, cells: bool = True) -> dict[str, Any]:
         d = dict(i=self.i, j=self.j, decision=self.decision, reason=self.reason, truth=self.truth,
                  cell_size_m=self.cell_size_m, n_cells=len(self.cells),
                  n_matched=sum(c.matched for c in self.cells), info=self.info)
+        if self.motions:
+            d["motions"] = [m.to_dict() for m in self.motions]
         if cells:
             d["cells"] = [c.to_dict() for c in self.cells]
         return d

@@ -5,8 +5,10 @@ What it measures, on a synthetic 640x480 sequence of an articulated object that 
 cached under ``$XDG_CACHE_HOME/artclass/bench`` keyed by the generator's version and parameters):
 
 - per stage (read, segment, preprocess, register, decide) and in total: seconds, frames/s, pairs/s,
-  ms per frame and per pair, for each segmenter (``mask``, ``depth_threshold``) x each registrar x
-  each worker count; and the peak resident memory of the run;
+  ms per frame and per pair, for each segmenter (``mask``, ``depth_threshold``) x each worker count;
+  and the peak resident memory of the run;
+- the paper's pipeline as written on the same sequence, and the default's time per pair as a share
+  of its time;
 - the time to re-decide the sequence after a decision-rule parameter changes (reusing the cached
   registrations through :class:`artclass_core.pipeline.StageCache`), next to a full re-run;
 - a long sequence (default 1000 frames, the rendered frames played back and forth by
@@ -140,8 +142,8 @@ def _supports(fn, name: str) -> bool:
 def _config(registry, spec: dict):
     from artclass_core import Config
     base = Config.paper() if spec.get("paper") else Config()
-    cfg = dataclasses.replace(base, segmenter=spec["segmenter"], registrar=spec["registrar"],
-                              **({"rule": spec["rule"]} if spec.get("rule") else {}))
+    cfg = dataclasses.replace(base, segmenter=spec["segmenter"],
+                              **{kind: spec[kind] for kind in ("preprocessor", "registrar", "rule") if spec.get(kind)})
     overrides = dict(spec.get("params") or {})
     return cfg.with_overrides(registry, overrides) if overrides else cfg
 
@@ -301,10 +303,14 @@ def _f(x, fmt="{:.1f}") -> str:
     return "-" if x is None else fmt.format(x)
 
 
+def _pipeline_name(spec: dict) -> str:
+    return "the paper's pipeline" if spec.get("paper") else "default pipeline"
+
+
 def format_run(m: dict) -> str:
     spec = m["spec"]
-    head = (f"segmenter={spec['segmenter']} registrar={spec['registrar']} workers={spec.get('workers', 1)}"
-            + (f" rule={spec['rule']}" if spec.get("rule") else "") + (" (Config.paper())" if spec.get("paper") else ""))
+    head = (f"{_pipeline_name(spec)}: segmenter={spec['segmenter']} workers={spec.get('workers', 1)}"
+            + "".join(f" {kind}={spec[kind]}" for kind in ("preprocessor", "registrar", "rule") if spec.get(kind)))
     if "error" in m:
         return f"{head}\n  error: {m['error']}\n"
     lines = [f"{head}: {m['n_frames']} frames, {m['n_pairs']} pairs ({m['n_decided']} decided), "
@@ -322,8 +328,8 @@ def format_long(m: dict) -> str:
     if "error" in m:
         return f"long sequence: error: {m['error']}\n"
     samples = ", ".join(f"after {k} pairs {v:.0f} MB" for k, v in m["rss_samples_mb"].items())
-    return (f"long sequence ({m['n_frames']} frames, segmenter={m['spec']['segmenter']}, "
-            f"registrar={m['spec']['registrar']}, workers={m['spec'].get('workers', 1)}, "
+    return (f"long sequence ({m['n_frames']} frames, {_pipeline_name(m['spec'])}, segmenter={m['spec']['segmenter']}, "
+            f"workers={m['spec'].get('workers', 1)}, "
             f"options {m['run_kwargs']}): peak RSS {m['peak_rss_mb']:.0f} MB (after imports "
             f"{m['rss_base_mb']:.0f} MB); RSS {samples}; {m['n_pairs'] / m['wall_s']:.1f} pairs/s, "
             f"wall {m['wall_s']:.1f} s, load {m['load']:.1f}\n")
@@ -332,8 +338,8 @@ def format_long(m: dict) -> str:
 def format_redecide(m: dict) -> str:
     if "error" in m:
         return f"re-decide: error: {m['error']}\n"
-    lines = [f"re-decide after a rule change ({m['n_frames']} frames, segmenter={m['spec']['segmenter']}, "
-             f"registrar={m['spec']['registrar']}, workers={m['spec'].get('workers', 1)}):"]
+    lines = [f"re-decide after a rule change ({m['n_frames']} frames, {_pipeline_name(m['spec'])}, "
+             f"segmenter={m['spec']['segmenter']}, workers={m['spec'].get('workers', 1)}):"]
     if "cached_rerun_s" in m:
         lines.append(f"  run() with a StageCache holding the clouds and registrations ({m['change']}): "
                      f"{m['cached_rerun_s']:.3f} s (cache {m['cache_stats']})")
@@ -347,6 +353,17 @@ def format_redecide(m: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def format_ratio(ours: dict, paper: dict) -> str:
+    """The time per pair of a run as a share of the paper's pipeline's, on the same sequence and workers."""
+    if "error" in ours or "error" in paper:
+        return "time per pair against the paper's pipeline: not measured (a run failed)"
+    mine, theirs = ours["wall_s"] / max(ours["n_pairs"], 1), paper["wall_s"] / max(paper["n_pairs"], 1)
+    cpu = (ours["cpu_s"] / max(ours["n_pairs"], 1)) / (paper["cpu_s"] / max(paper["n_pairs"], 1))
+    return (f"time per pair against the paper's pipeline (segmenter={ours['spec']['segmenter']}, "
+            f"workers={ours['spec'].get('workers', 1)}): {1e3 * mine:.1f} ms / {1e3 * theirs:.1f} ms = "
+            f"{mine / theirs:.2f} of its wall time ({cpu:.2f} of its CPU time)")
+
+
 def _csv(text: str) -> list[str]:
     return [t.strip() for t in text.split(",") if t.strip()]
 
@@ -357,8 +374,7 @@ def run_bench(args) -> int:
     registry = load_registry()
     out = sys.stdout
     if args.quick:
-        from artclass_core import Config
-        args.segmenters, args.registrars, args.workers, args.long_frames = "mask", Config().registrar, "1", 0
+        args.segmenters, args.workers, args.long_frames, args.skip_paper = "mask", "1", 0, True
     if args.sequence:
         path = str(args.sequence)
     else:
@@ -373,10 +389,6 @@ def run_bench(args) -> int:
         out.write(f"benchmark sequence: {path} (ready in {time.perf_counter() - t0:.1f} s)\n")
     segmenters = [s for s in _csv(args.segmenters) if s in registry.names("segmenter")]
     missing = [s for s in _csv(args.segmenters) if s not in registry.names("segmenter")]
-    from artclass_core import Config
-    default_registrar = Config().registrar
-    registrars = _csv(args.registrars) if args.registrars != "all" else sorted(
-        registry.names("registrar"), key=lambda r: (r != default_registrar, r))   # the default first
     workers = [int(w) for w in _csv(args.workers)]
     rev = os.popen("git -C {} rev-parse --short HEAD 2>/dev/null".format(Path(__file__).resolve().parent)).read().strip()
     import artclass_core
@@ -385,22 +397,27 @@ def run_bench(args) -> int:
     for name in missing:
         out.write(f"segmenter {name!r} is not registered: skipped\n\n")
     results: dict[str, Any] = dict(sequence=path, runs=[], commit=rev)
-    base = dict(path=path, rule=args.rule, paper=args.paper, params=dict(p.split("=", 1) for p in args.param))
+    base = dict(path=path, preprocessor=args.preprocessor, registrar=args.registrar, rule=args.rule, paper=args.paper,
+                params=dict(p.split("=", 1) for p in args.param))
     for seg in segmenters:
-        for regname in registrars:
-            for w in workers:
-                m = in_child("run", dict(base, segmenter=seg, registrar=regname, workers=w))
-                results["runs"].append(m)
-                out.write(format_run(m) + "\n")
-                out.flush()
+        for w in workers:
+            m = in_child("run", dict(base, segmenter=seg, workers=w))
+            results["runs"].append(m)
+            out.write(format_run(m) + "\n")
+            out.flush()
+    if not args.skip_paper and not args.paper and segmenters:
+        m = in_child("run", dict(path=path, paper=True, segmenter=segmenters[0], workers=workers[0]))
+        results["paper"] = m
+        out.write(format_run(m) + "\n")
+        out.write(format_ratio(results["runs"][0], m) + "\n\n")
+        out.flush()
     if not args.skip_redecide and segmenters:
-        m = in_child("redecide", dict(base, segmenter=segmenters[0], registrar=registrars[0], workers=max(workers)))
+        m = in_child("redecide", dict(base, segmenter=segmenters[0], workers=max(workers)))
         results["redecide"] = m
         out.write(format_redecide(m) + "\n")
         out.flush()
     if args.long_frames and segmenters:
-        m = in_child("run", dict(base, segmenter=segmenters[0], registrar=registrars[0], workers=max(workers),
-                                 long_frames=args.long_frames))
+        m = in_child("run", dict(base, segmenter=segmenters[0], workers=max(workers), long_frames=args.long_frames))
         results["long"] = m
         out.write(format_long(m))
     if args.json:
@@ -418,8 +435,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=DEFAULT_SEQUENCE["seed"])
     p.add_argument("--cache-dir", type=Path, help=f"where rendered sequences are kept (default {cache_root()})")
     p.add_argument("--segmenters", default="mask,depth_threshold", help="comma-separated (default mask,depth_threshold)")
-    p.add_argument("--registrars", default="all", help="comma-separated, or all (default)")
+    p.add_argument("--preprocessor", help="preprocessor (default: the pipeline's default)")
+    p.add_argument("--registrar", help="registrar (default: the pipeline's default)")
     p.add_argument("--rule", help="decision rule (default: the pipeline's default)")
+    p.add_argument("--skip-paper", action="store_true",
+                   help="do not time the paper's pipeline as written on the same sequence")
     p.add_argument("--paper", action="store_true",
                    help="start from Config.paper() (the paper's pipeline as written) instead of the defaults")
     p.add_argument("--workers", default=f"1,{max(os.cpu_count() or 1, 1)}" if (os.cpu_count() or 1) > 1 else "1",

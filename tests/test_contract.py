@@ -30,6 +30,18 @@ def ids(kind: str) -> list[str]:
     return REGISTRY.names(kind)
 
 
+def cell_registrars() -> list[str]:
+    return [n for n in ids("registrar") if REGISTRY.get("registrar", n).gives == "cells"]
+
+
+def pair_registrars() -> list[str]:
+    return [n for n in ids("registrar") if REGISTRY.get("registrar", n).gives == "motions"]
+
+
+def rules(needs: str) -> list[str]:
+    return [n for n in ids("rule") if REGISTRY.get("rule", n).needs == needs]
+
+
 def one_line_error(err: ArtclassError) -> None:
     message = str(err)
     assert message and "\n" not in message, f"error message is not one line: {message!r}"
@@ -228,7 +240,7 @@ def check_registration(reg, n_source: int) -> None:
 
 
 @pytest.mark.parametrize("with_normals", [False, True], ids=["no-normals", "normals"])
-@pytest.mark.parametrize("name", ids("registrar"))
+@pytest.mark.parametrize("name", cell_registrars())
 def test_registrar_returns_a_rigid_transform(name, with_normals):
     src, tgt = corner_cell()
     normals = None
@@ -246,7 +258,7 @@ def test_registrar_returns_a_rigid_transform(name, with_normals):
     assert again.n_correspondences == reg.n_correspondences
 
 
-@pytest.mark.parametrize("name", ids("registrar"))
+@pytest.mark.parametrize("name", cell_registrars())
 def test_registrar_without_correspondence(name):
     """Clouds far apart (10 cell sizes): no correspondence is reported as n_correspondences = 0."""
     src, tgt = corner_cell()
@@ -259,8 +271,8 @@ def test_registrar_without_correspondence(name):
 # -- rules ------------------------------------------------------------------------------------------------
 
 def registered_pair(motion: str) -> tuple[list[CellMotion], Cloud, Cloud]:
-    """The cells of the pair (0, 2) of a small sequence, registered by the default pipeline."""
-    pipeline = Pipeline(REGISTRY, Config())
+    """The cells of the pair (0, 2) of a small sequence, registered by the paper's per-cell pipeline."""
+    pipeline = Pipeline(REGISTRY, Config.paper())
     seq = make_sequence(motion, n_frames=3)
     a, b = pipeline.frame(seq, 0), pipeline.frame(seq, 2)
     cells, _ = pipeline.register(a.cloud, b.cloud)
@@ -271,7 +283,7 @@ PAIRS = {motion: registered_pair(motion) for motion in ("static", "hinge")}
 
 
 @pytest.mark.parametrize("motion", sorted(PAIRS))
-@pytest.mark.parametrize("name", ids("rule"))
+@pytest.mark.parametrize("name", rules("cells"))
 def test_rule_decides_every_cell(name, motion):
     cells, source, target = PAIRS[motion]
     out = REGISTRY.create("rule", name).decide(copy.deepcopy(cells), source=source, target=target)
@@ -288,7 +300,7 @@ def test_rule_decides_every_cell(name, motion):
     assert (again.decision, again.clusters, again.keys) == (out.decision, out.clusters, out.keys), "deterministic"
 
 
-@pytest.mark.parametrize("name", ids("rule"))
+@pytest.mark.parametrize("name", rules("cells"))
 def test_rule_calls_an_unmoved_pair_nm(name):
     """Identical noise-free frames: every cell registers to the identity; no rule may see motion."""
     cells, source, target = PAIRS["static"]
@@ -297,7 +309,7 @@ def test_rule_calls_an_unmoved_pair_nm(name):
     assert out.decision == "NM", out.reason
 
 
-@pytest.mark.parametrize("name", ids("rule"))
+@pytest.mark.parametrize("name", rules("cells"))
 def test_rule_with_no_matched_cell(name):
     cells, source, target = PAIRS["hinge"]
     unmatched = copy.deepcopy(cells)
@@ -305,3 +317,52 @@ def test_rule_with_no_matched_cell(name):
         c.skipped = c.skipped or "low fitness 0.00"
     out = REGISTRY.create("rule", name).decide(unmatched, source=source, target=target)
     assert out.decision == "skipped" and out.clusters == [None] * len(cells)
+
+
+# -- registrars and rules that work on whole pairs ------------------------------------------------------
+
+def pair_clouds(motion: str, **kw) -> tuple[Cloud, Cloud]:
+    """The clouds of frames 0 and 2 of a small sequence, preprocessed by the default pipeline."""
+    pipeline = Pipeline(REGISTRY, Config())
+    seq = make_sequence(motion, n_frames=3, **kw)
+    return pipeline.frame(seq, 0).cloud, pipeline.frame(seq, 2).cloud
+
+
+@pytest.mark.parametrize("name", pair_registrars())
+def test_pair_registrar_gives_evidence_for_every_point(name):
+    source, target = pair_clouds("hinge")
+    ev = REGISTRY.create("registrar", name).register_pair(source, target)
+    H, N = len(ev.motions), len(ev.points)
+    assert N > 0 and H >= 2
+    np.testing.assert_allclose(ev.motions[0], np.eye(4), err_msg="the first hypothesis is the identity")
+    for T in ev.motions:
+        np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-9)
+        assert np.linalg.det(T[:3, :3]) == pytest.approx(1.0, abs=1e-9)
+    assert len(ev.names) == H and ev.residual_m.shape == ev.status.shape == ev.flow_px.shape == (H, N)
+    assert ev.pixels.shape == (N, 2) and ev.noise_m > 0 and ev.pixel_m > 0
+    assert set(np.unique(ev.status)) <= set(range(5))
+    again = REGISTRY.create("registrar", name).register_pair(source, target)
+    np.testing.assert_array_equal(again.motions, ev.motions, err_msg="registration is deterministic")
+    np.testing.assert_array_equal(again.status, ev.status)
+
+
+@pytest.mark.parametrize("motion, expected", [("static", "NM"), ("rigid", "RM"), ("hinge", "AM")])
+@pytest.mark.parametrize("registrar", pair_registrars())
+@pytest.mark.parametrize("name", rules("motions"))
+def test_motion_rule_tells_the_three_motions_apart(name, registrar, motion, expected):
+    """Two panels that stand still, move away together by 2 cm, or turn about their shared edge by 10
+    degrees, with 1 mm of depth noise."""
+    ev = REGISTRY.create("registrar", registrar).register_pair(*pair_clouds(motion, noise_m=0.001))
+    out = REGISTRY.create("rule", name).decide(ev)
+    assert out.decision == expected, out.reason
+    assert out.labels is not None and out.labels.shape == (len(ev.points),)
+    assert out.labels.max() == len(out.motions) - 1 and out.labels.min() >= -1
+    json.dumps(out.info)
+    if expected == "AM":
+        assert len(out.motions) >= 2 and all(m.n_points > 0 for m in out.motions)
+
+
+@pytest.mark.parametrize("name", rules("motions"))
+def test_a_rule_and_a_registrar_that_do_not_fit_are_refused(name):
+    with pytest.raises(ArtclassError, match="decides from"):
+        Pipeline(REGISTRY, Config(registrar=cell_registrars()[0], rule=name))

@@ -69,14 +69,18 @@ def decide(pipeline: Pipeline, a: Cloud, b: Cloud, between: tuple[Cloud, ...] = 
     return pipeline.decide(0, 1, cells, a, b, x, between)
 
 
+# The per-cell pipeline the robust rule decides from.
+ROBUST = Config(preprocessor="fine", registrar="icp_point_to_point", rule="robust")
+
+
 @pytest.fixture(scope="module")
 def robust(registry):
-    return Pipeline(registry, Config(rule="robust"))
+    return Pipeline(registry, ROBUST)
 
 
 @pytest.fixture(scope="module")
 def paper_rule(registry):
-    return Pipeline(registry, Config(rule="paper"))
+    return Pipeline(registry, dataclasses.replace(ROBUST, rule="paper"))
 
 
 # A box 20 x 12 x 15 cm, 1 m in front of the camera, seen from slightly above.
@@ -324,7 +328,7 @@ def test_only_the_whole_object_may_hide_points_behind_itself(registry, tmp_path)
     which is meant for the object's own motion, that flip "explained" two cells as a second motion,
     and the rigid box was called articulated. A part is scored without the excuse."""
     seq = benchmark_frames(registry, tmp_path, "38_box_lid_carry_low", 15)
-    result = Pipeline(registry, Config(segmenter="depth_threshold")).run(seq)
+    result = Pipeline(registry, dataclasses.replace(ROBUST, segmenter="depth_threshold")).run(seq)
     assert result.pairs[9].decision == "RM", result.pairs[9].info
     assert "AM" not in [p.decision for p in result.pairs] and result.label == "rigid"
 
@@ -337,7 +341,7 @@ def test_a_small_part_moves_while_the_object_stands_still(registry, tmp_path, st
     for the 15% asked of a part of a moving object (``min_part_share``) called every pair NM."""
     seq = benchmark_frames(registry, tmp_path, "10_microwave_articulate_low", 12)
     over = {} if still_share is None else {"min_still_part_share": still_share}
-    decisions = [p.decision for p in Pipeline(registry, Config().with_overrides(registry, over)).run(seq).pairs]
+    decisions = [p.decision for p in Pipeline(registry, ROBUST.with_overrides(registry, over)).run(seq).pairs]
     assert set(decisions) <= {"NM", "AM"} and ("AM" in decisions) is part_found, decisions
 
 
@@ -348,7 +352,7 @@ def test_a_tray_sliding_out_of_its_sleeve_is_a_part(registry, tmp_path):
     to it turns by 5-10 degrees, which no joint does. The best of those was taken as the only candidate
     part, failed the joint test, and the pair was called NM; the next best candidate is a plain part."""
     seq = benchmark_frames(registry, tmp_path, "13_matchbox_articulate_high", 16)
-    pair = Pipeline(registry, Config()).run(seq).pairs[10]
+    pair = Pipeline(registry, ROBUST).run(seq).pairs[10]
     assert pair.decision == "AM", pair.info
     assert len({c.cluster for c in pair.cells if c.cluster is not None}) >= 2
 

@@ -141,17 +141,24 @@ def show_result(seq: Sequence, config, result) -> None:
                      format_func=lambda n: f"{pairs[n].i} → {pairs[n].j}")
     pair = pairs[st.session_state["an_pair"]]
     source, target = result.frames[pair.i], result.frames[pair.j]
-    if pair.decision == "skipped" and not pair.cells:
+    if pair.decision == "skipped" and not pair.cells and pair.evidence is None:
         st.warning(f"Pair {pair.i} → {pair.j} was skipped: {pair.reason}")
         motion = None
     else:
         if pair.decision == "skipped":
             st.warning(f"Pair {pair.i} → {pair.j} was skipped: {pair.reason}")
-        motion = figures.motion_arrows(pair, source.cloud, target.cloud)
-        st.plotly_chart(motion, key="an_motion", config={"displaylogo": False}, theme=None)
-        st.caption(f"Rule reason: {pair.reason or '—'}. Arrows: motion of each cell's centre under its ICP "
-                   "transform, coloured by the motion cluster (hash key) the rule put it in. Hover a cell for "
-                   "its fitness, rotation and translation.")
+        if pair.evidence is not None and pair.labels is not None:
+            motion = figures.motion_parts(pair, target.cloud)
+            st.plotly_chart(motion, key="an_motion", config={"displaylogo": False}, theme=None)
+            st.caption(f"Rule reason: {pair.reason or '—'}. Points of frame {pair.i} coloured by the motion that "
+                       f"explains them (the pair's part segmentation), frame {pair.j} in grey; one arrow per "
+                       "motion, from its points' centre. Hover a point for its motion.")
+        else:
+            motion = figures.motion_arrows(pair, source.cloud, target.cloud)
+            st.plotly_chart(motion, key="an_motion", config={"displaylogo": False}, theme=None)
+            st.caption(f"Rule reason: {pair.reason or '—'}. Arrows: motion of each cell's centre under its ICP "
+                       "transform, coloured by the motion cluster (hash key) the rule put it in. Hover a cell for "
+                       "its fitness, rotation and translation.")
     images = {}
     cols = st.columns(2)
     for col, fr in zip(cols, (source, target)):
@@ -162,9 +169,13 @@ def show_result(seq: Sequence, config, result) -> None:
             st.plotly_chart(images[fr.index], key=f"an_frame_{'ij'[fr is target]}", config={"displaylogo": False}, theme=None)
             if fr.skipped:
                 st.caption(f"Frame {fr.index} skipped: {fr.skipped}")
-    with st.expander(f"Cells of pair {pair.i} → {pair.j} ({len(pair.cells)} cells, "
-                     f"{sum(c.matched for c in pair.cells)} matched)", expanded=False):
-        st.dataframe(pd.DataFrame(figures.cells_table(pair)), hide_index=True, width="stretch")
+    if pair.motions:
+        with st.expander(f"Motions of pair {pair.i} → {pair.j} ({len(pair.motions)})", expanded=False):
+            st.dataframe(pd.DataFrame(figures.motions_table(pair)), hide_index=True, width="stretch")
+    else:
+        with st.expander(f"Cells of pair {pair.i} → {pair.j} ({len(pair.cells)} cells, "
+                         f"{sum(c.matched for c in pair.cells)} matched)", expanded=False):
+            st.dataframe(pd.DataFrame(figures.cells_table(pair)), hide_index=True, width="stretch")
     export(seq, result, {"Decision timeline": timeline,
                          **({f"Pair {pair.i} → {pair.j} (3D motion)": motion} if motion is not None else {}),
                          **{f"Frame {n}": f for n, f in images.items()}})

@@ -1,0 +1,85 @@
+"""Where optical flow says each source point went, on texture only.
+
+Depth alone cannot see a motion that keeps a surface in place (a drawer's top sliding along itself,
+a disc spinning about its own axis); the texture on the surface can. OpenCV's DIS flow is run both
+ways on the two objects' crop, at most ``FLOW_WIDTH_PX`` wide (DIS reaches further on a coarser
+image). On two-dimensional texture (both eigenvalues of the structure tensor above ``min_texture``)
+a point's flow is taken in full; on an edge or a stripe (only the larger eigenvalue above it) only
+the flow across the edge is known (the aperture problem), so the point keeps the edge's normal and is
+compared along it. Either way the backward flow must bring the point back within
+``max_roundtrip_px``.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from artclass_core import Cloud
+
+FLOW_WIDTH_PX = 320
+_MARGIN_PX = 24
+
+
+def _box(mask: np.ndarray) -> tuple[int, int, int, int]:
+    rows, cols = np.nonzero(mask)
+    return rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+
+
+def structure(gray: np.ndarray, *, window_px: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The structure tensor of each pixel: its smaller and larger eigenvalues (grey levels per pixel,
+    squared) and the angle (radians) of the larger one's eigenvector, the direction across an edge."""
+    g = gray.astype(np.float32)
+    gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3) / 8
+    gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) / 8
+    k = (window_px, window_px)
+    xx, yy, xy = (cv2.blur(a, k) for a in (gx * gx, gy * gy, gx * gy))
+    half = np.sqrt(np.square((xx - yy) / 2) + np.square(xy))
+    return (xx + yy) / 2 - half, (xx + yy) / 2 + half, 0.5 * np.arctan2(2 * xy, xx - yy)
+
+
+def flow_targets(source: Cloud, target: Cloud, *, min_texture: float,
+                 max_roundtrip_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where optical flow takes each source point.
+
+    Returns
+    -------
+    pixel : (N, 2) target (column, row), not rounded; NaN where unknown
+    normal : (N, 2) unit image direction across the edge at an edge point (compare along it only);
+        NaN at points with two-dimensional texture and where the flow is unknown
+    """
+    a, b = source.view, target.view
+    out = np.full((len(source), 2), np.nan)
+    normal = np.full((len(source), 2), np.nan)
+    if a is None or b is None or a.mask is None or b.mask is None or not a.mask.any() or not b.mask.any():
+        return out, normal
+    h, w = a.gray.shape
+    (r0, r1, c0, c1), (s0, s1, d0, d1) = _box(a.mask), _box(b.mask)
+    r0, c0 = max(min(r0, s0) - _MARGIN_PX, 0), max(min(c0, d0) - _MARGIN_PX, 0)
+    r1, c1 = min(max(r1, s1) + _MARGIN_PX, h), min(max(c1, d1) + _MARGIN_PX, w)
+    scale = min(1.0, FLOW_WIDTH_PX / max(c1 - c0, 1))
+    size = (max(int(round((c1 - c0) * scale)), 8), max(int(round((r1 - r0) * scale)), 8))
+    ga = cv2.resize(a.gray[r0:r1, c0:c1], size, interpolation=cv2.INTER_AREA)
+    gb = cv2.resize(b.gray[r0:r1, c0:c1], size, interpolation=cv2.INTER_AREA)
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    forward = dis.calc(ga, gb, None)
+    backward = dis.calc(gb, ga, None)
+    sx, sy = size[0] / (c1 - c0), size[1] / (r1 - r0)
+    px = (source.pixels[:, 0] - c0) * sx
+    py = (source.pixels[:, 1] - r0) * sy
+    iu = np.clip(np.rint(px).astype(int), 0, size[0] - 1)
+    iv = np.clip(np.rint(py).astype(int), 0, size[1] - 1)
+    f = forward[iv, iu]
+    back = cv2.remap(backward, (px + f[:, 0]).astype(np.float32)[:, None], (py + f[:, 1]).astype(np.float32)[:, None],
+                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)[:, 0]
+    small, large, angle = (m[source.pixels[:, 1] - r0, source.pixels[:, 0] - c0]
+                           for m in structure(a.gray[r0:r1, c0:c1]))
+    across = np.column_stack([np.cos(angle), np.sin(angle)])
+    miss = np.column_stack([(f[:, 0] + back[:, 0]) / sx, (f[:, 1] + back[:, 1]) / sy])
+    full = (small >= min_texture) & (np.hypot(miss[:, 0], miss[:, 1]) <= max_roundtrip_px)
+    edge = ~full & (large >= min_texture) & (np.abs(np.sum(miss * across, axis=1)) <= max_roundtrip_px)
+    ok = full | edge
+    out[ok, 0] = source.pixels[ok, 0] + f[ok, 0] / sx
+    out[ok, 1] = source.pixels[ok, 1] + f[ok, 1] / sy
+    normal[edge] = across[edge]
+    return out, normal

@@ -1,0 +1,190 @@
+"""The ``dense`` rule: how many rigid motions does the pair need? Model selection on dense evidence.
+
+Evidence: for every source point and every motion hypothesis of the pair registrar, what the moved
+point finds in the target image (:class:`~artclass_core.types.MotionEvidence`). A point costs its
+squared residual in noise units (``(r / sigma)^2``, at most ``noise_factor^2``); a point the motion
+sends into free space, or onto something that is not the object, costs the most; a point it hides
+behind something (a hand) or out of view costs half of that, since it is no evidence either way.
+Where the colour image has texture, the distance between where the motion and where optical flow
+put the point adds a cost of the same kind.
+
+Selection: motions are added one at a time, the one that lowers the total cost most first, while
+the saving pays for the motion's six parameters (BIC: ``6 ln N``), the points it explains better
+than the motions already chosen are at least ``min_part_share`` of the seen points, and those points
+form one region of the image rather than a scatter.
+
+Decision: two or more motions that really differ (their relative motion moves the median point of
+each side by more than ``noise_factor`` sigma plus one pixel) are AM; one motion is RM when it moves
+the median point by as much, else NM. Too few points seen in both frames: skipped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from artclass_core import DecisionRule, Motion, MotionEvidence, Params, RuleDecision, param
+from artclass_core.geometry import transform
+from artclass_core.types import FREE_SPACE, OFF_OBJECT, SURFACE
+
+
+@dataclass(frozen=True)
+class DenseRuleParams(Params):
+    noise_factor: float = param(3.0, unit="sigma", bounds=(0.5, 20.0),
+                                help="A residual beyond this many noise sigmas (measured on the pair) is a misfit; "
+                                     "a motion must move points by this much, plus a pixel, to count as one.")
+    flow_sigma_px: float = param(1.5, unit="px", bounds=(0.1, 20.0),
+                                 help="Typical error of the optical flow on texture, in pixels.")
+    bic_factor: float = param(1.0, unit="1", bounds=(0.0, 100.0),
+                              help="A further motion must lower the total cost by this many times its BIC "
+                                   "penalty, 6 ln N (6 parameters, N points).")
+    min_part_share: float = param(0.03, unit="fraction", bounds=(0.0, 0.5),
+                                  help="A further motion must explain at least this share of the seen points "
+                                       "better than the motions already chosen.")
+    min_part_points: int = param(20, unit="points", bounds=(1, 100000),
+                                 help="... and at least this many points.")
+    min_coherence: float = param(0.5, unit="fraction", bounds=(0.0, 1.0),
+                                 help="... of which at least this share have an image neighbour in the same set "
+                                      "(a part is a region, not a scatter of misfits).")
+    min_seen_share: float = param(0.3, symbol="alpha", unit="fraction", bounds=(0.0, 1.0),
+                                  help="A pair is skipped when fewer of its points land on a surface of the target "
+                                       "under the best motion.")
+
+
+def point_costs(ev: MotionEvidence, *, noise_factor: float, flow_sigma_px: float,
+                noise_m: float | None = None) -> np.ndarray:
+    """Cost (H, N) of explaining each point by each hypothesis, in squared noise units (``noise_m``,
+    default the evidence's own)."""
+    worst = noise_factor ** 2
+    with np.errstate(invalid="ignore"):
+        fit = np.minimum(np.square(ev.residual_m / (noise_m or ev.noise_m)), worst)
+        flow = np.minimum(np.square(ev.flow_px / flow_sigma_px), worst)
+    cost = np.where(ev.status == SURFACE, fit, worst / 2)
+    cost = np.where((ev.status == FREE_SPACE) | (ev.status == OFF_OBJECT), worst, cost)
+    return (cost + np.nan_to_num(flow, nan=0.0)).astype(np.float32)
+
+
+def _coherence(members: np.ndarray, pixels: np.ndarray, stride: int) -> float:
+    """Share of ``members`` (a boolean mask of points) with a member among their 8 image neighbours."""
+    if members.sum() == 0:
+        return 0.0
+    grid = pixels // stride
+    origin = grid.min(axis=0)
+    g = grid - origin
+    image = np.zeros(tuple(g.max(axis=0)[::-1] + 3), bool)
+    image[g[members, 1] + 1, g[members, 0] + 1] = True
+    near = np.zeros_like(image)
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            if dv or du:
+                near |= np.roll(np.roll(image, dv, 0), du, 1)
+    return float(near[g[members, 1] + 1, g[members, 0] + 1].mean())
+
+
+def select(costs: np.ndarray, pixels: np.ndarray, *, penalty: float, misfit: float, min_points: int,
+           min_coherence: float, stride: int) -> list[int]:
+    """Greedy model selection: the hypotheses (indices into ``costs``) the points need.
+
+    Starts from the single hypothesis of least total cost and adds the one that saves most, while the
+    saving exceeds ``penalty`` and the points it explains (cost below ``misfit / 2``) that the chosen
+    ones do not (cost at least ``misfit``) number ``min_points`` and are a coherent image region. A
+    motion that merely fits some points a little better (two fits of a symmetric object) adds nothing.
+    """
+    chosen = [int(np.argmin(costs.sum(axis=1)))]
+    best = costs[chosen[0]].copy()
+    while True:
+        saving = np.maximum(best[None] - costs, 0).sum(axis=1)
+        saving[chosen] = 0
+        order = np.argsort(-saving, kind="stable")
+        for h in order[:5]:
+            if saving[h] <= penalty:
+                return chosen
+            members = (costs[h] < misfit / 2) & (best >= misfit)
+            if members.sum() >= min_points and _coherence(members, pixels, stride) >= min_coherence:
+                chosen.append(int(h))
+                best = np.minimum(best, costs[h])
+                break
+        else:
+            return chosen
+
+
+def _displacement(points: np.ndarray, A: np.ndarray, B: np.ndarray) -> float:
+    """Median distance between the points moved by A and by B (metres)."""
+    return float(np.median(np.linalg.norm(transform(points, A) - transform(points, B), axis=1))) if len(points) else 0.0
+
+
+class DenseRule(DecisionRule):
+    """Counts the rigid motions the pair's dense evidence needs, by model selection (see module docstring)."""
+
+    name = "dense"
+    description = "model selection over dense motion hypotheses: AM when two distinct motions pay for themselves (default)"
+    Params = DenseRuleParams
+    needs = "motions"
+
+    def costs(self, ev: MotionEvidence, noise_m: float | None = None) -> np.ndarray:
+        return point_costs(ev, noise_factor=self.params.noise_factor, flow_sigma_px=self.params.flow_sigma_px,
+                           noise_m=noise_m)
+
+    def noise(self, ev: MotionEvidence, seen: np.ndarray) -> tuple[float, np.ndarray]:
+        """The noise of the pair, measured on the model: the robust spread (1.4826 MAD) of each seen
+        point's residual under the motion the selection gives it (never below the frames' own noise),
+        and the costs under it. Selecting with the frames' noise first lets a part take its points
+        before their misfit is counted as noise."""
+        costs = self.costs(ev)
+        chosen = self.choose(ev, costs, seen)
+        owner = np.asarray(chosen)[np.argmin(costs[chosen], axis=0)]
+        r = ev.residual_m[owner, np.arange(len(owner))][seen & (ev.status[owner, np.arange(len(owner))] == SURFACE)]
+        if len(r) < 10:
+            return ev.noise_m, costs
+        sigma = max(float(1.4826 * np.median(np.abs(r - np.median(r)))), ev.noise_m)
+        return sigma, self.costs(ev, sigma)
+
+    def choose(self, ev: MotionEvidence, costs: np.ndarray, seen: np.ndarray) -> list[int]:
+        """The hypotheses selected for the seen points (indices into ``ev.motions``)."""
+        p = self.params
+        n = int(seen.sum())
+        return select(costs[:, seen], ev.pixels[seen], penalty=p.bic_factor * 6 * np.log(max(n, 2)),
+                      misfit=p.noise_factor ** 2, min_points=max(p.min_part_points, int(p.min_part_share * n)),
+                      min_coherence=p.min_coherence, stride=int(ev.info.get("stride_px", 1)))
+
+    def decide(self, ev: MotionEvidence, *, source=None, target=None) -> RuleDecision:
+        p = self.params
+        seen = (ev.status == SURFACE).any(axis=0)
+        if not seen.any():
+            return RuleDecision("skipped", [], reason="no point lands on the target surface under any motion")
+        noise, costs = self.noise(ev, seen)
+        first = int(np.argmin(costs.sum(axis=1)))
+        share = float((ev.status[first] == SURFACE).mean()) if ev.status.shape[1] else 0.0
+        if share < p.min_seen_share:
+            return RuleDecision("skipped", [], reason=f"only {share:.0%} of the points seen on the target surface "
+                                                      f"(alpha = {p.min_seen_share:g})", info=dict(seen_share=share))
+        chosen = self.choose(ev, costs, seen)
+        labels = np.where(seen, np.asarray(chosen)[np.argmin(costs[chosen], axis=0)], -1)
+        threshold = p.noise_factor * noise + ev.pixel_m
+        base = chosen[0]
+        parts = []
+        for h in chosen[1:]:
+            own, rest = ev.points[labels == h], ev.points[(labels >= 0) & (labels != h)]
+            apart = min(_displacement(own, ev.motions[h], ev.motions[base]),
+                        _displacement(rest, ev.motions[h], ev.motions[base]))
+            if apart > threshold:
+                parts.append(h)
+        kept = [base, *parts]
+        labels = np.where(seen, np.asarray(kept)[np.argmin(costs[kept], axis=0)], -1)
+        motions = [Motion(ev.motions[h], ev.names[h], int((labels == h).sum()),
+                          _displacement(ev.points[labels == h], ev.motions[h], np.eye(4))) for h in kept]
+        index = {h: i for i, h in enumerate(kept)}
+        labels = np.array([index.get(int(h), -1) for h in labels]) if len(labels) else labels
+        info = dict(noise_m=round(noise, 6), frame_noise_m=round(ev.noise_m, 6), threshold_m=round(threshold, 6), seen_share=round(share, 4),
+                    n_hypotheses=len(ev.motions), selected=[ev.names[h] for h in chosen],
+                    part_shares=[round(m.n_points / max(int(seen.sum()), 1), 4) for m in motions])
+        if parts:
+            shares = ", ".join(f"{s:.0%}" for s in info["part_shares"][1:])
+            return RuleDecision("AM", [], reason=f"{len(kept)} distinct motions (parts of {shares} of the points)",
+                                info=info, motions=motions, labels=labels)
+        moved = motions[0].displacement_m
+        decision = "RM" if moved > threshold else "NM"
+        return RuleDecision(decision, [], reason=f"one motion, moving points by {moved * 1000:.1f} mm "
+                                                 f"(threshold {threshold * 1000:.1f} mm)",
+                            info=info, motions=motions, labels=labels)
