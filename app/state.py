@@ -35,7 +35,7 @@ from streamlit.runtime.scriptrunner import add_script_run_ctx, get_script_run_ct
 from artclass_core import (ArtclassError, CellMotion, Config, FrameResult, InputError, MotionEvidence, PairResult,
                            Pipeline, PipelineParams, Registry, RunResult, Sequence, describe, find_sequences, load_registry,
                            open_sequences)
-from artclass_core.pipeline import AUTO_SEGMENTER
+from artclass_core.pipeline import AUTO_SEGMENTER, CELL_REGISTRAR
 
 from . import controls, uploads
 from .runner import decide_registered, run_staged, stage_config, stage_key
@@ -219,11 +219,17 @@ def config_sidebar(reg: Registry, *, sequence: Sequence | None = None,
     sb = st.sidebar
     sb.subheader("Plugins")
     names = {}
-    for kind, title in (("segmenter", "Segmenter"), ("preprocessor", "Preprocessor"), ("registrar", "Registrar"),
-                        ("rule", "Decision rule")):
+    # The rule comes before the registrar: only registrars that give what the rule decides from are offered.
+    for kind, title in (("segmenter", "Segmenter"), ("preprocessor", "Preprocessor"), ("rule", "Decision rule"),
+                        ("registrar", "Registrar")):
         options = ([AUTO_SEGMENTER] if kind == "segmenter" else []) + reg.names(kind)
+        if kind == "registrar" and names.get("rule") in reg.names("rule"):
+            needs = reg.get("rule", names["rule"]).needs
+            options = [n for n in options if reg.get("registrar", n).gives == needs]
         key = f"cfg_plugin:{kind}"
         default = getattr(Config(), kind)
+        if kind == "registrar" and default not in options:
+            default = CELL_REGISTRAR
         if st.session_state.get(key) not in options:
             st.session_state[key] = default if default in options else (options[0] if options else None)
         describe_ = {n: reg.plugins[kind][n].cls.description for n in reg.names(kind)}

@@ -79,6 +79,7 @@ SEVERITY = {"NM": 0, "RM": 1, "AM": 2}
 STAGES = ("read", "segment", "preprocess", "register", "decide")
 PLUGIN_KINDS = ("segmenter", "preprocessor", "registrar", "rule")
 AUTO_SEGMENTER = "auto"   # the sequence's own masks when it has them, else depth_threshold
+CELL_REGISTRAR, CELL_RULE = "icp_point_to_point", "paper"   # the paper's, for a per-cell pipeline
 
 Progress = Callable[[str, int, int], None]
 
@@ -106,7 +107,7 @@ class Config:
     def paper(cls) -> "Config":
         """The paper's pipeline as written: Algorithm 1 at D/20 and 5v, per-cell ICP from the identity,
         Algorithm 2's quantise-and-hash rule."""
-        return cls(preprocessor="paper", registrar="icp_point_to_point", rule="paper",
+        return cls(preprocessor="paper", registrar=CELL_REGISTRAR, rule="paper",
                    pipeline=PipelineParams(prealign=False))
 
     def plugin_params(self, registry: Registry, kind: str, name: str | None = None) -> Params:
@@ -324,7 +325,7 @@ class Pipeline:
 
     def __init__(self, registry: Registry, config: Config | None = None):
         self.registry = registry
-        self.config = config or Config()
+        self.config = _fitting(registry, config or Config())
         self.params = self.config.pipeline
         for kind in ("preprocessor", "registrar", "rule"):
             setattr(self, kind, registry.create(kind, getattr(self.config, kind),
@@ -740,6 +741,24 @@ class Pipeline:
             sequence=sequence_info, label=sequence_label(filtered), fractions=fractions(decided), pairs=pairs,
             filtered=filtered, frames=frames, params=params, plugins=plugins,
             timing_s={k: round(v, 4) for k, v in timing.items()}, version=_version())
+
+
+def _fitting(registry: Registry, config: Config) -> Config:
+    """``config`` with a default registrar or rule replaced, when the other was chosen and they do not
+    fit: a rule that decides from cells gets the paper's per-cell ICP, a per-cell registrar the paper's
+    rule. Anything chosen is kept (a misfit of two chosen plugins is an error)."""
+    names = {kind: registry.names(kind) for kind in ("registrar", "rule")}
+    if config.registrar not in names["registrar"] or config.rule not in names["rule"]:
+        return config
+    gives = registry.get("registrar", config.registrar).gives
+    needs = registry.get("rule", config.rule).needs
+    if gives == needs:
+        return config
+    if config.registrar == Config.registrar and CELL_REGISTRAR in names["registrar"] and needs == "cells":
+        return dataclasses.replace(config, registrar=CELL_REGISTRAR, registrar_params=None)
+    if config.rule == Config.rule and CELL_RULE in names["rule"] and gives == "cells":
+        return dataclasses.replace(config, rule=CELL_RULE, rule_params=None)
+    return config
 
 
 def _clouds(frames: Iterable[FrameResult]) -> tuple[Cloud | None, ...]:

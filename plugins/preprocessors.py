@@ -13,6 +13,8 @@ from scipy.spatial import cKDTree
 from artclass_core import Cloud, Frame, Intrinsics, Params, Preprocessor, View, hookimpl, param
 from artclass_core.geometry import largest_distance, statistical_inliers
 
+from .dense.image import ImagePreprocessor
+
 MIN_POINTS = 10
 
 
@@ -150,5 +152,6 @@ class FinePreprocessor(PaperPreprocessor):
 
 @hookimpl
 def register_preprocessors(register):
+    register(ImagePreprocessor)
     register(PaperPreprocessor)
     register(FinePreprocessor)

@@ -9,6 +9,7 @@ import open3d as o3d
 
 from artclass_core import Params, Registrar, Registration, hookimpl, param
 
+from .dense.registrar import DenseRegistrar
 from .preprocessors import camera_facing_normals, to_o3d
 
 reg = o3d.pipelines.registration
@@ -81,5 +82,6 @@ class PointToPlaneICP(_Open3DICP):
 
 @hookimpl
 def register_registrars(register):
+    register(DenseRegistrar)
     register(PointToPointICP)
     register(PointToPlaneICP)

@@ -183,10 +183,12 @@ def test_opens_on_first_articulated_sample_and_matches_the_pipeline(app, data_ro
     assert label == expected.label
     assert timeline_decisions(app) == [p.decision for p in expected.pairs]
     assert len(timeline_decisions(app)) == N_FRAMES - Config().pipeline.k
-    # The 3D view of the selected pair: one cone per matched cell, and the two clouds.
-    spec = chart(app, f"frame {expected.pairs[app.session_state['an_pair']].i}")
+    # The 3D view of the selected pair: the target cloud, and per motion its points and one arrow.
     pair = expected.pairs[app.session_state["an_pair"]]
-    assert sum(len(array(t["x"])) for t in spec["data"] if t["type"] == "cone") == sum(c.matched for c in pair.cells)
+    spec = chart(app, f"frame {pair.j}")
+    names = [t.get("name", "") for t in spec["data"] if t["type"] == "scatter3d"]
+    assert len([n for n in names if n.startswith("motion ")]) == len(pair.motions) >= 1, names
+    assert sum(len(array(t["x"])) for t in spec["data"] if t["type"] == "cone") == sum(m.n_points > 0 for m in pair.motions)
     assert len([e for e in app.get("plotly_chart")]) == 4   # timeline, 3D, two frames
     assert any(d.label.startswith("Run result") for d in app.get("download_button"))
 

@@ -226,7 +226,7 @@ class TestParams:
 
     def test_overrides_unknown_lists_known(self, registry):
         with pytest.raises(ParamError) as err:
-            Config(rule="paper").with_overrides(registry, {"nonsense": "1"})
+            Config.paper().with_overrides(registry, {"nonsense": "1"})
         message = str(err.value)
         assert "'nonsense'" in message
         for known in ("k", "w", "alpha", "v", "r", "s", "q_bar", "t_bar", "cell_size_m"):
@@ -457,10 +457,23 @@ class TestPipelineRun:
 
     def test_pixel_stride_uses_every_nth_pixel_and_keeps_the_full_image_for_flow(self, registry):
         seq = make_sequence("static", n_frames=1)
-        full, strided = (Pipeline(registry, Config().with_overrides(registry, {"pixel_stride": n})).frame(seq, 0)
+        fine = dataclasses.replace(Config.paper(), preprocessor="fine", preprocessor_params=None)
+        full, strided = (Pipeline(registry, fine.with_overrides(registry, {"pixel_stride": n})).frame(seq, 0)
                          for n in ("1", "2"))
         assert 0.2 < strided.cloud.info["n_raw"] / full.cloud.info["n_raw"] < 0.3
         assert np.array_equal(strided.cloud.view.depth_m, full.cloud.view.depth_m)
+
+    def test_image_preprocessor_keeps_the_point_budget_and_each_points_pixel(self, registry):
+        seq = make_sequence("static", n_frames=1)
+        frame = seq[0]
+        for budget in (200, 100000):
+            cloud = Pipeline(registry, Config().with_overrides(registry, {"max_points": budget})).frame(seq, 0).cloud
+            assert len(cloud) <= budget and cloud.pixels.shape == (len(cloud), 2)
+            u, v = cloud.pixels.T
+            assert frame.mask[v, u].all(), "every point comes from a pixel of the object"
+            np.testing.assert_allclose(cloud.points[:, 2], cloud.view.depth_m[v, u], rtol=1e-6)
+            assert np.allclose(np.linalg.norm(cloud.normals, axis=1), 1.0) and (np.sum(cloud.normals * cloud.points, axis=1) < 0).all()
+        assert len(cloud) > 1000, "without a budget every usable pixel is a point"
 
     def test_no_object_anywhere(self, registry):
         seq = make_sequence("static", n_frames=3, empty_frames=(0, 1, 2))
@@ -468,15 +481,20 @@ class TestPipelineRun:
             run(registry, seq, k=1)
 
     def test_result_records_params_plugins_timing_and_is_json(self, registry):
-        result = run(registry, make_sequence("hinge", n_frames=5), k=2, w=1, v=0.006)
+        result = run(registry, make_sequence("hinge", n_frames=5), k=2, w=1, max_points=500)
         d = json.loads(json.dumps(result.to_dict()))
         assert d["label"] in ("articulated", "rigid", "static")
         assert d["params"]["pipeline"]["k"] == 2 and d["params"]["pipeline"]["w"] == 1
-        assert d["params"]["preprocessor"]["voxel_size_m"] == 0.006
+        assert d["params"]["preprocessor"]["max_points"] == 500
         assert set(d["plugins"]) == {"segmenter", "preprocessor", "registrar", "rule"}
         assert {"read", "segment", "preprocess", "register", "decide", "total"} <= set(d["timing_s"])
         assert d["timing_s"]["total"] >= d["timing_s"]["register"] >= 0
         assert sum(d["fractions"].values()) == pytest.approx(1.0)
+        assert d["frames"][0]["n_points"] <= 500 and d["frames"][0]["noise_m"] >= 0
+        motions = d["pairs"][0]["motions"]
+        assert motions and all(len(m["T_target_from_source"]) == 4 and m["n_points"] >= 0 for m in motions)
+        paper = Pipeline(registry, Config.paper().with_overrides(registry, {"k": "2", "v": "0.006"}))
+        d = json.loads(json.dumps(paper.run(make_sequence("hinge", n_frames=5)).to_dict()))
         assert d["frames"][0]["v_m"] == 0.006
         assert d["pairs"][0]["n_cells"] == len(d["pairs"][0]["cells"]) > 0
         cell = next(c for c in d["pairs"][0]["cells"] if c["skipped"] is None)

@@ -9,6 +9,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import importlib.util
 import json
 import re
@@ -135,14 +137,16 @@ def test_results_md_names_every_key(small_sequence):
     text = (DOCS / "results.md").read_text()
     seq = open_sequences(registry, small_sequence)[0]
     result = Pipeline(registry, Config(pipeline=PipelineParams(k=2))).run(seq).to_dict()
+    paper = Pipeline(registry, dataclasses.replace(Config.paper(), pipeline=PipelineParams(k=2))).run(seq).to_dict()
     json.dumps(result)                                             # JSON-ready as documented
-    pair = next(p for p in result["pairs"] if any("fitness" in c for c in p["cells"]))
+    decided = next(p for p in result["pairs"] if p.get("motions"))
+    pair = next(p for p in paper["pairs"] if any("fitness" in c for c in p["cells"]))
     cell = next(c for c in pair["cells"] if "fitness" in c)
-    groups = {"top level": result, "sequence": result["sequence"], "pairs[]": pair, "cells[]": cell,
+    groups = {"top level": result, "sequence": result["sequence"], "pairs[]": {**pair, **decided},
+              "pairs[].info (dense)": decided["info"], "motions[]": decided["motions"][0], "cells[]": cell,
               "timing_s": result["timing_s"], "params": result["params"], "plugins": result["plugins"],
-              "frames[] (core keys)": {k: None for k in ("index", "name", "skipped", "mask_pixels")}}
-    if result["plugins"]["preprocessor"] == "paper":
-        groups["frames[] (paper preprocessor)"] = result["frames"][0]
+              "frames[] (core keys)": {k: None for k in ("index", "name", "skipped", "mask_pixels")},
+              "frames[] (image preprocessor)": result["frames"][0], "frames[] (paper preprocessor)": paper["frames"][0]}
     missing = {where: [k for k in d if not _documented(k, text)] for where, d in groups.items()}
     assert not any(missing.values()), f"docs/results.md does not name these keys: {missing}"
 

@@ -315,7 +315,7 @@ def test_hook_register_preprocessors(tmp_path):
     registry = load_registry(extra_plugins=(READER, SEGMENTER, _plugin("register_preprocessors", StridePreprocessor)))
     seq = open_sequences(registry, _hinge_folder(tmp_path))[0]
     config = Config(segmenter="test_band", preprocessor="test_stride", preprocessor_params=StrideParams(stride=3),
-                    pipeline=PipelineParams(k=1))
+                    registrar="icp_point_to_point", pipeline=PipelineParams(k=1))
     result = Pipeline(registry, config).run(seq)
     n_pixels = int(np.count_nonzero(seq[0].depth_m))
     assert result.frames[0].info == dict(n_points=len(range(0, n_pixels, 3)), stride=3)

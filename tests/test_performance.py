@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import gc
+import re
 import weakref
 
 import numpy as np
@@ -276,7 +277,7 @@ def test_redecide_equals_a_fresh_run_and_leaves_the_first_result_alone(registry,
 
 def test_redecide_is_the_same_whatever_the_number_of_workers(registry, hinge):
     cfg = dataclasses.replace(Config(), pipeline=PipelineParams(k=2))
-    changed = cfg.with_overrides(registry, {"noise_floor_m": "0.0025"})    # moves tau: new local fits
+    changed = cfg.with_overrides(registry, {"noise_factor": "2.5"})    # moves every cost and threshold
     one, two = (Pipeline(registry, changed).redecide(Pipeline(registry, cfg).run(hinge, keep_clouds=True),
                                                      workers=w) for w in (1, 2))
     fresh = Pipeline(registry, changed).run(hinge)
@@ -456,18 +457,21 @@ def test_bench_command_reports_every_stage(sample_dir, tmp_path, capsys):
 
     out = tmp_path / "bench.json"
     status = main(["bench", "--sequence", str(sample_dir / "drawer_carry_articulate"), "--segmenters", "mask",
-                   "--registrars", "icp_point_to_point", "--workers", "1,2", "--long-frames", "40",
-                   "--json", str(out)])
+                   "--workers", "1,2", "--long-frames", "40", "--json", str(out)])
     text = capsys.readouterr().out
     assert status == 0
     for stage in ("read", "segment", "preprocess", "register", "decide", "total"):
-        assert text.count(f"\n  {stage} ") == 2, f"stage {stage} missing from {text}"
+        assert text.count(f"\n  {stage} ") == 3, f"stage {stage} missing from {text}"
+    assert "the paper's pipeline: segmenter=mask workers=1" in text
+    ratio = re.search(r"= (\d+\.\d+) of its wall time", text)
+    assert ratio and float(ratio.group(1)) > 0, text
     assert "re-decide after a rule change" in text and "long sequence (40 frames" in text
     data = json.loads(out.read_text())
     assert [r["spec"]["workers"] for r in data["runs"]] == [1, 2]
     assert all("error" not in r and r["n_pairs"] > 0 and r["wall_s"] > 0 and r["peak_rss_mb"] > 0
                for r in data["runs"])
     assert data["runs"][0]["label"] == data["runs"][1]["label"]
+    assert data["paper"]["spec"]["paper"] is True and data["paper"]["n_pairs"] == data["runs"][0]["n_pairs"]
     assert data["redecide"]["redecide_equals_cached_rerun"] is True
     assert data["long"]["n_pairs"] == 40 - 5
 

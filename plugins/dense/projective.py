@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from scipy.sparse import csr_matrix
 
-from artclass_core import Cloud, Intrinsics
+from artclass_core import ArtclassError, Cloud, Intrinsics
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
 
 # Gauss-Newton damping, relative to the trace of the normal equations: keeps the step of a group whose
@@ -37,7 +37,8 @@ class Target:
     def of(cls, cloud: Cloud) -> "Target":
         view = cloud.view
         if view is None or view.normals is None or view.mask is None:
-            raise ValueError("the dense registrar needs clouds from an image-space preprocessor (e.g. 'image')")
+            raise ArtclassError("the dense registrar needs clouds that keep their image (pixels, normals and mask), "
+                                "as the 'image' preprocessor gives; use it, or a per-cell registrar")
         outside = cv2.distanceTransform((~view.mask).astype(np.uint8), cv2.DIST_L2, 3)
         return cls(view.intrinsics, view.scene_depth_m, view.depth_m, view.normals, outside)
 
@@ -104,9 +105,33 @@ def _skew_rotation(omega: np.ndarray) -> np.ndarray:
     return out
 
 
+def _flow_rows(moved: np.ndarray, groups: np.ndarray, flow_px: np.ndarray, across: np.ndarray,
+               intr: Intrinsics, metres_per_px: float):
+    """Optical-flow residuals of moved points as rows like point-to-plane ones: for each known flow,
+    the residual (metres-equivalent) and the gradient of the projected pixel (per metre of motion) of
+    the column and the row, or, at an edge point, of the component across the edge."""
+    known = np.isfinite(flow_px[:, 0]) & (moved[:, 2] > 0)
+    q, f, e, g = moved[known], flow_px[known], across[known], groups[known]
+    z = q[:, 2]
+    du = intr.fx * q[:, 0] / z + intr.cx - f[:, 0]
+    dv = intr.fy * q[:, 1] / z + intr.cy - f[:, 1]
+    zero = np.zeros_like(z)
+    gu = np.column_stack([intr.fx / z, zero, -intr.fx * q[:, 0] / z ** 2])
+    gv = np.column_stack([zero, intr.fy / z, -intr.fy * q[:, 1] / z ** 2])
+    edge = np.isfinite(e[:, 0])
+    full = ~edge
+    en = np.nan_to_num(e)
+    r = np.concatenate([du[full], dv[full], (du * en[:, 0] + dv * en[:, 1])[edge]])
+    grad = np.concatenate([gu[full], gv[full], (gu * en[:, :1] + gv * en[:, 1:])[edge]])
+    at = np.concatenate([q[full], q[full], q[edge]])
+    return r * metres_per_px, grad * metres_per_px, at, np.concatenate([g[full], g[full], g[edge]])
+
+
 def icp(points: np.ndarray, groups: np.ndarray, T: np.ndarray, target: Target, *, reach_m: list[float],
-        min_points: int = 6) -> tuple[np.ndarray, np.ndarray]:
-    """Projective point-to-plane ICP of several point groups at once, each with its own motion.
+        min_points: int = 6, flow_px: np.ndarray | None = None, across: np.ndarray | None = None,
+        metres_per_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Projective point-to-plane ICP of several point groups at once, each with its own motion, with
+    optical flow as a second term where it is known (as RGB-D odometry's hybrid term).
 
     Parameters
     ----------
@@ -116,6 +141,10 @@ def icp(points: np.ndarray, groups: np.ndarray, T: np.ndarray, target: Target, *
     target : the target frame
     reach_m : one correspondence distance per iteration (coarse to fine), metres
     min_points : a group with fewer correspondences keeps its motion for that iteration
+    flow_px, across : (N, 2) where optical flow takes each point, and the direction across the edge at
+        an edge point (compare along it only); NaN where unknown (see :mod:`.flow`)
+    metres_per_px : how much one pixel of flow misfit weighs against one metre of depth misfit
+        (depth noise / flow noise); 0 leaves the flow out
 
     Returns
     -------
@@ -126,29 +155,36 @@ def icp(points: np.ndarray, groups: np.ndarray, T: np.ndarray, target: Target, *
     -----
     Each group is linearised about its own centroid: about the camera a metre away, a few degrees of
     rotation of a small patch become centimetres of coupled translation that one Gauss-Newton step
-    gets wrong. Correspondences are weighted with Tukey's biweight at the iteration's reach.
+    gets wrong. Residuals are weighted with Tukey's biweight at the iteration's reach. Depth alone
+    cannot fix a motion that keeps a surface in place (a cylinder turning about its axis, a plane
+    sliding in itself); the flow on its texture can, so both terms are solved together.
     """
     T = np.array(T, dtype=np.float64, copy=True)
     G = len(T)
     count = np.bincount(groups, minlength=G)
     centre = np.stack([np.bincount(groups, points[:, d], minlength=G) for d in range(3)], 1) / np.maximum(count, 1)[:, None]
+    use_flow = flow_px is not None and metres_per_px > 0
     inliers = np.zeros(G, int)
     for reach in reach_m:
         moved = np.einsum("nij,nj->ni", T[groups, :3, :3], points) + T[groups, :3, 3]
         u, v, inside = _project(moved, target.intrinsics, target.scene_m.shape)
         r, has = _surface_residual(moved, target, u, v)
         ok = inside & has & (np.abs(r) < reach)
-        n = target.normals[v[ok], u[ok]].astype(np.float64)
-        g = groups[ok]
-        arm = moved[ok] - (T[g, :3, :3] @ centre[g][..., None])[..., 0] - T[g, :3, 3]
-        J = np.concatenate([np.cross(arm, n), n], axis=1)                 # (M, 6)
-        w = np.square(1 - np.square(r[ok] / reach))                       # Tukey biweight
+        r, grad, at, g = r[ok], target.normals[v[ok], u[ok]].astype(np.float64), moved[ok], groups[ok]
+        inliers = np.bincount(g, minlength=G)
+        if use_flow:
+            fr, fgrad, fat, fg = _flow_rows(moved, groups, flow_px, across, target.intrinsics, metres_per_px)
+            near = np.abs(fr) < reach
+            r, grad = np.concatenate([r, fr[near]]), np.concatenate([grad, fgrad[near]])
+            at, g = np.concatenate([at, fat[near]]), np.concatenate([g, fg[near]])
+        arm = at - (T[g, :3, :3] @ centre[g][..., None])[..., 0] - T[g, :3, 3]
+        J = np.concatenate([np.cross(arm, grad), grad], axis=1)          # (M, 6)
+        w = np.square(1 - np.square(r / reach))                           # Tukey biweight
         # Per-group sums of w J^T J and w J^T r, as one sparse (G, M) by dense (M, 42) product.
-        terms = np.concatenate([(J[:, :, None] * J[:, None, :]).reshape(-1, 36), J * r[ok, None]], axis=1)
+        terms = np.concatenate([(J[:, :, None] * J[:, None, :]).reshape(-1, 36), J * r[:, None]], axis=1)
         sums = csr_matrix((w, (g, np.arange(len(g)))), shape=(G, len(g))) @ terms
         A, b = sums[:, :36].reshape(G, 6, 6), sums[:, 36:]
-        inliers = np.bincount(g, minlength=G)
-        solvable = inliers >= min_points
+        solvable = np.bincount(g, minlength=G) >= min_points
         if not solvable.any():
             break
         A = A[solvable] + _DAMPING * np.einsum("gii->g", A[solvable])[:, None, None] * np.eye(6) + 1e-12 * np.eye(6)

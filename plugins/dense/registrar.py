@@ -42,7 +42,7 @@ class DenseParams(Params):
                                 help="A moved point within this many noise sigmas (plus two pixels) of the observed "
                                      "depth is on that surface; farther in front, it is hidden; farther behind, "
                                      "the camera sees through where it should be.")
-    cells_per_diameter: float = param(5.0, symbol="x", unit="1", bounds=(1.0, 50.0),
+    cells_per_diameter: float = param(5.0, unit="1", bounds=(1.0, 50.0),
                                       help="Local motions are seeded from cells of edge diameter / this (the paper's "
                                            "x = D/5).")
     min_seed_points: int = param(16, unit="points", bounds=(6, 10000),
@@ -75,8 +75,11 @@ class DenseRegistrar(PairRegistrar):
         reach = p.reach_sigmas * noise_m(points[:, 2], p.depth_noise_m) + 2 * points[:, 2] / tgt.intrinsics.fx
         fine = 4 * sigma0 + 2 * pixel_m
         size = float(np.linalg.norm(np.ptp(points, axis=0)))
-        coarse = [max(size / 8, fine), max(size / 16, fine), max(size / 32, fine), fine, fine]
+        coarse = [max(size / d, fine) for d in (4, 4, 8, 8, 16, 16, 32)] + [fine] * 3
 
+        # Residuals compare two smoothed surfaces: the noise left in each, added in quadrature.
+        noise = max(np.sqrt(2) * max(c.info.get("smoothed_noise_m", 0.0) for c in (source, target)), sigma0 / 2)
+        rule = DenseRuleParams()
         no_flow = np.full((len(points), 2), np.nan)
         flow_px, across = (flow_targets(source, target, min_texture=p.min_texture, max_roundtrip_px=p.max_roundtrip_px)
                            if p.use_flow else (no_flow, no_flow))
@@ -88,7 +91,8 @@ class DenseRegistrar(PairRegistrar):
         inits = [np.eye(4), shift]
         if matched.sum() >= _MIN_FLOW_MATCHES:
             inits.append(robust_kabsch(points[matched], matches[matched], inlier_m=fine))
-        whole, _ = _fit_each(points, np.stack(inits), tgt, coarse)
+        fit = _Fit(tgt, flow_px, across, noise / rule.flow_sigma_px)
+        whole = fit.each(points, np.stack(inits), coarse)
         hyps, names = [np.eye(4), *whole], ["identity", "object", "object (shift)", "object (flow)"][:1 + len(whole)]
 
         cells = _cells(points, size / p.cells_per_diameter, p.min_seed_points)
@@ -100,21 +104,18 @@ class DenseRegistrar(PairRegistrar):
                 seeds.append(robust_kabsch(points[own], matches[own], inlier_m=fine)
                              if own.sum() >= _MIN_FLOW_MATCHES else best_whole)
             used = cells >= 0
-            local, _ = icp(points[used], cells[used], np.stack(seeds), tgt, reach_m=coarse[1:])
+            local = fit(points, np.flatnonzero(used), cells[used], np.stack(seeds), coarse[1:])
             hyps += list(local)
             names += [f"cell {c}" for c in range(len(local))]
 
         hyps, names = _distinct(hyps, names, points, sigma0)
         status, residual = _look_all(hyps, points, tgt, reach)
-        # Residuals compare two smoothed surfaces: the noise left in each, added in quadrature.
-        noise = max(np.sqrt(2) * max(c.info.get("smoothed_noise_m", 0.0) for c in (source, target)), sigma0 / 2)
         flow_err = _flow_errors(hyps, points, flow_px, across, tgt)
 
-        rule = DenseRuleParams()
         for r in range(p.refine_rounds):
             ev = MotionEvidence(np.stack(hyps), names, residual, status, flow_err, noise, points, source.pixels,
                                 pixel_m, dict(stride_px=int(source.info.get("stride_px", 1))))
-            new, new_names = self._refits(ev, tgt, rule, r, coarse)
+            new, new_names = self._refits(ev, fit, rule, r, coarse)
             if not new:
                 break
             n_before = len(hyps)
@@ -129,7 +130,7 @@ class DenseRegistrar(PairRegistrar):
         return MotionEvidence(np.stack(hyps), names, residual, status, flow_err, noise, points, source.pixels,
                               pixel_m, info)
 
-    def _refits(self, ev: MotionEvidence, tgt: Target, rule: DenseRuleParams, round_: int,
+    def _refits(self, ev: MotionEvidence, fit: "_Fit", rule: DenseRuleParams, round_: int,
                 reach: list[float]) -> tuple[list, list]:
         """The motions a default selection picks, refitted on the points they explain; and, for each
         of the largest image regions of points that none of them explains, motions fitted to that
@@ -161,7 +162,7 @@ class DenseRegistrar(PairRegistrar):
             return [], []
         index = np.concatenate(members)
         groups = np.repeat(np.arange(len(members)), [len(m) for m in members])
-        T, _ = icp(ev.points[index], groups, np.stack(inits), tgt, reach_m=reach)
+        T = fit(ev.points, index, groups, np.stack(inits), reach)
         return list(T), [f"refit {round_}.{g}" for g in range(len(T))]
 
 
@@ -193,10 +194,23 @@ def _flow_points(flow_px: np.ndarray, tgt: Target) -> tuple[np.ndarray, np.ndarr
     return ok, np.column_stack([(u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z])
 
 
-def _fit_each(points: np.ndarray, inits: np.ndarray, tgt: Target, reach: list[float]):
-    """ICP of all the points from each of the initial motions (one group per initial motion)."""
-    n = len(points)
-    return icp(np.tile(points, (len(inits), 1)), np.repeat(np.arange(len(inits)), n), inits, tgt, reach_m=reach)
+class _Fit:
+    """Projective ICP of groups of a pair's source points, with the pair's optical flow."""
+
+    def __init__(self, target: Target, flow_px: np.ndarray, across: np.ndarray, metres_per_px: float):
+        self.target, self.flow_px, self.across, self.metres_per_px = target, flow_px, across, metres_per_px
+
+    def __call__(self, points: np.ndarray, index: np.ndarray, groups: np.ndarray, inits: np.ndarray,
+                 reach: list[float]) -> list[np.ndarray]:
+        """The motions of the groups of points ``points[index]``, from ``inits``."""
+        T, _ = icp(points[index], groups, inits, self.target, reach_m=reach, flow_px=self.flow_px[index],
+                   across=self.across[index], metres_per_px=self.metres_per_px)
+        return list(T)
+
+    def each(self, points: np.ndarray, inits: np.ndarray, reach: list[float]) -> list[np.ndarray]:
+        """All the points, from each of the initial motions."""
+        index = np.tile(np.arange(len(points)), len(inits))
+        return self(points, index, np.repeat(np.arange(len(inits)), len(points)), inits, reach)
 
 
 def _cells(points: np.ndarray, size_m: float, min_points: int) -> np.ndarray:

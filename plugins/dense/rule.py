@@ -11,7 +11,9 @@ put the point adds a cost of the same kind.
 Selection: motions are added one at a time, the one that lowers the total cost most first, while
 the saving pays for the motion's six parameters (BIC: ``6 ln N``), the points it explains better
 than the motions already chosen are at least ``min_part_share`` of the seen points, and those points
-form one region of the image rather than a scatter.
+form one region of the image rather than a scatter. Each point then takes the selected motion that
+explains it best: that labelling is the pair's part segmentation, and a part whose points are mixed
+with another's (two fits that each explain half of a rigid object) is not a part.
 
 Decision: two or more motions that really differ (their relative motion moves the median point of
 each side by more than ``noise_factor`` sigma plus one pixel) are AM; one motion is RM when it moves
@@ -34,8 +36,9 @@ class DenseRuleParams(Params):
     noise_factor: float = param(3.0, unit="sigma", bounds=(0.5, 20.0),
                                 help="A residual beyond this many noise sigmas (measured on the pair) is a misfit; "
                                      "a motion must move points by this much, plus a pixel, to count as one.")
-    flow_sigma_px: float = param(1.5, unit="px", bounds=(0.1, 20.0),
-                                 help="Typical error of the optical flow on texture, in pixels.")
+    flow_sigma_px: float = param(2.5, unit="px", bounds=(0.1, 20.0),
+                                 help="Typical error of the optical flow on texture, in pixels (the flow noise "
+                                      "measured on a pair is never taken below this).")
     bic_factor: float = param(1.0, unit="1", bounds=(0.0, 100.0),
                               help="A further motion must lower the total cost by this many times its BIC "
                                    "penalty, 6 ln N (6 parameters, N points).")
@@ -44,18 +47,19 @@ class DenseRuleParams(Params):
                                        "better than the motions already chosen.")
     min_part_points: int = param(20, unit="points", bounds=(1, 100000),
                                  help="... and at least this many points.")
-    min_coherence: float = param(0.5, unit="fraction", bounds=(0.0, 1.0),
-                                 help="... of which at least this share have an image neighbour in the same set "
-                                      "(a part is a region, not a scatter of misfits).")
-    min_seen_share: float = param(0.3, symbol="alpha", unit="fraction", bounds=(0.0, 1.0),
+    min_coherence: float = param(0.6, unit="fraction", bounds=(0.0, 1.0),
+                                 help="A part is a region, not a scatter: its points' image neighbours must be "
+                                      "its own for at least this share on average (and so must those of the "
+                                      "points it explains that no chosen motion does).")
+    min_seen_share: float = param(0.3, unit="fraction", bounds=(0.0, 1.0),
                                   help="A pair is skipped when fewer of its points land on a surface of the target "
                                        "under the best motion.")
 
 
 def point_costs(ev: MotionEvidence, *, noise_factor: float, flow_sigma_px: float,
                 noise_m: float | None = None) -> np.ndarray:
-    """Cost (H, N) of explaining each point by each hypothesis, in squared noise units (``noise_m``,
-    default the evidence's own)."""
+    """Cost (H, N) of explaining each point by each hypothesis, in squared noise units (depth noise
+    ``noise_m``, default the evidence's own; flow noise ``flow_sigma_px``)."""
     worst = noise_factor ** 2
     with np.errstate(invalid="ignore"):
         fit = np.minimum(np.square(ev.residual_m / (noise_m or ev.noise_m)), worst)
@@ -80,6 +84,25 @@ def _coherence(members: np.ndarray, pixels: np.ndarray, stride: int) -> float:
             if dv or du:
                 near |= np.roll(np.roll(image, dv, 0), du, 1)
     return float(near[g[members, 1] + 1, g[members, 0] + 1].mean())
+
+
+def label_coherence(labels: np.ndarray, pixels: np.ndarray, stride: int) -> np.ndarray:
+    """For each point, the share of its 8 image neighbours (points on the ``stride`` grid) that carry
+    its label; NaN for a point without neighbours."""
+    g = pixels // max(stride, 1)
+    g = g - g.min(axis=0) + 1
+    image = np.full(tuple(g.max(axis=0)[::-1] + 2), -2, np.int64)
+    image[g[:, 1], g[:, 0]] = labels
+    same = np.zeros(len(labels))
+    present = np.zeros(len(labels))
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            if dv or du:
+                other = image[g[:, 1] + dv, g[:, 0] + du]
+                present += other != -2
+                same += other == labels
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return same / present
 
 
 def select(costs: np.ndarray, pixels: np.ndarray, *, penalty: float, misfit: float, min_points: int,
@@ -109,6 +132,12 @@ def select(costs: np.ndarray, pixels: np.ndarray, *, penalty: float, misfit: flo
             return chosen
 
 
+def _spread(values: np.ndarray, *, centred: bool = True) -> float:
+    """Robust standard deviation (1.4826 MAD) of ``values``; about zero when not ``centred``."""
+    centre = np.median(values) if centred else 0.0
+    return float(1.4826 * np.median(np.abs(values - centre)))
+
+
 def _displacement(points: np.ndarray, A: np.ndarray, B: np.ndarray) -> float:
     """Median distance between the points moved by A and by B (metres)."""
     return float(np.median(np.linalg.norm(transform(points, A) - transform(points, B), axis=1))) if len(points) else 0.0
@@ -122,23 +151,24 @@ class DenseRule(DecisionRule):
     Params = DenseRuleParams
     needs = "motions"
 
-    def costs(self, ev: MotionEvidence, noise_m: float | None = None) -> np.ndarray:
-        return point_costs(ev, noise_factor=self.params.noise_factor, flow_sigma_px=self.params.flow_sigma_px,
-                           noise_m=noise_m)
+    def costs(self, ev: MotionEvidence, noise_m: float | None = None, flow_px: float | None = None) -> np.ndarray:
+        return point_costs(ev, noise_factor=self.params.noise_factor, noise_m=noise_m,
+                           flow_sigma_px=flow_px or self.params.flow_sigma_px)
 
-    def noise(self, ev: MotionEvidence, seen: np.ndarray) -> tuple[float, np.ndarray]:
-        """The noise of the pair, measured on the model: the robust spread (1.4826 MAD) of each seen
-        point's residual under the motion the selection gives it (never below the frames' own noise),
-        and the costs under it. Selecting with the frames' noise first lets a part take its points
-        before their misfit is counted as noise."""
+    def noise(self, ev: MotionEvidence, seen: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """The depth and flow noise of the pair, measured on the model: the robust spread (1.4826 MAD)
+        of each seen point's residual and flow misfit under the motion the selection gives it (never
+        below the frames' own noise and ``flow_sigma_px``), and the costs under them. Selecting with the
+        frames' noise first lets a part take its points before their misfit is counted as noise."""
         costs = self.costs(ev)
         chosen = self.choose(ev, costs, seen)
         owner = np.asarray(chosen)[np.argmin(costs[chosen], axis=0)]
-        r = ev.residual_m[owner, np.arange(len(owner))][seen & (ev.status[owner, np.arange(len(owner))] == SURFACE)]
-        if len(r) < 10:
-            return ev.noise_m, costs
-        sigma = max(float(1.4826 * np.median(np.abs(r - np.median(r)))), ev.noise_m)
-        return sigma, self.costs(ev, sigma)
+        point = np.arange(len(owner))
+        r = ev.residual_m[owner, point][seen & (ev.status[owner, point] == SURFACE)]
+        f = ev.flow_px[owner, point][seen & np.isfinite(ev.flow_px[owner, point])]
+        sigma = max(_spread(r), ev.noise_m) if len(r) >= 10 else ev.noise_m
+        flow = max(_spread(f, centred=False), self.params.flow_sigma_px) if len(f) >= 10 else self.params.flow_sigma_px
+        return sigma, flow, self.costs(ev, sigma, flow)
 
     def choose(self, ev: MotionEvidence, costs: np.ndarray, seen: np.ndarray) -> list[int]:
         """The hypotheses selected for the seen points (indices into ``ev.motions``)."""
@@ -153,7 +183,7 @@ class DenseRule(DecisionRule):
         seen = (ev.status == SURFACE).any(axis=0)
         if not seen.any():
             return RuleDecision("skipped", [], reason="no point lands on the target surface under any motion")
-        noise, costs = self.noise(ev, seen)
+        noise, flow_noise, costs = self.noise(ev, seen)
         first = int(np.argmin(costs.sum(axis=1)))
         share = float((ev.status[first] == SURFACE).mean()) if ev.status.shape[1] else 0.0
         if share < p.min_seen_share:
@@ -164,11 +194,12 @@ class DenseRule(DecisionRule):
         threshold = p.noise_factor * noise + ev.pixel_m
         base = chosen[0]
         parts = []
+        coherence = label_coherence(labels, ev.pixels, int(ev.info.get("stride_px", 1)))
         for h in chosen[1:]:
             own, rest = ev.points[labels == h], ev.points[(labels >= 0) & (labels != h)]
             apart = min(_displacement(own, ev.motions[h], ev.motions[base]),
                         _displacement(rest, ev.motions[h], ev.motions[base]))
-            if apart > threshold:
+            if apart > threshold and np.nanmean(coherence[labels == h]) >= p.min_coherence:
                 parts.append(h)
         kept = [base, *parts]
         labels = np.where(seen, np.asarray(kept)[np.argmin(costs[kept], axis=0)], -1)
@@ -176,7 +207,7 @@ class DenseRule(DecisionRule):
                           _displacement(ev.points[labels == h], ev.motions[h], np.eye(4))) for h in kept]
         index = {h: i for i, h in enumerate(kept)}
         labels = np.array([index.get(int(h), -1) for h in labels]) if len(labels) else labels
-        info = dict(noise_m=round(noise, 6), frame_noise_m=round(ev.noise_m, 6), threshold_m=round(threshold, 6), seen_share=round(share, 4),
+        info = dict(noise_m=round(noise, 6), frame_noise_m=round(ev.noise_m, 6), flow_noise_px=round(flow_noise, 3), threshold_m=round(threshold, 6), seen_share=round(share, 4),
                     n_hypotheses=len(ev.motions), selected=[ev.names[h] for h in chosen],
                     part_shares=[round(m.n_points / max(int(seen.sum()), 1), 4) for m in motions])
         if parts:
