@@ -542,21 +542,25 @@ def test_smoke_preset(tmp_path):
         generate_set(tmp_path / "set", preset="smoke", seed=1)
 
 
-@pytest.mark.parametrize("preset, size", [("benchmark", (320, 240)), ("benchmark-vga", (640, 480))])
+@pytest.mark.parametrize("preset, size", [("benchmark", (320, 240)), ("benchmark-vga", (640, 480)),
+                                          ("benchmark-rs", (848, 480))])
 def test_benchmark_preset_is_balanced(preset, size):
     plans = preset_plans(preset)
-    assert len(plans) >= 48 and set(PRESETS) == {"sample", "benchmark", "benchmark-vga", "smoke"}
+    assert 60 <= len(plans) <= 70
+    assert set(PRESETS) == {"sample", "benchmark", "benchmark-vga", "benchmark-rs", "smoke"}
     labels = [MOTIONS[p.motion].label for p in plans]
     n = len(plans)
-    assert 0.4 <= labels.count("articulated") / n <= 0.6
-    assert 0.25 <= labels.count("rigid") / n <= 0.4
-    assert 0.1 <= labels.count("static") / n <= 0.25
-    assert len({p.object_name for p in plans}) >= 8
+    assert 0.45 <= labels.count("articulated") / n <= 0.55
+    assert 0.2 <= labels.count("rigid") / n <= 0.3
+    assert 0.2 <= labels.count("static") / n <= 0.3
+    assert {p.object_name for p in plans} == set(OBJECTS)          # every object is in it
     assert {p.motion for p in plans} == set(MOTIONS)
     assert {p.noise for p in plans} == {"low", "high"}
+    assert {p.texture for p in plans} == {"textured", "plain"}
+    assert 0.6 <= sum(p.hand != "none" for p in plans) / n <= 0.8    # most are handled
+    assert {p.hand for p in plans if p.motion == "static"} == set(HANDS)
     assert {OBJECTS[p.object_name].joint_type for p in plans
             if MOTIONS[p.motion].moves_joint} == {"revolute", "prismatic"}
-    assert {"pliers", "globe", "box_lid"} <= {p.object_name for p in plans}
     assert all((p.width, p.height) == size and 24 <= p.n_frames <= 30 for p in plans)
     assert [p.name for p in plans] == [p.name for p in preset_plans("benchmark")]
     assert len({p.name for p in plans}) == n
