@@ -320,6 +320,15 @@ def test_hand_occludes_the_object_and_is_never_in_its_mask(tmp_path, object_name
         poses = np.array(truth["object_poses"])
         np.testing.assert_allclose(poses[0][:3, :3], poses[-1][:3, :3], atol=1e-12)
         assert truth["joint_positions"] == [None] * 4
+        seq = plan_sequence(object_name=object_name, motion=motion, noise="low", n_frames=4, seed=2,
+                            hand=hand, **SMALL)
+        for i in range(4):
+            meshes = seq.meshes(i)
+            obj = np.concatenate([m.vertices_m for m in meshes if m.part >= 0])
+            held = np.concatenate([m.vertices_m for m in meshes if m.part == -2])
+            centre = 0.5 * (obj.min(0) + obj.max(0))
+            radius = np.linalg.norm(obj - centre, axis=1).max()
+            assert np.linalg.norm(held - centre, axis=1).min() > radius + 0.02
 
 
 def test_hand_colours_span_human_skin():

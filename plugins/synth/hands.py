@@ -166,7 +166,7 @@ def wave_path(centre_world, eye_world, right_world, n: int, rng: np.random.Gener
     c, eye = np.asarray(centre_world, float), np.asarray(eye_world, float)
     d = eye - c
     dist = float(np.linalg.norm(d))
-    frac = max(rng.uniform(0.35, 0.55), min(clearance_m / dist, 0.7))
+    frac = max(rng.uniform(0.25, 0.4), min(clearance_m / dist, 0.7))
     mid = c + frac * d
     right = _unit(right_world)
     side = 1.0 if rng.random() < 0.5 else -1.0
