@@ -3,10 +3,11 @@
 Layout (read by the rest of artclass)::
 
     SEQ/meta.json          intrinsics, depth_scale, label, object, motion, noise, seed, ...
-    SEQ/truth.json         joint_type, joint_positions, object_poses (camera_from_object); for
-                           articulated objects also part_visibility (per frame: the moving part's
-                           share of the object's pixels and how far its visible points reach from
-                           the joint axis)
+    SEQ/truth.json         joint_type, joint_positions, object_poses (camera_from_object); parts,
+                           joints (per frame state and axis in the first camera frame), part_poses,
+                           part_valid_px, part_points_m (visible points per part and frame), sensor,
+                           holders; for articulated objects also part_visibility
+                           (docs/data-formats.md describes every key)
     SEQ/rgb/000000.png     8-bit colour (stored BGR by OpenCV, i.e. a normal colour PNG)
     SEQ/depth/000000.png   uint16 depth, depth_scale units per metre, 0 = no reading
     SEQ/mask/000000.png    uint8, 255 = object, 0 = anything else (a hand is not the object)
