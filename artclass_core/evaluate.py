@@ -24,6 +24,8 @@ class SequenceOutcome:
     fractions: dict[str, float] = field(default_factory=dict)
     pair_correct: int = 0
     pair_total: int = 0
+    pair_correct_legacy: int = 0        # against the reader's earlier pair truth, where it has one
+    pair_total_legacy: int = 0
     n_pairs: int = 0
     seconds: float = 0.0
 
@@ -62,6 +64,7 @@ class Evaluation:
             members = [o for o in outs if o.truth == c]
             per_class[c] = sum(o.correct for o in members) / len(members)
         pair_total = sum(o.pair_total for o in outs)
+        legacy_total = sum(o.pair_total_legacy for o in outs)
         return dict(
             n_sequences=n,
             accuracy=sum(o.correct for o in outs) / n if n else 0.0,
@@ -70,6 +73,7 @@ class Evaluation:
             f1=f1s,
             pair_accuracy=(sum(o.pair_correct for o in outs) / pair_total) if pair_total else None,
             pair_total=pair_total,
+            pair_accuracy_legacy=(sum(o.pair_correct_legacy for o in outs) / legacy_total) if legacy_total else None,
             confusion=confusion,
             per_object={obj: dict(truth=os_[0].truth, n=len(os_), accuracy=sum(o.correct for o in os_) / len(os_),
                                   fractions={d: _mean([o.fractions.get(d, 0.0) for o in os_ if o.fractions]) for d in DECISIONS})
@@ -103,6 +107,9 @@ def evaluate(registry: Registry, sequences: list[Sequence], config: Config, *, p
             truthful = [p for p in result.pairs if p.truth and p.decision != "skipped"]
             o.pair_total = len(truthful)
             o.pair_correct = sum(p.decision == p.truth for p in truthful)
+            legacy = [(p, seq.pair_truth_legacy(p.i, p.j)) for p in result.pairs if p.decision != "skipped"]
+            o.pair_total_legacy = sum(t is not None for _, t in legacy)
+            o.pair_correct_legacy = sum(p.decision == t for p, t in legacy)
             o.n_pairs = len(result.pairs)
         o.seconds = time.perf_counter() - t0
         outcomes.append(o)
@@ -148,8 +155,10 @@ def markdown(evals: list[Evaluation]) -> str:
         lines.append(f"| {obj} | " + " | ".join(f"{m['per_object'][obj]['fractions'][d]:.3f}"
                                               for m in ms for d in DECISIONS) + " |")
     lines += ["", "## Summary", "", "| metric | " + " | ".join(rules) + " |", "|---|" + "---|" * len(rules)]
-    for key, label in (("accuracy", "sequence accuracy %"), ("macro_f1", "macro-F1 %"),
-                       ("pair_accuracy", "pair accuracy %")):
+    rows = [("accuracy", "sequence accuracy %"), ("macro_f1", "macro-F1 %"), ("pair_accuracy", "pair accuracy %")]
+    if any(m["pair_accuracy_legacy"] is not None for m in ms):
+        rows.append(("pair_accuracy_legacy", "pair accuracy % (earlier joint-state truth)"))
+    for key, label in rows:
         lines.append(f"| {label} | " + " | ".join(_pct(m[key]) for m in ms) + " |")
     for c in LABELS:
         if c in ms[0]["per_class_accuracy"]:

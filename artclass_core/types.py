@@ -115,6 +115,11 @@ class Sequence:
         """Ground-truth motion between frames i and j (``AM``, ``RM``, ``NM``), or None if unknown."""
         return None
 
+    def pair_truth_legacy(self, i: int, j: int) -> Decision | None:
+        """The earlier joint-state definition of the pair truth, where a reader still has it (reported
+        beside ``pair_truth`` for comparison), or None."""
+        return None
+
     def _checked_load(self, i: int) -> Frame:
         if not 0 <= i < self.n_frames:
             raise IndexError(f"frame {i} out of range 0..{self.n_frames - 1}")

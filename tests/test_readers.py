@@ -152,6 +152,85 @@ def test_folder_pair_truth_follows_what_the_sensor_sees_of_the_part(tmp_path):
     assert truth_with(0.3, 0.008) is None                     # 1-5 mm: within the ambiguous band
 
 
+
+def _two_part_truth(motion_of_part: np.ndarray, *, part_px: int = 5000, noise_a_m: float = 0.0012,
+                    n_frames: int = 2) -> dict:
+    """Hand-made observable truth: a 30 x 30 cm grey base and a 10 x 2 cm flat lever lying on it,
+    1 m in front of the camera, the lever seen on ``part_px`` pixels. Frame 1 moves the lever by
+    ``motion_of_part`` (4x4, in the base's frame); nothing else moves. The points are in a plane (a
+    texture-less surface turning in its own plane looks the same to the camera)."""
+    camera_from_base = np.eye(4)
+    camera_from_base[2, 3] = 1.0
+    grid = np.stack(np.meshgrid(np.linspace(-0.15, 0.15, 16), np.linspace(-0.15, 0.15, 16)), -1).reshape(-1, 2)
+    base = np.column_stack([grid, np.zeros(len(grid))])
+    lever = np.column_stack([np.linspace(0.0, 0.10, 64).repeat(4), np.tile(np.linspace(-0.01, 0.01, 4), 64),
+                             np.full(256, -0.005)])                  # from its pivot at the origin
+    poses = [[camera_from_base.tolist(), (camera_from_base @ np.linalg.matrix_power(motion_of_part, f)).tolist()]
+             for f in range(n_frames)]
+    return dict(
+        object_poses=[camera_from_base.tolist()] * n_frames, joint_type="revolute",
+        parts=[dict(name="base", parent=-1, joint=None), dict(name="lever", parent=0, joint=0)],
+        part_poses=poses, part_valid_px=[[40000, part_px]] * n_frames,
+        part_points_m=[[base.tolist(), lever.tolist()]] * n_frames,
+        sensor=dict(fx_px=570.0, axial_a_m=noise_a_m, axial_b_per_m=0.0019, axial_reference_m=0.4,
+                    depth_step_m=0.001))
+
+
+def _turn_z(angle_deg: float) -> np.ndarray:
+    T = np.eye(4)
+    c, s = np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))
+    T[:2, :2] = [[c, -s], [s, c]]
+    return T
+
+
+def _shift_x(d_m: float) -> np.ndarray:
+    T = np.eye(4)
+    T[0, 3] = d_m
+    return T
+
+
+def test_observable_truth_thresholds_follow_the_sensor_noise():
+    truth = folder_mod.observable_pair_truth
+    # At 1 m: sigma = 1.2 mm + 1.9 mm/m * 0.36 m^2 = 1.88 mm; one pixel = 1.75 mm; AM above 7.4 mm.
+    sigma, pixel = 0.0012 + 0.0019 * 0.6 ** 2, 1.0 / 570.0
+    # A lever turning 10 degrees in its own plane about its pivot: its median point (5 cm out) moves
+    # 8.7 mm, and so does the base's median point (about 5 cm from the pivot) in the lever's frame.
+    assert truth(_two_part_truth(_turn_z(10.0)), 0, 1) == "AM"
+    assert truth(_two_part_truth(_turn_z(10.0)), 1, 0) == "AM"
+    # The same turn is ambiguous for a noisier sensor, whose 3 sigma + 1 px exceeds it...
+    assert truth(_two_part_truth(_turn_z(10.0), noise_a_m=0.003), 0, 1) is None
+    # ...and below one sigma it is no motion at all.
+    assert truth(_two_part_truth(_shift_x(0.0005)), 0, 1) == "NM"
+    assert truth(_two_part_truth(_shift_x(2 * sigma)), 0, 1) is None
+    assert truth(_two_part_truth(_shift_x(3 * sigma + pixel + 0.0005)), 0, 1) == "AM"
+    # A part the sensor sees on too few pixels shows no articulation, however far it moves.
+    assert truth(_two_part_truth(_turn_z(30.0), part_px=25), 0, 1) == "NM"
+    assert truth(_two_part_truth(_turn_z(30.0), part_px=799), 0, 1) == "NM"    # < 2 % of the object
+    assert truth(_two_part_truth(_turn_z(30.0), part_px=1000), 0, 1) == "AM"
+
+
+def test_observable_truth_judges_each_side_in_the_others_frame():
+    # A lever turning about an axis through its own median point barely moves its median point, but
+    # the base's points, seen from the lever, swing round by centimetres: the smaller side decides.
+    spin = np.linalg.inv(_shift_x(0.05)) @ _turn_z(1.0) @ _shift_x(0.05)    # about the lever's centre
+    motions = folder_mod.observable_joint_motions(_two_part_truth(spin), 0, 1)
+    (m,) = motions
+    assert m["valid"] and m["moving"]["displacement_m"] < m["rest"]["displacement_m"]
+    assert m["moving"]["depth_m"] == pytest.approx(0.995, abs=1e-3)     # the lever lies 5 mm nearer
+
+
+def test_folder_pair_truth_is_observable_for_new_truth_and_legacy_for_old(tmp_path):
+    seq_dir = write_folder(tmp_path, "both")
+    old = json.loads((seq_dir / "truth.json").read_text())
+    seq = first_sequence(seq_dir, "folder")
+    assert seq.pair_truth(0, 5) == seq.pair_truth_legacy(0, 5) == "AM"      # old truth: old rule
+    # With per-part data, the observable rule decides: a 0.5 mm motion per frame is no articulation.
+    new = dict(old, **_two_part_truth(_shift_x(0.0005), n_frames=len(old["joint_positions"])))
+    (seq_dir / "truth.json").write_text(json.dumps(new))
+    seq = first_sequence(seq_dir, "folder")
+    assert seq.pair_truth(0, 1) == "NM" and seq.pair_truth_legacy(0, 5) == "AM"
+
+
 def test_ycbv_reader_on_fixture(layouts):
     seqs = REGISTRY.create("reader", "ycbv").sequences(layouts["ycbv"])
     assert [s.name for s in seqs] == ["0000/025_mug", "0000/061_foam_brick"]

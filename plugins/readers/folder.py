@@ -7,10 +7,10 @@
     SEQ/rgb/*.png     8-bit colour
     SEQ/depth/*.png   16-bit depth, matched to rgb/ by sorted file name
     SEQ/mask/*.png    optional, non-zero = object
-    SEQ/truth.json    optional per-frame ground truth: "joint_positions" (rad or m, per frame) and
-                      "object_poses" (4x4 camera_from_object, per frame), for per-pair truth;
-                      optional "part_visibility" (per frame: "share" of the object's pixels that are
-                      the moving part, "axis_distance_m" its visible points reach from the joint axis)
+    SEQ/truth.json    optional per-frame ground truth, for per-pair truth (docs/data-formats.md):
+                      "object_poses" (4x4 camera_from_object, per frame); with "parts", "part_poses",
+                      "part_valid_px", "part_points_m" and "sensor", the observable articulation truth;
+                      otherwise the joint-state truth from "joint_positions" and "part_visibility"
 """
 
 from __future__ import annotations
@@ -34,6 +34,14 @@ TURN_BAND_RAD = (np.radians(0.5), np.radians(2.0))
 # A joint motion is only "seen" when the moving part covers this share of the object's pixels in both
 # frames: a lid seen edge-on, or a handle hidden behind the other, shows the sensor no articulation.
 VISIBLE_PART_SHARE = 0.05
+# Observable articulation: each side of a joint needs depth on at least this many pixels, and this share
+# of the object's pixels, in both frames.
+MIN_SIDE_PIXELS = 30
+MIN_SIDE_SHARE = 0.02
+# A side's median visible point must move by more than this many axial noise sigmas, plus one pixel at
+# its depth, for AM; a motion between AMBIGUOUS_SIGMAS sigmas and that gives no truth.
+OBSERVABLE_SIGMAS = 3.0
+AMBIGUOUS_SIGMAS = 1.0
 
 
 def _images(folder: Path) -> list[Path]:
@@ -74,6 +82,123 @@ def pair_truth_from_states(joint_a, joint_b, pose_a, pose_b, *, joint_eps: Thres
     return "NM" if moved is False and turned is False else None
 
 
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    order = np.argsort(values)
+    cum = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
+
+
+def _side_motion(truth: dict, side: list[int], frame: int, T_ref: dict, motion: np.ndarray):
+    """Median displacement (m) and median camera depth (m) of the points of the parts ``side`` visible
+    in ``frame`` when ``motion`` (4x4, in the reference frame) moves them; None when no point is seen.
+
+    ``T_ref[f]`` is camera_from_reference in frame f. Each part's sample counts for its pixels."""
+    disp, depth, weight = [], [], []
+    for m in side:
+        pts = np.asarray(truth["part_points_m"][frame][m], dtype=float).reshape(-1, 3)
+        if not len(pts):
+            continue
+        P = np.asarray(truth["part_poses"][frame][m], dtype=float)
+        cam = pts @ P[:3, :3].T + P[:3, 3]
+        T = np.linalg.inv(T_ref[frame]) @ P
+        ref = pts @ T[:3, :3].T + T[:3, 3]
+        moved = ref @ motion[:3, :3].T + motion[:3, 3]
+        disp.append(np.linalg.norm(moved - ref, axis=1))
+        depth.append(cam[:, 2])
+        weight.append(np.full(len(pts), truth["part_valid_px"][frame][m] / len(pts)))
+    if not disp:
+        return None
+    w = np.concatenate(weight)
+    return _weighted_median(np.concatenate(disp), w), _weighted_median(np.concatenate(depth), w)
+
+
+def observable_joint_motions(truth: dict, i: int, j: int) -> list[dict]:
+    """For every joint, how far its motion between frames i and j moves what the sensor sees of it.
+
+    The *moving side* of a joint is its child part with every part that hangs on it, the *rest* is
+    every other part. Each side is judged in the other's frame: the joint's motion from i to j (the
+    change of parent_from_child) moves the moving side's visible points, as seen from the rest, and
+    its inverse moves the rest's points, as seen from the moving side. Each side's median point
+    displacement is taken over its points seen in frame i (moved forward) and in frame j (moved back),
+    the smaller of the two; its depth is the larger of its median depths in i and j.
+
+    Returns
+    -------
+    list of dict
+        Per joint: ``valid`` (both sides have depth on at least ``MIN_SIDE_PIXELS`` pixels and
+        ``MIN_SIDE_SHARE`` of the object's pixels, in both frames), and for each side
+        (``moving``, ``rest``) its ``displacement_m``, ``depth_m`` and ``sigma_m`` (the sensor's axial
+        noise there, with the depth quantisation's step / sqrt(12) as a floor).
+    """
+    parents = [p["parent"] for p in truth["parts"]]
+    sensor = truth["sensor"]
+    step_sigma = sensor.get("depth_step_m", 0.0) / np.sqrt(12.0)
+    out = []
+    for child, part in enumerate(truth["parts"]):
+        parent = part["parent"]
+        if parent < 0:
+            continue
+        moving = [child]
+        for k, p in enumerate(parents):
+            if p in moving and k not in moving:
+                moving.append(k)
+        rest = [k for k in range(len(parents)) if k not in moving]
+        valid = True
+        for f in (i, j):
+            px = truth["part_valid_px"][f]
+            need = max(MIN_SIDE_PIXELS, MIN_SIDE_SHARE * sum(px))
+            valid &= all(sum(px[k] for k in s) >= need for s in (moving, rest))
+        cam = {side: {f: np.asarray(truth["part_poses"][f][k], dtype=float) for f in (i, j)}
+               for side, k in (("parent", parent), ("child", child))}
+        T_pc = {f: np.linalg.inv(cam["parent"][f]) @ cam["child"][f] for f in (i, j)}
+        forward = T_pc[j] @ np.linalg.inv(T_pc[i])                  # in the parent's frame
+        forward_c = np.linalg.inv(T_pc[j]) @ T_pc[i]                # the rest's motion, child's frame
+        sides = {}
+        for name, members, ref, M in (("moving", moving, cam["parent"], forward),
+                                      ("rest", rest, cam["child"], forward_c)):
+            a = _side_motion(truth, members, i, ref, M)
+            b = _side_motion(truth, members, j, ref, np.linalg.inv(M))
+            seen = [x for x in (a, b) if x is not None]
+            if not seen:
+                sides[name] = None
+                continue
+            z = max(x[1] for x in seen)
+            sigma = sensor["axial_a_m"] + sensor["axial_b_per_m"] * (z - sensor["axial_reference_m"]) ** 2
+            sides[name] = dict(displacement_m=min(x[0] for x in seen), depth_m=z,
+                               sigma_m=max(sigma, step_sigma))
+        out.append(dict(joint=part["joint"], valid=bool(valid and all(sides.values())), **sides))
+    return out
+
+
+def observable_pair_truth(truth: dict, i: int, j: int) -> str | None:
+    """Pair truth by what the sensor can see: ``AM``, ``RM``, ``NM`` or None (ambiguous).
+
+    ``AM`` when, for some joint whose two sides both have enough valid depth in both frames
+    (``observable_joint_motions``), the joint's motion moves the median visible point of each side by
+    more than ``OBSERVABLE_SIGMAS`` times the axial depth noise sigma(z) plus one pixel (z / fx) at that
+    side's depth. None when no joint does but one moves each side by more than ``AMBIGUOUS_SIGMAS``
+    sigma. Otherwise the object's own motion decides ``RM`` or ``NM`` (``pair_truth_from_states``).
+    """
+    fx = truth["sensor"]["fx_px"]
+    ambiguous = False
+    for motion in observable_joint_motions(truth, i, j):
+        if not motion["valid"]:
+            continue
+        sides = (motion["moving"], motion["rest"])
+        if all(s["displacement_m"] > OBSERVABLE_SIGMAS * s["sigma_m"] + s["depth_m"] / fx for s in sides):
+            return "AM"
+        ambiguous |= all(s["displacement_m"] > AMBIGUOUS_SIGMAS * s["sigma_m"] for s in sides)
+    if ambiguous:
+        return None
+    poses = truth.get("object_poses") or [None] * len(truth["part_poses"])
+    return pair_truth_from_states(None, None, poses[i], poses[j], joint_eps=PRISMATIC_BAND_M,
+                                  move_eps_m=MOVE_BAND_M, turn_eps_rad=TURN_BAND_RAD)
+
+
+#: truth.json keys the observable articulation truth needs.
+OBSERVABLE_TRUTH_KEYS = ("parts", "part_poses", "part_valid_px", "part_points_m", "sensor")
+
+
 class FolderSequence(Sequence):
     def __init__(self, path: Path, meta: dict, rgb: list[Path], depth: list[Path], masks: list[Path],
                  truth: dict | None, width: int, height: int):
@@ -100,6 +225,15 @@ class FolderSequence(Sequence):
         return Frame(i, self.rgb_files[i].stem, rgb, depth, mask)
 
     def pair_truth(self, i: int, j: int) -> str | None:
+        """Observable articulation truth (``observable_pair_truth``) when truth.json has what it needs,
+        else the joint-state truth of ``pair_truth_legacy``."""
+        if self.truth and all(k in self.truth for k in OBSERVABLE_TRUTH_KEYS):
+            return observable_pair_truth(self.truth, i, j)
+        return self.pair_truth_legacy(i, j)
+
+    def pair_truth_legacy(self, i: int, j: int) -> str | None:
+        """Joint-state truth: AM when the first joint moved by more than its band, judged by how far the
+        visible part went when truth.json has ``part_visibility``; else RM or NM by the object's motion."""
         if not self.truth:
             return None
         joints = self.truth.get("joint_positions") or [None] * len(self)

@@ -1,9 +1,11 @@
 """Synthetic RGB-D sequences of handled objects, with ground truth.
 
-Renders articulated, rigid and static scenes on the CPU with Open3D's
-``RaycastingScene``, adds structured-light sensor noise and writes artclass's
-native sequence folder (``meta.json``, ``truth.json``, ``rgb/``, ``depth/``,
-``mask/``). Everything is reproducible from a seed.
+Renders articulated (one joint or a chain of joints), rigid and static scenes,
+optionally handled by a hand or a gripper, on the CPU with Open3D's
+``RaycastingScene``, adds structured-light sensor noise (with flying pixels and
+1 mm depth steps) and writes artclass's native sequence folder (``meta.json``,
+``truth.json``, ``rgb/``, ``depth/``, ``mask/``, ``hand/``, ``parts/``).
+Everything is reproducible from a seed.
 
 Public API
 ----------
@@ -16,9 +18,17 @@ The command ``artclass sample`` lives in ``artclass_plugins.synth.commands``
 (registered by the core as an entry point); this package does not import the core.
 """
 
-from .generate import GENERATOR_VERSION, SynthFrame, SynthSequence, generate_sequence, plan_sequence
+from .generate import (
+    GENERATOR_VERSION,
+    HANDS,
+    TEXTURES,
+    SynthFrame,
+    SynthSequence,
+    generate_sequence,
+    plan_sequence,
+)
 from .motion import MOTIONS, MotionSpec
-from .objects import OBJECTS, Joint, ObjectSpec, T_object_from_child
+from .objects import OBJECTS, Joint, ObjectSpec, T_object_from_child, part_poses
 from .presets import PRESETS, SequencePlan, generate_set, preset_plans, read_index
 from .render import NOISE_LEVELS, Intrinsics, NoiseLevel
 
@@ -26,6 +36,7 @@ __version__ = GENERATOR_VERSION
 
 __all__ = [
     "GENERATOR_VERSION",
+    "HANDS",
     "Intrinsics",
     "Joint",
     "MOTIONS",
@@ -38,9 +49,11 @@ __all__ = [
     "SequencePlan",
     "SynthFrame",
     "SynthSequence",
+    "TEXTURES",
     "T_object_from_child",
     "generate_sequence",
     "generate_set",
+    "part_poses",
     "plan_sequence",
     "preset_plans",
     "read_index",

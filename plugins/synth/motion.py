@@ -55,8 +55,9 @@ class Trajectory:
     Attributes
     ----------
     T_world_from_object : ndarray, shape (N, 4, 4)
-    joint_positions : ndarray, shape (N,) or None
-        Radians (revolute) or metres (prismatic); ``None`` for rigid objects.
+    joint_positions : ndarray, shape (N, J) or None
+        Per frame, the position of each joint (radians for revolute, metres for prismatic
+        joints), in the order of ``ObjectSpec.joints``; ``None`` for rigid objects.
     T_camera_from_world : ndarray, shape (N, 4, 4)
     """
 
@@ -101,10 +102,15 @@ def _pose(R: np.ndarray, t) -> np.ndarray:
     return T
 
 
-def _joint_schedule(spec: ObjectSpec, n: int, rng: np.random.Generator, moving: bool):
-    j = spec.joint
-    if j is None:
+def _joint_schedules(spec: ObjectSpec, n: int, rng: np.random.Generator, moving: bool):
+    """Positions of every joint, shape (n, J), or None for rigid objects; each joint gets its own
+    start, travel and timing."""
+    if not spec.joints:
         return None
+    return np.stack([_joint_schedule(j, n, rng, moving) for j in spec.joints], axis=1)
+
+
+def _joint_schedule(j, n: int, rng: np.random.Generator, moving: bool) -> np.ndarray:
     q0 = rng.uniform(*j.rest)
     travel = rng.uniform(*j.travel)
     lo, hi = j.limits
@@ -156,11 +162,11 @@ def make_trajectory(spec: ObjectSpec, motion: str, *, n_frames: int,
     n = n_frames
     t = np.linspace(0.0, 1.0, n)
 
-    q = _joint_schedule(spec, n, rng, m.moves_joint)
+    q = _joint_schedules(spec, n, rng, m.moves_joint)
     yaw0 = math.radians(rng.uniform(-25.0, 25.0))
     T_start = _pose(rotation_about_axis((0, 0, 1), yaw0), (rng.uniform(-0.03, 0.03),
                                                            rng.uniform(-0.05, 0.0), 0.0))
-    q_mid = None if q is None else float(q[n // 2])
+    q_mid = None if q is None else q[n // 2]
     pts_mid = object_points_m(spec, q_mid)
     centre_obj = 0.5 * (pts_mid.min(0) + pts_mid.max(0))
 
@@ -194,7 +200,7 @@ def make_trajectory(spec: ObjectSpec, motion: str, *, n_frames: int,
         clearance = rng.uniform(0.02, 0.08)
         min_z = math.inf
         for i in range(n):
-            pts = object_points_m(spec, None if q is None else float(q[i]))
+            pts = object_points_m(spec, None if q is None else q[i])
             min_z = min(min_z, float(np.min(pts @ T_wo[i, 2, :3] + T_wo[i, 2, 3])))
         T_wo[:, 2, 3] += clearance - min_z
         carry_extent = dist

@@ -2,12 +2,14 @@
 
 Every object is described in its own *object frame*: metres, z up, the origin
 on the table at the centre of the object's footprint, the front of the object
-facing -y (the camera looks at the front). An object has one or two parts.
-Part 0 is the *base*; its frame is the object frame. Part 1, when present, is
-the *moving part*, attached to the base through a single revolute or prismatic
-joint. The moving part's geometry is given in the object frame at joint
-position ``q = 0``; at position ``q`` it is moved by
-``T_object_from_child(q)``.
+facing -y (the camera looks at the front). An object is a kinematic tree of
+parts. Part 0 is the *base*; its frame is the object frame. Part ``k >= 1`` is
+attached to its parent part (``joints[k - 1].parent``, a lower index) through a
+revolute or prismatic joint, so a desk lamp (base, lower arm, upper arm) or a
+folding ruler (a chain of segments) is built like a laptop (base and lid).
+Every part's geometry and every joint's axis are given in the object frame
+with all joints at position 0; a part's pose is its parent's pose composed with
+its own joint's motion ``T_object_from_child(joint, q)`` (see ``part_poses``).
 
 Each part is a list of pieces (a primitive mesh, two colours and a texture
 pattern in the piece's part frame), so that the RGB images have features that
@@ -31,6 +33,7 @@ __all__ = [
     "Piece",
     "T_object_from_child",
     "object_extent_m",
+    "part_poses",
     "rotation_about_axis",
 ]
 
@@ -76,7 +79,7 @@ class Part:
 
 @dataclass(frozen=True)
 class Joint:
-    """A single joint between the base (part 0) and the moving part (part 1).
+    """A joint that moves a child part relative to its parent part.
 
     Attributes
     ----------
@@ -93,6 +96,8 @@ class Joint:
         Range from which the starting position of a sequence is drawn.
     travel : tuple (low, high), radians or metres
         Range of the absolute joint displacement over an articulating sequence.
+    parent : int
+        Index of the parent part (0, the base, for single-joint objects).
     """
 
     joint_type: str
@@ -101,6 +106,7 @@ class Joint:
     limits: tuple[float, float]
     rest: tuple[float, float]
     travel: tuple[float, float]
+    parent: int = 0
 
     def __post_init__(self):
         if self.joint_type not in ("revolute", "prismatic"):
@@ -126,21 +132,47 @@ class ObjectSpec:
     description : str
         One line for people.
     parts : tuple of Part
-        Part 0 is the base; part 1 (articulated objects only) the moving part.
-    joint : Joint or None
-        ``None`` for rigid objects.
+        Part 0 is the base; part ``k >= 1`` (articulated objects only) hangs on ``joints[k - 1]``.
+    joints : tuple of Joint
+        One per part after the base; empty for rigid objects.
     """
 
     name: str
     kind: str
     description: str
     parts: tuple[Part, ...] = field(repr=False)
-    joint: Joint | None = None
+    joints: tuple[Joint, ...] = ()
+
+    def __post_init__(self):
+        if len(self.joints) != len(self.parts) - 1:
+            raise ValueError(f"object {self.name!r}: {len(self.parts)} parts need "
+                             f"{len(self.parts) - 1} joints, got {len(self.joints)}")
+        for k, j in enumerate(self.joints):
+            if not 0 <= j.parent <= k:
+                raise ValueError(f"object {self.name!r}: joint {k} (part {k + 1}) has parent "
+                                 f"{j.parent}, which must be a part before it (0..{k})")
+
+    @property
+    def joint(self) -> Joint | None:
+        """The first joint (the only one of a single-joint object), or ``None`` for rigid objects."""
+        return self.joints[0] if self.joints else None
 
     @property
     def joint_type(self) -> str | None:
-        """``"revolute"``, ``"prismatic"`` or ``None`` for rigid objects."""
+        """Type of the first joint: ``"revolute"``, ``"prismatic"`` or ``None`` for rigid objects."""
         return None if self.joint is None else self.joint.joint_type
+
+    def subtree(self, part: int) -> list[int]:
+        """``part`` and every part that hangs on it, directly or through other joints."""
+        out = [part]
+        for k, j in enumerate(self.joints):
+            if j.parent in out:
+                out.append(k + 1)
+        return out
+
+    def rest_positions(self) -> np.ndarray:
+        """Midpoint of every joint's ``rest`` range, shape (J,)."""
+        return np.array([0.5 * (j.rest[0] + j.rest[1]) for j in self.joints])
 
 
 # --------------------------------------------------------------------------
@@ -182,6 +214,31 @@ def T_object_from_child(joint: Joint | None, q: float | None) -> np.ndarray:
     T[:3, :3] = R
     T[:3, 3] = p - R @ p
     return T
+
+
+def part_poses(spec: ObjectSpec, q) -> list[np.ndarray]:
+    """Pose of every part in the object frame, ``T_object_from_part``, at joint positions ``q``.
+
+    Parameters
+    ----------
+    spec : ObjectSpec
+    q : array_like, shape (J,), or float, or None
+        Joint positions (radians or metres) in the order of ``spec.joints``; a float for a
+        single-joint object; ``None`` puts every joint at 0.
+
+    Returns
+    -------
+    list of ndarray, shape (4, 4)
+        One per part; the base's is the identity.
+    """
+    qs = np.zeros(len(spec.joints)) if q is None else np.atleast_1d(np.asarray(q, dtype=float))
+    if len(qs) != len(spec.joints):
+        raise ValueError(f"object {spec.name!r} has {len(spec.joints)} joints, got {len(qs)} "
+                         "joint positions")
+    poses = [np.eye(4)]
+    for joint, qk in zip(spec.joints, qs):
+        poses.append(poses[joint.parent] @ T_object_from_child(joint, float(qk)))
+    return poses
 
 
 def _legacy_arrays(mesh: o3d.geometry.TriangleMesh) -> tuple[np.ndarray, np.ndarray]:
@@ -299,7 +356,7 @@ def _laptop() -> ObjectSpec:
                   limits=(0.0, 135 * _DEG), rest=(60 * _DEG, 115 * _DEG),
                   travel=(20 * _DEG, 70 * _DEG))
     return ObjectSpec("laptop", "articulated", "laptop: base and lid on a revolute hinge",
-                      (base, lid), joint)
+                      (base, lid), (joint,))
 
 
 def _drawer() -> ObjectSpec:
@@ -317,7 +374,7 @@ def _drawer() -> ObjectSpec:
     joint = Joint("prismatic", (0.0, -0.16, 0.11), (0.0, -1.0, 0.0),
                   limits=(0.0, 0.26), rest=(0.0, 0.06), travel=(0.05, 0.20))
     return ObjectSpec("drawer", "articulated", "cabinet with a sliding drawer (prismatic)",
-                      (Part("carcass", tuple(carcass)), Part("drawer", tuple(drawer))), joint)
+                      (Part("carcass", tuple(carcass)), Part("drawer", tuple(drawer))), (joint,))
 
 
 def _box_lid() -> ObjectSpec:
@@ -330,7 +387,7 @@ def _box_lid() -> ObjectSpec:
                   limits=(0.0, 120 * _DEG), rest=(0.0, 40 * _DEG), travel=(20 * _DEG, 70 * _DEG))
     return ObjectSpec("box_lid", "articulated",
                       "square box with a hinged lid (revolute, near-symmetric)",
-                      (Part("box", tuple(body)), Part("lid", tuple(lid))), joint)
+                      (Part("box", tuple(body)), Part("lid", tuple(lid))), (joint,))
 
 
 def _lever(sign: float, z_m: float, metal, grip) -> list[Piece]:
@@ -358,7 +415,7 @@ def _pliers() -> ObjectSpec:
                   limits=(0.0, 45 * _DEG), rest=(0.0, 10 * _DEG), travel=(12 * _DEG, 30 * _DEG))
     return ObjectSpec("pliers", "articulated",
                       "pliers lying flat: two thin levers on a pin (revolute, thin parts)",
-                      (Part("lever_a", tuple(a)), Part("lever_b", tuple(b))), joint)
+                      (Part("lever_a", tuple(a)), Part("lever_b", tuple(b))), (joint,))
 
 
 def _globe() -> ObjectSpec:
@@ -382,7 +439,7 @@ def _globe() -> ObjectSpec:
                   travel=(40 * _DEG, 150 * _DEG))
     return ObjectSpec("globe", "articulated",
                       "globe spinning on a stand (revolute, rotationally symmetric part)",
-                      (Part("stand", tuple(stand)), Part("ball", tuple(ball))), joint)
+                      (Part("stand", tuple(stand)), Part("ball", tuple(ball))), (joint,))
 
 
 def _microwave() -> ObjectSpec:
@@ -410,7 +467,7 @@ def _microwave() -> ObjectSpec:
     return ObjectSpec("microwave", "articulated",
                       "microwave oven with a hinged door (revolute, large part)",
                       (Part("body", tuple(walls + [panel, inner])), Part("door", tuple(door))),
-                      joint)
+                      (joint,))
 
 
 def _matchbox() -> ObjectSpec:
@@ -433,7 +490,7 @@ def _matchbox() -> ObjectSpec:
                   limits=(0.0, 0.11), rest=(0.0, 0.02), travel=(0.04, 0.09))
     return ObjectSpec("matchbox", "articulated",
                       "kitchen matchbox: sleeve and sliding tray (prismatic, small part)",
-                      (Part("sleeve", tuple(sleeve)), Part("tray", tuple(tray))), joint)
+                      (Part("sleeve", tuple(sleeve)), Part("tray", tuple(tray))), (joint,))
 
 
 def _mug() -> ObjectSpec:
@@ -514,9 +571,143 @@ def _banana() -> ObjectSpec:
                       (Part("banana", tuple(pieces)),))
 
 
+def _book() -> ObjectSpec:
+    cover, pages = (0.55, 0.12, 0.10), (0.93, 0.91, 0.85)
+    return ObjectSpec("book", "rigid", "hardback book lying flat (flat, 3 cm thick)", (Part("book", (
+        box((0.24, 0.17, 0.003), (0, 0, 0.0015), cover, pattern="plain"),
+        box((0.235, 0.165, 0.024), (0.002, 0, 0.015), pages, pattern="stripes", cell_m=0.002,
+            contrast=0.08),
+        box((0.24, 0.17, 0.003), (0, 0, 0.0285), cover, colour2=(0.85, 0.75, 0.30),
+            pattern="blobs", cell_m=0.05),
+        box((0.004, 0.17, 0.03), (-0.122, 0, 0.015), cover, pattern="plain"),   # spine
+    )),))
+
+
+def _plate() -> ObjectSpec:
+    white = (0.92, 0.92, 0.90)
+    return ObjectSpec("plate", "rigid", "dinner plate (flat and thin, 26 cm, 1.5 cm high)", (Part("plate", (
+        cylinder(0.09, 0.008, (0, 0, 0.004), white, resolution=32, pattern="plain"),
+        torus(0.11, 0.016, (0, 0, 0.012), white, colour2=(0.20, 0.35, 0.60), pattern="stripes",
+              cell_m=0.012, contrast=0.5),
+    )),))
+
+
+def _ruler() -> ObjectSpec:
+    return ObjectSpec("ruler", "rigid", "30 cm steel ruler (thin: 3 mm)", (Part("ruler", (
+        box((0.31, 0.03, 0.003), (0, 0, 0.0015), (0.70, 0.71, 0.73), colour2=(0.15, 0.15, 0.15),
+            pattern="stripes", cell_m=0.005, contrast=0.6),
+    )),))
+
+
+def _scissors() -> ObjectSpec:
+    steel, handle = (0.72, 0.73, 0.76), (0.10, 0.30, 0.70)
+
+    def blade(z_m: float, sign: float) -> list[Piece]:
+        # A blade towards -x and a handle ring towards +x, 2.5 mm thick, lying flat.
+        return [
+            box((0.10, 0.012, 0.0025), (-0.05, sign * 0.003, z_m), steel, pattern="stripes",
+                cell_m=0.01, contrast=0.15),
+            box((0.04, 0.008, 0.0025), (0.02, sign * 0.006, z_m), steel, pattern="plain"),
+            torus(0.016, 0.004, (0.058, sign * 0.016, z_m), handle, pattern="plain"),
+        ]
+
+    joint = Joint("revolute", (0.0, 0.0, 0.0), (0.0, 0.0, 1.0),
+                  limits=(0.0, 50 * _DEG), rest=(0.0, 8 * _DEG), travel=(15 * _DEG, 40 * _DEG))
+    return ObjectSpec("scissors", "articulated",
+                      "scissors lying flat: two thin levers turning in their own plane (revolute)",
+                      (Part("blade_a", tuple(blade(0.002, -1.0) + [cylinder(
+                          0.004, 0.006, (0, 0, 0.003), (0.3, 0.3, 0.32), resolution=10,
+                          pattern="plain")])),
+                       Part("blade_b", tuple(blade(0.0045, 1.0)))), (joint,))
+
+
+def _monitor() -> ObjectSpec:
+    black, grey, screen = (0.08, 0.08, 0.09), (0.30, 0.30, 0.32), (0.10, 0.16, 0.30)
+    stand = (
+        box((0.22, 0.18, 0.015), (0, 0.02, 0.0075), grey, pattern="plain"),
+        box((0.05, 0.03, 0.20), (0, 0.06, 0.11), grey, pattern="plain"),
+    )
+    hinge = (0.0, 0.05, 0.20)
+    panel = (
+        box((0.42, 0.03, 0.26), (0, 0.03, 0.20), black, pattern="plain"),
+        box((0.40, 0.002, 0.235), (0, 0.014, 0.205), screen, colour2=(0.55, 0.65, 0.80),
+            pattern="blobs", cell_m=0.06),
+    )
+    joint = Joint("revolute", hinge, (1.0, 0.0, 0.0),
+                  limits=(-5 * _DEG, 25 * _DEG), rest=(-5 * _DEG, 5 * _DEG),
+                  travel=(8 * _DEG, 20 * _DEG))
+    return ObjectSpec("monitor", "articulated",
+                      "computer monitor: a flat panel tilting on its stand (revolute)",
+                      (Part("stand", stand), Part("panel", panel)), (joint,))
+
+
+def _slide_case() -> ObjectSpec:
+    wood, lid_col = (0.72, 0.52, 0.30), (0.62, 0.42, 0.24)
+    sx, sy, sz = 0.22, 0.08, 0.045
+    body = _hollow_box((sx, sy, sz), (0, 0, sz / 2), 0.005, wood, open_side="+z",
+                       pattern="stripes", cell_m=0.008, contrast=0.12)
+    lid = [box((sx - 0.004, sy - 0.006, 0.005), (0, 0, sz + 0.0025), lid_col, pattern="stripes",
+               cell_m=0.01, contrast=0.15),
+           box((0.012, 0.03, 0.004), (sx / 2 - 0.02, 0, sz + 0.007), (0.35, 0.22, 0.12),
+               pattern="plain")]   # finger grip
+    joint = Joint("prismatic", (sx / 2, 0.0, sz), (1.0, 0.0, 0.0),
+                  limits=(0.0, 0.17), rest=(0.0, 0.02), travel=(0.04, 0.12))
+    return ObjectSpec("slide_case", "articulated",
+                      "pencil case with a sliding lid (prismatic, thin part)",
+                      (Part("case", tuple(body)), Part("lid", tuple(lid))), (joint,))
+
+
+def _desk_lamp() -> ObjectSpec:
+    black, metal, shade = (0.10, 0.10, 0.11), (0.75, 0.75, 0.78), (0.85, 0.30, 0.15)
+    base = (cylinder(0.075, 0.025, (0, 0.02, 0.0125), black, resolution=24, pattern="plain"),
+            cylinder(0.012, 0.03, (0, 0.02, 0.035), metal, resolution=10, pattern="plain"))
+    shoulder, elbow = (0.0, 0.02, 0.045), (0.0, 0.02, 0.245)
+    lower = (box((0.03, 0.014, 0.20), (0, 0.02, 0.145), metal, pattern="stripes", cell_m=0.02,
+                 contrast=0.1),
+             cylinder(0.012, 0.04, elbow, black, axis=(1, 0, 0), resolution=10, pattern="plain"))
+    upper = (box((0.03, 0.18, 0.014), (0, -0.07, 0.245), metal, pattern="stripes", cell_m=0.02,
+                 contrast=0.1),
+             cone(0.06, 0.09, (0, -0.18, 0.17), shade, axis=(0, 0, 1), resolution=20,
+                  pattern="plain"),
+             cylinder(0.02, 0.04, (0, -0.18, 0.245), shade, resolution=12, pattern="plain"))
+    joints = (
+        Joint("revolute", shoulder, (1.0, 0.0, 0.0), limits=(-45 * _DEG, 30 * _DEG),
+              rest=(-25 * _DEG, 5 * _DEG), travel=(10 * _DEG, 25 * _DEG), parent=0),
+        Joint("revolute", elbow, (1.0, 0.0, 0.0), limits=(-40 * _DEG, 50 * _DEG),
+              rest=(-15 * _DEG, 15 * _DEG), travel=(12 * _DEG, 30 * _DEG), parent=1),
+    )
+    return ObjectSpec("desk_lamp", "articulated",
+                      "desk lamp: base, lower arm and upper arm with its shade (two revolute joints)",
+                      (Part("base", base), Part("lower_arm", lower), Part("upper_arm", upper)),
+                      joints)
+
+
+def _folding_ruler() -> ObjectSpec:
+    wood, ticks = (0.93, 0.82, 0.40), (0.15, 0.12, 0.08)
+    n, length, width, t = 4, 0.10, 0.017, 0.004
+    x0 = -n * length / 2
+    parts, joints = [], []
+    for k in range(n):
+        z = t / 2 + (k % 2) * t        # alternate layers, as the segments of a real one overlap
+        parts.append(Part(f"segment_{k}", (
+            box((length, width, t), (x0 + (k + 0.5) * length, 0, z), wood, colour2=ticks,
+                pattern="stripes", cell_m=0.005, contrast=0.5),
+            cylinder(0.003, 0.009, (x0 + k * length, 0, t), (0.6, 0.6, 0.62), resolution=8,
+                     pattern="plain"),
+        )))
+        if k:
+            joints.append(Joint("revolute", (x0 + k * length, 0.0, 0.0), (0.0, 0.0, 1.0),
+                                limits=(-150 * _DEG, 150 * _DEG), rest=(-40 * _DEG, 40 * _DEG),
+                                travel=(20 * _DEG, 60 * _DEG), parent=k - 1))
+    return ObjectSpec("folding_ruler", "articulated",
+                      "folding ruler lying flat: a chain of four segments (three revolute joints)",
+                      tuple(parts), tuple(joints))
+
+
 _BUILDERS = (
     _laptop, _drawer, _box_lid, _pliers, _globe, _microwave, _matchbox,
     _mug, _cereal_box, _can, _bottle, _drill, _banana,
+    _book, _plate, _ruler, _scissors, _monitor, _slide_case, _desk_lamp, _folding_ruler,
 )
 
 
@@ -527,9 +718,9 @@ def _build_catalogue() -> dict[str, ObjectSpec]:
         spec = build()
         if spec.name in cat:
             raise ValueError(f"duplicate object name {spec.name!r}")
-        if spec.kind == "articulated" and (spec.joint is None or len(spec.parts) != 2):
-            raise ValueError(f"articulated object {spec.name!r} needs two parts and a joint")
-        if spec.kind == "rigid" and (spec.joint is not None or len(spec.parts) != 1):
+        if spec.kind == "articulated" and not spec.joints:
+            raise ValueError(f"articulated object {spec.name!r} needs a joint")
+        if spec.kind == "rigid" and (spec.joints or len(spec.parts) != 1):
             raise ValueError(f"rigid object {spec.name!r} needs one part and no joint")
         cat[spec.name] = spec
     return cat
@@ -539,11 +730,10 @@ def _build_catalogue() -> dict[str, ObjectSpec]:
 OBJECTS: dict[str, ObjectSpec] = _build_catalogue()
 
 
-def object_points_m(spec: ObjectSpec, q: float | None) -> np.ndarray:
-    """All vertices of ``spec`` in the object frame at joint position ``q``, shape (N, 3)."""
+def object_points_m(spec: ObjectSpec, q) -> np.ndarray:
+    """All vertices of ``spec`` in the object frame at joint positions ``q``, shape (N, 3)."""
     out = []
-    for i, part in enumerate(spec.parts):
-        T = T_object_from_child(spec.joint, q) if i == 1 else np.eye(4)
+    for T, part in zip(part_poses(spec, q), spec.parts):
         for piece in part.pieces:
             out.append(piece.vertices_m @ T[:3, :3].T + T[:3, 3])
     return np.concatenate(out)
@@ -551,6 +741,5 @@ def object_points_m(spec: ObjectSpec, q: float | None) -> np.ndarray:
 
 def object_extent_m(spec: ObjectSpec) -> float:
     """Largest side of the axis-aligned bounding box at the joint's rest midpoint, metres."""
-    q = None if spec.joint is None else float(np.mean(spec.joint.rest))
-    pts = object_points_m(spec, q)
+    pts = object_points_m(spec, spec.rest_positions())
     return float(np.max(pts.max(0) - pts.min(0)))

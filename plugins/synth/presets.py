@@ -1,4 +1,4 @@
-"""Named sets of sequences: ``sample``, ``benchmark`` and ``smoke``."""
+"""Named sets of sequences: ``sample``, ``smoke`` and the benchmark at three camera resolutions."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from .generate import GENERATOR_VERSION, generate_sequence
+from .generate import GENERATOR_VERSION, HANDS, TEXTURES, generate_sequence
 from .motion import MOTIONS
 from .objects import OBJECTS
 from .write import write_json
@@ -25,12 +25,18 @@ class SequencePlan:
     n_frames: int
     width: int
     height: int
+    texture: str = "textured"
+    hand: str = "none"
 
     def __post_init__(self):
         if self.object_name not in OBJECTS:
             raise ValueError(f"plan {self.name!r}: unknown object {self.object_name!r}")
         if self.motion not in MOTIONS:
             raise ValueError(f"plan {self.name!r}: unknown motion {self.motion!r}")
+        if self.texture not in TEXTURES:
+            raise ValueError(f"plan {self.name!r}: unknown texture {self.texture!r}")
+        if self.hand not in HANDS:
+            raise ValueError(f"plan {self.name!r}: unknown hand {self.hand!r}")
 
 
 def _sample() -> list[SequencePlan]:
@@ -52,6 +58,17 @@ _STATIC = (("mug", "low"), ("drill", "high"), ("cereal_box", "high"), ("bottle",
            ("laptop", "low"), ("microwave", "high"), ("globe", "low"), ("drawer", "high"))
 
 
+# Objects added with hands and kinematic chains (appended, so that the first 48 sequences keep their
+# names and seeds).
+_NEW_ARTICULATED = ("scissors", "monitor", "desk_lamp", "folding_ruler")
+_NEW_RIGID = (("book", "low"), ("book", "high"), ("plate", "high"), ("ruler", "low"))
+_NEW_STATIC = (("book", "high"), ("plate", "low"), ("scissors", "high"), ("desk_lamp", "low"),
+               ("monitor", "high"), ("ruler", "low"), ("folding_ruler", "high"),
+               ("slide_case", "low"))
+#: Who handles sequence i: HOLDER_CYCLE[i % 4] (three in four are handled); every third is plain.
+HOLDER_CYCLE = ("hand", "gripper", "hand", "none")
+
+
 def _benchmark(width: int = 320, height: int = 240) -> list[SequencePlan]:
     rows = []
     for obj in _ARTICULATED:
@@ -65,7 +82,14 @@ def _benchmark(width: int = 320, height: int = 240) -> list[SequencePlan]:
             rows.append((obj, "carry", noise))
     rows += [(obj, "carry", noise) for obj, noise in _CARRIED_FIXED_JOINT]
     rows += [(obj, "static", noise) for obj, noise in _STATIC]
-    return [SequencePlan(f"{i:02d}_{obj}_{motion}_{noise}", obj, motion, noise, 24, width, height)
+    for obj in _NEW_ARTICULATED:
+        for noise in ("low", "high"):
+            rows.append((obj, "articulate", noise))
+    rows += [("slide_case", "articulate", "high"), ("slide_case", "carry_articulate", "low")]
+    rows += [(obj, "carry", noise) for obj, noise in _NEW_RIGID]
+    rows += [(obj, "static", noise) for obj, noise in _NEW_STATIC]
+    return [SequencePlan(f"{i:02d}_{obj}_{motion}_{noise}", obj, motion, noise, 24, width, height,
+                         texture="plain" if i % 3 == 2 else "textured", hand=HOLDER_CYCLE[i % 4])
             for i, (obj, motion, noise) in enumerate(rows)]
 
 
@@ -82,14 +106,16 @@ def _smoke() -> list[SequencePlan]:
 #: Preset name -> one-line description.
 PRESETS: dict[str, str] = {
     "sample": "4 sequences, 320x240, 16 frames, low noise: what sample_data/ holds",
-    "benchmark": "48 sequences, 320x240, 24 frames, 13 objects, low and high noise: "
-                 "24 articulated, 16 rigid, 8 static",
+    "benchmark": "70 sequences, 320x240, 24 frames, 21 objects, low and high noise, three in four "
+                 "handled by a hand or gripper, one in three untextured: 34 articulated, 20 rigid, "
+                 "16 static",
     "benchmark-vga": "the benchmark at 640x480, the resolution of the Kinect / RealSense recordings "
                      "of YCB-Video and RBO",
+    "benchmark-rs": "the benchmark at 848x480 with a RealSense-like camera (fx = 615)",
     "smoke": "4 tiny sequences, 160x120, 8 frames, for tests",
 }
 _PLANS = {"sample": _sample, "benchmark": _benchmark, "benchmark-vga": lambda: _benchmark(640, 480),
-          "smoke": _smoke}
+          "benchmark-rs": lambda: _benchmark(848, 480), "smoke": _smoke}
 
 
 def preset_plans(preset: str) -> list[SequencePlan]:
@@ -108,7 +134,7 @@ def generate_set(out_root: str | Path, *, preset: str, seed: int = 0,
     out_root : str or Path
         Created if missing. Files in it other than the preset's sequence
         folders and ``index.json`` are left alone.
-    preset : {"sample", "benchmark", "smoke"}
+    preset : {"sample", "smoke", "benchmark", "benchmark-vga", "benchmark-rs"}
     seed : int
         Set seed; sequence ``i`` gets seed ``seed * 1000 + i`` (recorded in its meta.json).
     overwrite : bool
@@ -142,7 +168,7 @@ def generate_set(out_root: str | Path, *, preset: str, seed: int = 0,
         p = generate_sequence(root / plan.name, object_name=plan.object_name,
                               motion=plan.motion, noise=plan.noise, n_frames=plan.n_frames,
                               seed=seq_seed, width=plan.width, height=plan.height,
-                              overwrite=overwrite)
+                              texture=plan.texture, hand=plan.hand, overwrite=overwrite)
         out.append(p)
         entry = asdict(plan)
         entry.update(seed=seq_seed, label=MOTIONS[plan.motion].label,

@@ -20,7 +20,7 @@ import numpy as np
 import open3d as o3d
 from scipy import ndimage
 
-from .objects import ObjectSpec, Piece, T_object_from_child
+from .objects import ObjectSpec, Piece, part_poses
 from .objects import box as _box
 
 __all__ = [
@@ -40,10 +40,16 @@ REFERENCE_WIDTH_PX = 640
 REFERENCE_HEIGHT_PX = 480
 #: Focal length at the reference resolution (between Kinect v1's 525 and a RealSense's 615).
 REFERENCE_FOCAL_PX = 570.0
+#: A RealSense D400's colour camera at 848x480 (its 16:9 mode): focal length, pixels.
+REALSENSE_SIZE_PX = (848, 480)
+REALSENSE_FOCAL_PX = 615.0
 #: Distance between the IR camera and the pattern projector, along camera +x (Kinect v1: 7.5 cm).
 PROJECTOR_BASELINE_M = 0.075
 #: The wall behind the object.
 WALL_Y_M = 0.62
+#: ``SceneMesh.part`` of the room and of a hand or gripper (object parts are 0, 1, ...).
+ROOM = -1
+HAND = -2
 
 
 @dataclass(frozen=True)
@@ -72,21 +78,21 @@ class Intrinsics:
 
     @classmethod
     def for_resolution(cls, width_px: int = 640, height_px: int = 480) -> "Intrinsics":
-        """The simulated sensor scaled to ``width_px`` x ``height_px``.
+        """The simulated camera for a ``width_px`` x ``height_px`` image.
 
-        640x480 gives fx = fy = 570, cx = 319.5, cy = 239.5; 320x240 halves
-        the focal length and keeps the same field of view.
+        4:3 images are a Kinect-like sensor: 640x480 gives fx = fy = 570, cx = 319.5,
+        cy = 239.5, and 320x240 halves the focal length (same field of view). The 848:480
+        aspect ratio is a RealSense-like sensor: 848x480 gives fx = fy = 615, cx = 423.5,
+        cy = 239.5 (a wider view: 69 x 43 degrees against 58 x 45). Other sizes scale the
+        Kinect-like sensor's focal length with the width and the height.
         """
-        sx = width_px / REFERENCE_WIDTH_PX
-        sy = height_px / REFERENCE_HEIGHT_PX
-        return cls(
-            int(width_px),
-            int(height_px),
-            REFERENCE_FOCAL_PX * sx,
-            REFERENCE_FOCAL_PX * sy,
-            (width_px - 1) / 2.0,
-            (height_px - 1) / 2.0,
-        )
+        w, h = int(width_px), int(height_px)
+        if w * REALSENSE_SIZE_PX[1] == h * REALSENSE_SIZE_PX[0]:
+            fx = fy = REALSENSE_FOCAL_PX * h / REALSENSE_SIZE_PX[1]
+        else:
+            fx = REFERENCE_FOCAL_PX * w / REFERENCE_WIDTH_PX
+            fy = REFERENCE_FOCAL_PX * h / REFERENCE_HEIGHT_PX
+        return cls(w, h, fx, fy, (w - 1) / 2.0, (h - 1) / 2.0)
 
     @property
     def matrix(self) -> np.ndarray:
@@ -123,14 +129,20 @@ class NoiseLevel:
     rgb_sigma: float = field(metadata={"help": "colour noise std, 8-bit levels"})
     min_range_m: float = 0.3
     max_range_m: float = 4.5
+    flying_fraction: float = field(default=0.0, metadata={
+        "help": "fraction of pixels at a depth discontinuity that read a depth between the "
+                "foreground and the background (flying pixels)"})
+    depth_step_m: float = field(default=0.0, metadata={
+        "help": "depth quantisation of the delivered depth, metres (0: none)"})
 
     def __post_init__(self):
         for name in ("grazing_drop_prob", "edge_drop_prob", "lateral_fraction",
-                     "random_drop_fraction", "speckle_fraction"):
+                     "random_drop_fraction", "speckle_fraction", "flying_fraction"):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f"NoiseLevel {self.name!r}: {name}={value} is not in [0, 1]")
-        for name in ("axial_a_m", "axial_b_per_m", "disparity_subpixel", "rgb_sigma"):
+        for name in ("axial_a_m", "axial_b_per_m", "disparity_subpixel", "rgb_sigma",
+                     "depth_step_m"):
             if getattr(self, name) < 0:
                 raise ValueError(f"NoiseLevel {self.name!r}: {name}={getattr(self, name)} < 0")
         if not 0 <= self.grazing_start_deg <= self.grazing_end_deg <= 90:
@@ -143,15 +155,18 @@ class NoiseLevel:
         return self.axial_a_m + self.axial_b_per_m * (np.asarray(depth_m) - 0.4) ** 2
 
 
+#: Depth unit of the delivered depth (Kinect and RealSense deliver millimetres).
+DEPTH_STEP_M = 0.001
+
 #: Sensor noise levels. ``none`` is an ideal sensor (used by tests and ground truth);
 #: ``low`` is a good structured-light sensor; ``high`` about 2.5x worse everywhere.
 NOISE_LEVELS: dict[str, NoiseLevel] = {
     "none": NoiseLevel("none", 0.0, 0.0, 0.0, 90.0, 90.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, 0.0,
                        min_range_m=0.0, max_range_m=math.inf),
     "low": NoiseLevel("low", 0.0012, 0.0019, 1 / 8, 72.0, 82.0, 0.9, 0.25, 0.25, 0.002, 2e-4,
-                      True, 0.4),
+                      True, 0.4, flying_fraction=0.25, depth_step_m=DEPTH_STEP_M),
     "high": NoiseLevel("high", 0.003, 0.0048, 1 / 4, 65.0, 78.0, 0.95, 0.55, 0.5, 0.01, 1e-3,
-                       True, 2.5),
+                       True, 2.5, flying_fraction=0.5, depth_step_m=DEPTH_STEP_M),
 }
 
 
@@ -164,7 +179,8 @@ class SceneMesh:
     vertices_m : ndarray, shape (V, 3), metres, world frame
     triangles : ndarray, shape (F, 3), uint32
     part : int
-        Object part index (0 base, 1 moving part) or -1 for the room.
+        Object part index (0 base, 1, 2, ... the parts hanging on joints), ``ROOM`` (-1) for the
+        room or ``HAND`` (-2) for a hand or gripper.
     piece : Piece
         Colours and texture pattern.
     T_local_from_world : ndarray, shape (4, 4)
@@ -199,17 +215,19 @@ def _invert(T: np.ndarray) -> np.ndarray:
     return Ti
 
 
-def object_meshes(spec: ObjectSpec, q: float | None,
-                  T_world_from_object: np.ndarray) -> list[SceneMesh]:
-    """The pieces of ``spec`` at joint position ``q`` placed by ``T_world_from_object``."""
+def place_pieces(pieces, T_world_from_local: np.ndarray, part: int) -> list[SceneMesh]:
+    """``pieces`` (defined in a local frame) placed in the world by ``T_world_from_local``."""
+    T_local_world = _invert(T_world_from_local)
+    return [SceneMesh(_transform(T_world_from_local, p.vertices_m), p.triangles, part, p,
+                      T_local_world) for p in pieces]
+
+
+def object_meshes(spec: ObjectSpec, q, T_world_from_object: np.ndarray) -> list[SceneMesh]:
+    """The pieces of ``spec`` at joint positions ``q`` (see ``part_poses``) placed by
+    ``T_world_from_object``."""
     out = []
-    for part_index, part in enumerate(spec.parts):
-        T_obj_part = T_object_from_child(spec.joint, q) if part_index == 1 else np.eye(4)
-        T_world_part = T_world_from_object @ T_obj_part
-        T_part_world = _invert(T_world_part)
-        for piece in part.pieces:
-            out.append(SceneMesh(_transform(T_world_part, piece.vertices_m), piece.triangles,
-                                 part_index, piece, T_part_world))
+    for part_index, (T_obj_part, part) in enumerate(zip(part_poses(spec, q), spec.parts)):
+        out += place_pieces(part.pieces, T_world_from_object @ T_obj_part, part_index)
     return out
 
 
@@ -223,7 +241,7 @@ def room_meshes() -> list[SceneMesh]:
         _box((6.0, 6.0, 0.02), (0.0, 0.0, -0.76), (0.45, 0.45, 0.50),
              pattern="checker", cell_m=0.3, contrast=0.2),
     ]
-    return [SceneMesh(p.vertices_m, p.triangles, -1, p, np.eye(4)) for p in pieces]
+    return [SceneMesh(p.vertices_m, p.triangles, ROOM, p, np.eye(4)) for p in pieces]
 
 
 def _pattern(points_local: np.ndarray, pattern: str, cell_m: float) -> np.ndarray:
@@ -255,7 +273,8 @@ class CleanFrame:
     rgb : ndarray, shape (H, W, 3), float32 in [0, 1]
         Lambertian-shaded, textured colour, RGB order.
     part_ids : ndarray, shape (H, W), int8
-        Object part seen in each pixel (0 base, 1 moving part), -1 elsewhere.
+        Object part seen in each pixel (0 base, 1, 2, ... the other parts), ``ROOM`` (-1) where
+        the room or nothing is seen, ``HAND`` (-2) where a hand or gripper is.
     cos_incidence : ndarray, shape (H, W), float32
         |cos| of the angle between the viewing ray and the surface normal.
     shadowed : ndarray, shape (H, W), bool
@@ -270,8 +289,13 @@ class CleanFrame:
 
     @property
     def mask(self) -> np.ndarray:
-        """Object pixels (all parts), bool, shape (H, W)."""
+        """Object pixels (all parts), bool, shape (H, W); a hand in front of the object is not in it."""
         return self.part_ids >= 0
+
+    @property
+    def hand(self) -> np.ndarray:
+        """Hand or gripper pixels, bool, shape (H, W)."""
+        return self.part_ids == HAND
 
 
 def render_clean(
@@ -308,7 +332,7 @@ def render_clean(
         )
         mesh_of_gid[int(gid)] = m
     no_hit = max(mesh_of_gid, default=-1) + 1
-    part_of = np.full(no_hit + 1, -1, dtype=np.int8)
+    part_of = np.full(no_hit + 1, ROOM, dtype=np.int8)
     for gid, m in mesh_of_gid.items():
         part_of[gid] = m.part
 
@@ -390,7 +414,7 @@ def _depth_edges(depth_m: np.ndarray) -> np.ndarray:
     z = depth_m
     valid = z > 0
     jump = np.zeros(z.shape, dtype=bool)
-    thr = 0.015 + 0.02 * z
+    thr = _jump_threshold_m(z)
     for axis in (0, 1):
         a = np.diff(z, axis=axis)
         va = valid.take(range(1, z.shape[axis]), axis=axis) & valid.take(
@@ -417,10 +441,12 @@ def add_sensor_noise(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Turn a clean rendering into what a structured-light RGB-D sensor would deliver.
 
-    Steps, in order: grazing-angle dropouts, projector shadows, lateral jitter
-    and dropouts next to depth discontinuities, axial Gaussian noise
-    ``sigma(z)``, disparity quantisation (step grows with z**2), random
-    dropouts, speckle outliers, range limits; colour gets Gaussian noise.
+    Steps, in order: grazing-angle dropouts, projector shadows, lateral jitter,
+    flying pixels (a depth between the foreground's and the background's) and
+    dropouts next to depth discontinuities, axial Gaussian noise ``sigma(z)``,
+    disparity quantisation (step grows with z**2), random dropouts, speckle
+    outliers, range limits, and rounding to the delivered depth unit (1 mm);
+    colour gets Gaussian noise.
 
     Parameters
     ----------
@@ -471,6 +497,7 @@ def add_sensor_noise(
     keep_src = keep.copy()
     z[vv, uu] = z_src[v2, u2]
     keep[vv, uu] = keep_src[v2, u2]
+    z = _flying_pixels(z, edges, fraction=noise.flying_fraction, rng=rng)
     keep &= ~(edges & (rng.random((h, w)) < noise.edge_drop_prob))
 
     # Axial noise (Nguyen et al. 2012) and disparity quantisation.
@@ -485,4 +512,31 @@ def add_sensor_noise(
     z = np.where(speckle, z * rng.uniform(0.8, 1.25, size=(h, w)), z)
 
     keep &= (z >= noise.min_range_m) & (z <= noise.max_range_m)
+    if noise.depth_step_m > 0:
+        z = np.rint(z / noise.depth_step_m) * noise.depth_step_m
     return np.where(keep, z, 0.0).astype(np.float32), rgb8
+
+
+def _flying_pixels(z: np.ndarray, edges: np.ndarray, *, fraction: float,
+                   rng: np.random.Generator) -> np.ndarray:
+    """Flying pixels: a share ``fraction`` of the ``edges`` pixels whose 3x3 neighbourhood spans a
+    depth jump read a depth drawn uniformly between its nearest and farthest valid depth, as a
+    sensor's matching window that straddles the foreground and the background does.
+
+    The random draws do not depend on ``fraction`` (the same stream for every noise level)."""
+    u = rng.random(z.shape)
+    mix = rng.uniform(0.1, 0.9, size=z.shape)
+    if fraction <= 0:
+        return z
+    valid = z > 0
+    near = ndimage.minimum_filter(np.where(valid, z, np.inf), size=3, mode="nearest")
+    far = ndimage.maximum_filter(np.where(valid, z, 0.0), size=3, mode="nearest")
+    near = np.where(np.isfinite(near), near, 0.0)
+    jump = valid & (far - near > _jump_threshold_m(near))
+    fly = edges & jump & (u < fraction)
+    return np.where(fly, near + mix * (far - near), z)
+
+
+def _jump_threshold_m(z: np.ndarray) -> np.ndarray:
+    """Depth difference between neighbouring pixels taken as a discontinuity, metres."""
+    return 0.015 + 0.02 * z

@@ -3,13 +3,16 @@
 Layout (read by the rest of artclass)::
 
     SEQ/meta.json          intrinsics, depth_scale, label, object, motion, noise, seed, ...
-    SEQ/truth.json         joint_type, joint_positions, object_poses (camera_from_object); for
-                           articulated objects also part_visibility (per frame: the moving part's
-                           share of the object's pixels and how far its visible points reach from
-                           the joint axis)
+    SEQ/truth.json         joint_type, joint_positions, object_poses (camera_from_object); parts,
+                           joints (per frame state and axis in the first camera frame), part_poses,
+                           part_valid_px, part_points_m (visible points per part and frame), sensor,
+                           holders; for articulated objects also part_visibility
+                           (docs/data-formats.md describes every key)
     SEQ/rgb/000000.png     8-bit colour (stored BGR by OpenCV, i.e. a normal colour PNG)
     SEQ/depth/000000.png   uint16 depth, depth_scale units per metre, 0 = no reading
-    SEQ/mask/000000.png    uint8, 255 = object, 0 = anything else
+    SEQ/mask/000000.png    uint8, 255 = object, 0 = anything else (a hand is not the object)
+    SEQ/hand/000000.png    uint8, 255 = hand or gripper, 0 = anything else
+    SEQ/parts/000000.png   uint8, 0 = not the object, 1 + part index = that part
 """
 
 from __future__ import annotations
@@ -32,20 +35,24 @@ __all__ = [
 #: Depth units per metre in the depth PNGs (1000: millimetres).
 DEPTH_SCALE = 1000
 #: Entries a sequence folder consists of; ``overwrite=True`` removes only these.
-SEQUENCE_ENTRIES = ("rgb", "depth", "mask", "meta.json", "truth.json")
-_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 6]
+SEQUENCE_ENTRIES = ("rgb", "depth", "mask", "hand", "parts", "meta.json", "truth.json")
+#: Image folders of a sequence.
+IMAGE_FOLDERS = ("rgb", "depth", "mask", "hand", "parts")
+# zlib level 1: about 4x faster to write than level 6 for noisy 640x480 images, files about 5 % larger.
+_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 1]
 
 
 def prepare_sequence_dir(out_dir: str | Path, *, overwrite: bool = False) -> Path:
-    """Create ``out_dir`` with empty ``rgb/``, ``depth/`` and ``mask/`` folders.
+    """Create ``out_dir`` with empty image folders (``rgb/``, ``depth/``, ``mask/``, ``hand/``,
+    ``parts/``).
 
     Parameters
     ----------
     out_dir : str or Path
     overwrite : bool
         If False, a non-empty ``out_dir`` is refused. If True, the sequence
-        entries (``rgb/``, ``depth/``, ``mask/``, ``meta.json``,
-        ``truth.json``) are removed first; other files are left alone.
+        entries (the image folders, ``meta.json``, ``truth.json``) are removed
+        first; other files are left alone.
 
     Returns
     -------
@@ -71,7 +78,7 @@ def prepare_sequence_dir(out_dir: str | Path, *, overwrite: bool = False) -> Pat
                 shutil.rmtree(p)
             elif p.exists() or p.is_symlink():
                 p.unlink()
-    for sub in ("rgb", "depth", "mask"):
+    for sub in IMAGE_FOLDERS:
         (out / sub).mkdir(parents=True, exist_ok=True)
     return out
 
@@ -96,6 +103,8 @@ def write_frame(
     rgb: np.ndarray,
     depth_m: np.ndarray,
     mask: np.ndarray,
+    hand: np.ndarray | None = None,
+    parts: np.ndarray | None = None,
     depth_scale: int = DEPTH_SCALE,
 ) -> None:
     """Write frame ``index`` of a sequence.
@@ -109,6 +118,10 @@ def write_frame(
     rgb : ndarray, shape (H, W, 3), uint8, RGB order
     depth_m : ndarray, shape (H, W), metres, 0 = no reading
     mask : ndarray, shape (H, W), bool
+    hand : ndarray, shape (H, W), bool, optional
+        Hand or gripper pixels (``hand/``); all zero when omitted.
+    parts : ndarray, shape (H, W), uint8, optional
+        0 = not the object, 1 + part index (``parts/``); the mask as part 0 when omitted.
     """
     seq = Path(seq_dir)
     name = f"{index:06d}.png"
@@ -121,7 +134,16 @@ def write_frame(
         )
     _imwrite(seq / "rgb" / name, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     _imwrite(seq / "depth" / name, depth_to_uint16(depth_m, depth_scale=depth_scale))
-    _imwrite(seq / "mask" / name, np.where(np.asarray(mask, dtype=bool), 255, 0).astype(np.uint8))
+    mask = np.asarray(mask, dtype=bool)
+    _imwrite(seq / "mask" / name, np.where(mask, 255, 0).astype(np.uint8))
+    hand = np.zeros_like(mask) if hand is None else np.asarray(hand, dtype=bool)
+    if (hand & mask).any():
+        raise ValueError("a hand pixel is also an object pixel: the hand is never the object")
+    _imwrite(seq / "hand" / name, np.where(hand, 255, 0).astype(np.uint8))
+    parts = mask.astype(np.uint8) if parts is None else np.asarray(parts, dtype=np.uint8)
+    if parts.shape != mask.shape or ((parts > 0) != mask).any():
+        raise ValueError("the part map must be non-zero exactly on the mask")
+    _imwrite(seq / "parts" / name, parts)
 
 
 def write_json(path: str | Path, obj) -> None:
