@@ -119,7 +119,8 @@ def test_01_quickstart():
     arrows = [f for f in figures if any(t["type"] == "cone" for t in f["data"])]
     assert arrows, "no 3-D motion arrows were shown"
     cones = sum(len(_array(t["x"])) for t in arrows[0]["data"] if t["type"] == "cone")
-    assert cones >= 3, f"only {cones} arrows"
+    parts = [t for t in arrows[0]["data"] if t["type"] == "scatter3d" and t.get("name", "").startswith("motion ")]
+    assert cones >= 2 and len(parts) == cones, f"{cones} arrows for {len(parts)} motions: an articulated pair has two"
     assert any(t["type"] == "image" for f in figures for t in f["data"]), "no frame image was shown"
 
 
