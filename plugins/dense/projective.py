@@ -21,6 +21,8 @@ from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEE
 # Gauss-Newton damping, relative to the trace of the normal equations: keeps the step of a group whose
 # points cannot fix all six degrees of freedom (a flat patch slides in its plane) small and unique.
 _DAMPING = 1e-6
+COARSE_THINNING = 4
+_UPPER = np.triu_indices(6)
 
 
 @dataclass
@@ -105,6 +107,13 @@ def _skew_rotation(omega: np.ndarray) -> np.ndarray:
     return out
 
 
+def _moved(T: np.ndarray, groups: np.ndarray, points: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
+    """Each point moved by its group's motion (only the ``keep`` ones, if given)."""
+    if keep is not None:
+        groups, points = groups[keep], points[keep]
+    return np.einsum("nij,nj->ni", T[groups, :3, :3], points) + T[groups, :3, 3]
+
+
 def _flow_rows(moved: np.ndarray, groups: np.ndarray, flow_px: np.ndarray, across: np.ndarray,
                intr: Intrinsics, metres_per_px: float):
     """Optical-flow residuals of moved points as rows like point-to-plane ones: for each known flow,
@@ -164,26 +173,39 @@ def icp(points: np.ndarray, groups: np.ndarray, T: np.ndarray, target: Target, *
     count = np.bincount(groups, minlength=G)
     centre = np.stack([np.bincount(groups, points[:, d], minlength=G) for d in range(3)], 1) / np.maximum(count, 1)[:, None]
     use_flow = flow_px is not None and metres_per_px > 0
+    # Coarse iterations (reach more than twice the last) use every COARSE_THINNING-th point of a group
+    # that has points to spare: the coarse motion needs few, as an image pyramid's coarse levels.
+    order = np.argsort(groups, kind="stable")
+    rank = np.empty(len(groups), int)
+    rank[order] = np.arange(len(groups)) - np.repeat(np.cumsum(count) - count, count)
+    thin = (rank % COARSE_THINNING == 0) | (count[groups] < 4 * COARSE_THINNING * min_points)
     inliers = np.zeros(G, int)
     for reach in reach_m:
-        moved = np.einsum("nij,nj->ni", T[groups, :3, :3], points) + T[groups, :3, 3]
+        if reach > 2 * reach_m[-1] and not thin.all():
+            moved, g_all, sub = _moved(T, groups, points, thin), groups[thin], thin
+        else:
+            moved, g_all, sub = _moved(T, groups, points), groups, slice(None)
         u, v, inside = _project(moved, target.intrinsics, target.scene_m.shape)
         r, has = _surface_residual(moved, target, u, v)
         ok = inside & has & (np.abs(r) < reach)
-        r, grad, at, g = r[ok], target.normals[v[ok], u[ok]].astype(np.float64), moved[ok], groups[ok]
+        r, grad, at, g = r[ok], target.normals[v[ok], u[ok]].astype(np.float64), moved[ok], g_all[ok]
         inliers = np.bincount(g, minlength=G)
         if use_flow:
-            fr, fgrad, fat, fg = _flow_rows(moved, groups, flow_px, across, target.intrinsics, metres_per_px)
+            fr, fgrad, fat, fg = _flow_rows(moved, g_all, flow_px[sub], across[sub], target.intrinsics, metres_per_px)
             near = np.abs(fr) < reach
             r, grad = np.concatenate([r, fr[near]]), np.concatenate([grad, fgrad[near]])
             at, g = np.concatenate([at, fat[near]]), np.concatenate([g, fg[near]])
         arm = at - (T[g, :3, :3] @ centre[g][..., None])[..., 0] - T[g, :3, 3]
         J = np.concatenate([np.cross(arm, grad), grad], axis=1)          # (M, 6)
         w = np.square(1 - np.square(r / reach))                           # Tukey biweight
-        # Per-group sums of w J^T J and w J^T r, as one sparse (G, M) by dense (M, 42) product.
-        terms = np.concatenate([(J[:, :, None] * J[:, None, :]).reshape(-1, 36), J * r[:, None]], axis=1)
+        # Per-group sums of w J^T J (its 21 distinct entries) and w J^T r: one sparse (G, M) by dense
+        # (M, 27) product.
+        terms = np.concatenate([J[:, _UPPER[0]] * J[:, _UPPER[1]], J * r[:, None]], axis=1)
         sums = csr_matrix((w, (g, np.arange(len(g)))), shape=(G, len(g))) @ terms
-        A, b = sums[:, :36].reshape(G, 6, 6), sums[:, 36:]
+        A = np.zeros((G, 6, 6))
+        A[:, _UPPER[0], _UPPER[1]] = sums[:, :21]
+        A[:, _UPPER[1], _UPPER[0]] = sums[:, :21]
+        b = sums[:, 21:]
         solvable = np.bincount(g, minlength=G) >= min_points
         if not solvable.any():
             break
