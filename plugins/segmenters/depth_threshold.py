@@ -11,8 +11,9 @@ whose pivot is too low to survive the plane removal). Instances whose 3-D points
 ``join_m`` of each other are one object: the parts of an articulated object touch at their joint.
 Each instance takes back the holes it encloses whose rim meets it within ``plane_distance_m`` in 3-D
 (a tray's floor lying on the table; not the table seen through a handle). Last, it takes the
-dropouts (pixels without a reading) that a closing of radius ``fill_px`` puts inside it. The shared
-selection (:mod:`.selection`) picks the one being manipulated.
+dropouts (pixels without a reading) that a closing of radius ``fill_px`` puts inside it. Hands and
+the gripper (:mod:`.hands`) are left out from the start, so a hand neither becomes an object nor
+joins two. The shared selection (:mod:`.selection`) picks the one being manipulated.
 """
 
 from __future__ import annotations
@@ -26,15 +27,16 @@ from scipy.spatial import cKDTree
 
 from artclass_core import Frame, Intrinsics, Sequence, param
 
+from .hands import HandParams, find_hands, widen
 from .selection import InstanceSegmenter, SelectionParams
-from .support import BackgroundParams, above_planes, background_mask, clean_depth, fit_planes
+from .support import BackgroundParams, Plane, above_planes, background_mask, clean_depth, fit_planes
 
-__all__ = ["DepthThresholdParams", "DepthThresholdSegmenter", "components", "fill_dropouts", "fill_floors", "grow",
-           "join_touching"]
+__all__ = ["DepthThresholdParams", "DepthThresholdSegmenter", "MaskFreeSegmenter", "components", "fill_dropouts",
+           "fill_floors", "grow", "join_touching"]
 
 
 @dataclass(frozen=True)
-class DepthThresholdParams(SelectionParams, BackgroundParams):
+class DepthThresholdParams(SelectionParams, BackgroundParams, HandParams):
     open_px: int = param(0, unit="px", bounds=(0, 10),
                          help="Morphological opening radius: removes speckle and thin bridges (flying "
                               "pixels) between objects and the background.")
@@ -171,21 +173,64 @@ def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> l
     return out
 
 
-class DepthThresholdSegmenter(InstanceSegmenter):
+class MaskFreeSegmenter(InstanceSegmenter):
+    """Base of the segmenters that find objects without given masks: the scene's background planes
+    from depth, and the hands (:mod:`.hands`) to leave out. ``Params`` include BackgroundParams and
+    HandParams."""
+
+    def scene(self, frame: Frame, *, sequence: Sequence) -> tuple[list[Plane], np.ndarray, np.ndarray]:
+        """The background planes of ``frame``, its background mask and its pixels with a reading
+        (see :func:`.support.background_mask`); the last frame's are kept, as hands and instances
+        both need them."""
+        key = (str(sequence.path), sequence.name, frame.index)
+        with self._lock:
+            last = getattr(self, "_last_scene", None)
+            if last is None or last[0] != key:
+                planes = fit_planes(frame.depth_m, sequence.intrinsics, params=self.params)
+                last = self._last_scene = (key, (planes, *background_mask(frame.depth_m, sequence.intrinsics, planes,
+                                                                           params=self.params)))
+            return last[1]
+
+    def hands(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
+        if not self.params.exclude_hands:
+            return None
+        _, background, _ = self.scene(frame, sequence=sequence)
+        return find_hands(frame, background, sequence.intrinsics, params=self.params, sequence_path=sequence.path)
+
+    def not_hand(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
+        """The pixels that are not hand, its margin included (None when hands are not looked for)."""
+        hand = self.hand_mask(frame, sequence=sequence)
+        return None if hand is None else ~widen(hand, self.params.hand_margin_px)
+
+
+def keep_within(instances: list[np.ndarray], allowed: np.ndarray | None, *, min_area_fraction: float
+                ) -> list[np.ndarray]:
+    """Each instance restricted to ``allowed`` (None = all); those left smaller than
+    ``min_area_fraction`` of the image dropped, largest first."""
+    if allowed is None:
+        return instances
+    least = max(1, int(np.ceil(min_area_fraction * allowed.size)))
+    out = [m for m in (m & allowed for m in instances) if np.count_nonzero(m) >= least]
+    return sorted(out, key=lambda m: -int(np.count_nonzero(m)))
+
+
+class DepthThresholdSegmenter(MaskFreeSegmenter):
     """Objects standing out of the support plane and background, chosen by how they move."""
 
     name = "depth_threshold"
-    description = "depth range + background-plane removal + connected components, moving instance chosen"
+    description = "depth range + background-plane removal + connected components, hands removed, moving instance chosen"
     Params = DepthThresholdParams
 
     def instances(self, frame: Frame, *, sequence: Sequence) -> list[np.ndarray]:
         p, K = self.params, sequence.intrinsics
-        planes = fit_planes(frame.depth_m, K, params=p)
-        background, valid = background_mask(frame.depth_m, K, planes, params=p)
-        found = components(valid & ~background, open_px=p.open_px, min_area_fraction=p.min_area_fraction)
+        planes, background, valid = self.scene(frame, sequence=sequence)
+        allowed = self.not_hand(frame, sequence=sequence)
+        objects = valid & ~background if allowed is None else valid & ~background & allowed
+        found = components(objects, open_px=p.open_px, min_area_fraction=p.min_area_fraction)
         if found and p.grow_sigmas > 0:
             found = grow(found, background & above_planes(frame.depth_m, K, planes, params=p, sigmas=p.grow_sigmas))
         depth = clean_depth(frame.depth_m)
         found = join_touching(found, depth, K, join_m=p.join_m)
         found = fill_floors(found, depth, K, gap_m=p.plane_distance_m)
-        return fill_dropouts(found, valid, fill_px=p.fill_px)
+        found = fill_dropouts(found, valid, fill_px=p.fill_px)
+        return keep_within(found, allowed, min_area_fraction=p.min_area_fraction)
