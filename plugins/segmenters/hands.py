@@ -5,7 +5,8 @@ union of:
 
 * **hands by skin colour and shape**: pixels in the explicit skin-colour box of Chai & Ngan (1999)
   in YCrCb (133 <= Cr <= 173, 77 <= Cb <= 127, 8-bit), that depth does not show to be background,
-  grouped into connected regions; a region is a hand when it reaches the image border (a hand is
+  grouped into connected regions that do not cross a depth step of more than ``hand_touch_m`` (a
+  skin-coloured object behind the hand stays apart); a region is a hand when it reaches the image border (a hand is
   held out from an arm that enters the picture; a skin-coloured object in the scene seldom reaches
   it) and its surface, measured with depth, is at least ``hand_min_area_m2`` (two fingers: specks
   and patches of skin colour on objects are smaller);
@@ -35,8 +36,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from scipy import ndimage
 
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, param
 
@@ -136,7 +135,7 @@ def hand_regions(candidates: np.ndarray, depth_m: np.ndarray, intrinsics: Intrin
     depth_m : ndarray, shape (H, W), metres, 0 = no reading
     intrinsics : pinhole intrinsics of the image
     min_area_m2 : smallest surface, square metres: a pixel at depth z covers (z / fx) (z / fy); pixels
-        without a reading count at their region's median depth
+        without a reading count at their region's mean depth
 
     Returns
     -------
@@ -151,13 +150,19 @@ def hand_regions(candidates: np.ndarray, depth_m: np.ndarray, intrinsics: Intrin
     if not len(border):
         return np.zeros(candidates.shape, bool)
     d = clean_depth(depth_m)
-    seen = (d > 0) & (labels > 0)
-    pixel_m2 = (d * d) / np.float32(intrinsics.fx * intrinsics.fy)
-    area = np.asarray(ndimage.sum(pixel_m2, labels, border))
-    n_seen = np.asarray(ndimage.sum(seen, labels, border))
-    median_z = np.array([np.median(d[(labels == k) & seen]) if s else 0.0 for k, s in zip(border, n_seen)])
-    area += (count[border - 1] - n_seen) * median_z ** 2 / (intrinsics.fx * intrinsics.fy)
-    return np.isin(labels, border[area >= min_area_m2])
+    out = np.zeros(candidates.shape, bool)
+    for k in border:
+        box = np.s_[y[k - 1]:y[k - 1] + bh[k - 1], x[k - 1]:x[k - 1] + bw[k - 1]]
+        region = labels[box] == k
+        z = d[box][region]
+        z = z[z > 0]
+        if not len(z):
+            continue
+        # the surface of the pixels with a reading, plus those without one at the mean depth
+        area = (float(np.sum(z * z)) + (count[k - 1] - len(z)) * float(z.mean()) ** 2) / (intrinsics.fx * intrinsics.fy)
+        if area >= min_area_m2:
+            out[box] |= region
+    return out
 
 
 def load_hand_mask(folder: Path, frame: Frame) -> np.ndarray:
@@ -198,7 +203,9 @@ def find_hands(frame: Frame, background: np.ndarray, intrinsics: Intrinsics, *, 
     gripper = parse_hsv(params.gripper_hsv)
     if gripper is not None:
         candidates |= hsv_mask(frame.rgb, *gripper)
-    hand = hand_regions(candidates & ~background, frame.depth_m, intrinsics, min_area_m2=params.hand_min_area_m2)
+    # cut along depth steps: a skin-coloured object behind the hand does not join it
+    step = cv2.morphologyEx(clean_depth(frame.depth_m), cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > params.hand_touch_m
+    hand = hand_regions(candidates & ~background & ~step, frame.depth_m, intrinsics, min_area_m2=params.hand_min_area_m2)
     if params.hand_masks:
         hand |= load_hand_mask(Path(sequence_path) / Path(params.hand_masks).expanduser(), frame)
     return hand
