@@ -6,10 +6,10 @@ union of:
 * **hands by skin colour and shape**: pixels in the explicit skin-colour box of Chai & Ngan (1999)
   in YCrCb (133 <= Cr <= 173, 77 <= Cb <= 127, 8-bit), that depth does not show to be background,
   grouped into connected regions that do not cross a depth step of more than ``hand_touch_m`` (a
-  skin-coloured object behind the hand stays apart); a region is a hand when it reaches the image border (a hand is
-  held out from an arm that enters the picture; a skin-coloured object in the scene seldom reaches
-  it) and its surface, measured with depth, is at least ``hand_min_area_m2`` (two fingers: specks
-  and patches of skin colour on objects are smaller);
+  skin-coloured object behind the hand stays apart); a region is a hand when it reaches the image
+  border (a hand is held out from an arm that enters the picture; a skin-coloured object in the
+  scene seldom reaches it) and its surface, measured with depth, is at least ``hand_min_area_m2``
+  (two fingers: specks and patches of skin colour on objects are smaller);
 * **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``;
 * **given masks**: one PNG per frame in the folder ``hand_masks`` (a robot knows its own gripper),
   used as they are.
@@ -62,7 +62,8 @@ def parse_hsv(text: str) -> tuple[tuple[int, int, int], tuple[int, int, int]] | 
     except ValueError:
         v = []
     highs = (180, 255, 255)
-    if len(v) != 6 or any(not 0 <= x <= highs[k % 3] for k, x in enumerate(v)) or any(v[k] > v[k + 3] for k in range(3)):
+    in_range = len(v) == 6 and all(0 <= x <= highs[k % 3] for k, x in enumerate(v))
+    if not in_range or any(v[k] > v[k + 3] for k in range(3)):
         raise ParamError(f"parameter gripper_hsv = {text!r} is not 'h0,s0,v0,h1,s1,v1' with 0 <= h <= 180, "
                          "0 <= s, v <= 255 and each low <= its high")
     return (v[0], v[1], v[2]), (v[3], v[4], v[5])
@@ -204,11 +205,23 @@ def find_hands(frame: Frame, background: np.ndarray, intrinsics: Intrinsics, *, 
     if gripper is not None:
         candidates |= hsv_mask(frame.rgb, *gripper)
     # cut along depth steps: a skin-coloured object behind the hand does not join it
-    step = cv2.morphologyEx(clean_depth(frame.depth_m), cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > params.hand_touch_m
-    hand = hand_regions(candidates & ~background & ~step, frame.depth_m, intrinsics, min_area_m2=params.hand_min_area_m2)
+    near, far = _depth_range(clean_depth(frame.depth_m), np.ones(background.shape, bool), 1)
+    step = far - near > params.hand_touch_m           # no readings around: -inf, not a step
+    hand = hand_regions(candidates & ~background & ~step, frame.depth_m, intrinsics,
+                        min_area_m2=params.hand_min_area_m2)
     if params.hand_masks:
         hand |= load_hand_mask(Path(sequence_path) / Path(params.hand_masks).expanduser(), frame)
     return hand
+
+
+def _depth_range(d: np.ndarray, where: np.ndarray, reach_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest and farthest reading of ``d`` (0 = none) among the pixels ``where``, in the square of
+    half-width ``reach_px`` around each pixel; +inf and 0 where there is none. float32 (H, W) each."""
+    seen = where & (d > 0)
+    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
+    near = cv2.erode(np.where(seen, d, np.float32(np.inf)).astype(np.float32), kernel, borderValue=np.inf)
+    far = cv2.dilate(np.where(seen, d, np.float32(0)).astype(np.float32), kernel, borderValue=0)
+    return near, far
 
 
 def widen(mask: np.ndarray, radius_px: int) -> np.ndarray:
@@ -238,11 +251,7 @@ def held(instances: list[np.ndarray], hand: np.ndarray, depth_m: np.ndarray, *, 
     """
     if not hand.any() or not instances:
         return [False] * len(instances)
-    d = np.asarray(depth_m, np.float32)
-    seen = hand & (d > 0)
-    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
-    # nearest and farthest hand reading around each pixel (none: +inf / 0)
-    near = cv2.erode(np.where(seen, d, np.float32(np.inf)).astype(np.float32), kernel, borderValue=np.inf)
-    far = cv2.dilate(np.where(seen, d, np.float32(0)).astype(np.float32), kernel, borderValue=0)
+    d = clean_depth(depth_m)
+    near, far = _depth_range(d, hand, reach_px)      # of the hand's readings around each pixel
     contact = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
     return [bool(np.any(m & contact)) for m in instances]
