@@ -204,11 +204,16 @@ def find_hands(frame: Frame, background: np.ndarray, intrinsics: Intrinsics, *, 
     gripper = parse_hsv(params.gripper_hsv)
     if gripper is not None:
         candidates |= hsv_mask(frame.rgb, *gripper)
-    # cut along depth steps: a skin-coloured object behind the hand does not join it
-    near, far = _depth_range(clean_depth(frame.depth_m), np.ones(background.shape, bool), 1)
-    step = far - near > params.hand_touch_m           # no readings around: -inf, not a step
-    hand = hand_regions(candidates & ~background & ~step, frame.depth_m, intrinsics,
-                        min_area_m2=params.hand_min_area_m2)
+    # cut along depth steps, so that a skin-coloured object behind the hand does not join it; then
+    # give the hand back its side of the step (its outline)
+    d, touch = clean_depth(frame.depth_m), params.hand_touch_m
+    near, far = _depth_range(d, np.ones(background.shape, bool), 1)
+    candidates &= ~background
+    step = far - near > touch                          # no readings around: -inf, not a step
+    hand = hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2)
+    if hand.any():
+        near, far = _depth_range(d, hand, 1)
+        hand |= candidates & step & (far > 0) & ((d == 0) | ((d >= near - touch) & (d <= far + touch)))
     if params.hand_masks:
         hand |= load_hand_mask(Path(sequence_path) / Path(params.hand_masks).expanduser(), frame)
     return hand
