@@ -445,3 +445,13 @@ def figures_html(figures: Mapping[str, go.Figure] | Sequence[go.Figure], *, titl
     return ("<!DOCTYPE html><html><head><meta charset='utf-8'>"
             f"<title>{html.escape(title)}</title><style>body{{font-family:sans-serif;margin:2em}}</style></head>"
             f"<body><h1>{html.escape(title)}</h1>{''.join(parts)}</body></html>")
+
+
+def frame_images_with_hand(frame: Frame, mask: np.ndarray | None, hand: np.ndarray | None, **kwargs) -> go.Figure:
+    """:func:`frame_images`, with the hand or gripper mask (bool (H, W), or None) overlaid in blue on
+    the colour image and its size in the subplot title."""
+    fig = frame_images(frame, mask, **kwargs)
+    if hand is not None and hand.any():
+        fig.data[0].source = _png_uri(_overlay(_overlay(frame.rgb, mask), hand, colour=(46, 120, 228)))
+        fig.layout.annotations[0].text += f" + hand ({int(np.count_nonzero(hand))} px)"
+    return fig

@@ -5,12 +5,17 @@ Not a test: it prints numbers. Run from the repository root::
     .venv/bin/python benchmarks/bench_segmenters.py                    # mask, depth_threshold, u2net
     .venv/bin/python benchmarks/bench_segmenters.py --maskrcnn-model /path/MaskRCNN-12.onnx
     .venv/bin/python benchmarks/bench_segmenters.py --repeat 3 --segmenters depth_threshold
+    .venv/bin/python benchmarks/bench_segmenters.py --segmenters depth_threshold --param exclude_hands=false
 
 Timing: the YCB-Video excerpts (../shared/data/ycbv, 640x480 real RGB-D, 15 frames) are read into
 memory first, so disk reading is excluded; each repeat segments every frame with a fresh segmenter
 object (no cached masks), so the time per frame covers the per-frame work (instances) and the
 manipulated-instance selection. The best of ``--repeat`` runs is reported, with the median, and the
 CPU time (all threads), which a busy machine inflates less than the wall time.
+
+The hand step (:mod:`artclass_plugins.segmenters.hands`) is also timed alone, on the same frames
+and on copies with a skin-coloured forearm and hand drawn in from the right border, 0.45 m from the
+camera: CPU ms per frame of ``find_hands`` (given the background mask) and ``held``.
 
 Quality: on YCB-Video, the IoU of the chosen mask with the union of the labelled objects and with
 the best-matching single object; on the synthetic ``sample_data/`` sequences, the IoU with the
@@ -28,7 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
+import cv2
+
 from artclass_core import ArtclassError, Frame, Sequence, load_registry, open_sequences
+from artclass_plugins.segmenters.depth_threshold import DepthThresholdParams, DepthThresholdSegmenter
+from artclass_plugins.segmenters.hands import find_hands, held
 from artclass_plugins.segmenters.selection import mask_iou
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,6 +78,54 @@ def time_segmenter(registry, name: str, sequences: list[Sequence], *, repeat: in
         wall.append(1000 * (time.perf_counter() - t0) / n)
         cpu.append(1000 * (time.process_time() - c0) / n)
     return wall, cpu
+
+
+def with_drawn_hand(frame: Frame, fx: float, *, depth_m: float = 0.45) -> tuple[Frame, np.ndarray]:
+    """A copy of ``frame`` with a light-skin forearm (7 cm wide) and palm (9 x 8 cm) drawn in from the
+    right border at ``depth_m`` from the camera (in front of the tables and objects of these scenes);
+    and the drawn mask. ``fx``: focal length, pixels."""
+    h, w = frame.depth_m.shape
+    px = fx / depth_m                            # pixels per metre at the hand's depth
+    palm = (int(0.7 * w), h // 2)
+    shape = np.zeros((h, w), np.uint8)
+    cv2.line(shape, (w - 1, h // 2 + h // 8), palm, 1, int(0.07 * px))
+    cv2.ellipse(shape, palm, (int(0.045 * px), int(0.04 * px)), 0, 0, 360, 1, -1)
+    hand = shape > 0
+    rgb, depth = frame.rgb.copy(), frame.depth_m.copy()
+    rgb[hand] = (224, 172, 140)
+    depth[hand] = depth_m
+    return Frame(frame.index, frame.name, rgb, depth), hand
+
+
+def time_hands(sequences: list[Sequence], *, repeat: int) -> str:
+    """CPU ms per frame of the hand step alone (find_hands + held), without and with a drawn hand,
+    and the drawn hand's mean IoU."""
+    params = DepthThresholdParams()
+    parts = []
+    for drawn in (False, True):
+        cases = []
+        for seq in sequences:
+            seg = DepthThresholdSegmenter(params)
+            for i in range(len(seq)):
+                frame, truth = with_drawn_hand(seq[i], seq.intrinsics.fx) if drawn else (seq[i], None)
+                _, background, _ = seg.scene(frame, sequence=seq)
+                cases.append((frame, background, seq, truth))
+        best = float("inf")
+        for _ in range(repeat):
+            c0 = time.process_time()
+            hands = []
+            for frame, background, seq, _ in cases:
+                hand = find_hands(frame, background, seq.intrinsics, params=params, sequence_path=seq.path)
+                held([background & ~hand], hand, frame.depth_m, touch_m=params.hand_touch_m)
+                hands.append(hand)
+            best = min(best, 1000 * (time.process_time() - c0) / len(cases))
+        text = f"{'with' if drawn else 'without'} a drawn hand {best:.1f} ms/frame"
+        if drawn:
+            text += f" (hand IoU {np.mean([mask_iou(h, c[3]) for h, c in zip(hands, cases)]):.3f})"
+        else:
+            text += f" ({sum(int(h.any()) for h in hands)} of {len(hands)} frames with a hand found)"
+        parts.append(text)
+    return "hand step alone (CPU): " + "; ".join(parts)
 
 
 def ycbv_quality(registry, name: str, scenes: dict[str, list[Sequence]], overrides) -> str:
@@ -147,6 +204,8 @@ def main(argv: list[str] | None = None) -> int:
         line = (f"  {name:<16} {min(runs):8.1f} ms/frame (median {statistics.median(runs):.1f}; "
                 f"CPU {min(cpu):.1f} ms/frame over all threads)")
         print(line, flush=True)
+        if name == "depth_threshold":
+            print(f"  {'':<16} {time_hands(timed, repeat=args.repeat)}", flush=True)
         if not args.no_quality:
             print(f"  {'':<16} {ycbv_quality(registry, name, scenes, overrides)}", flush=True)
             if synthetic and name != "maskrcnn":

@@ -680,6 +680,25 @@ def test_frame_images_and_cells_table(laptop, laptop_run):
     json.dumps(rows)   # JSON-ready
 
 
+def test_frame_images_with_hand_overlays_the_hand(laptop):
+    frame = laptop[0]
+    hand = np.zeros(frame.depth_m.shape, bool)
+    hand[:20, :30] = True
+    plain = figures.frame_images(frame, frame.mask)
+    fig = figures.frame_images_with_hand(frame, frame.mask, hand)
+    assert "hand (600 px)" in fig.layout.annotations[0].text
+    assert fig.data[0].source != plain.data[0].source
+    assert figures.frame_images_with_hand(frame, frame.mask, None).data[0].source == plain.data[0].source
+
+
+def test_analyse_offers_hand_exclusion_with_a_mask_free_segmenter(app):
+    ok(app.run())
+    app.selectbox(key="cfg_plugin:segmenter").set_value("depth_threshold")
+    ok(app.run())
+    box = app.checkbox(key=controls.value_key("segmenter", "depth_threshold", "exclude_hands"))
+    assert box.value is True and any(c.key.startswith("an_frame_") for c in app.get("plotly_chart"))
+
+
 def test_confusion_figure_and_html_export(registry, laptop, laptop_run):
     metrics = evaluate(registry, [laptop], Config()).metrics()
     fig = figures.confusion_figure(metrics)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 
+import numpy as np
 import pandas as pd
 import streamlit as st
 
@@ -165,7 +166,7 @@ def show_result(seq: Sequence, config, result) -> None:
         with col:
             frame = seq[fr.index]
             mask = state.mask_of(seq, fr.index, config)
-            images[fr.index] = figures.frame_images(frame, mask)
+            images[fr.index] = figures.frame_images_with_hand(frame, mask, hand_of(seq, fr.index, config))
             st.plotly_chart(images[fr.index], key=f"an_frame_{'ij'[fr is target]}", config={"displaylogo": False}, theme=None)
             if fr.skipped:
                 st.caption(f"Frame {fr.index} skipped: {fr.skipped}")
@@ -181,6 +182,14 @@ def show_result(seq: Sequence, config, result) -> None:
                          **{f"Frame {n}": f for n, f in images.items()}})
     with st.expander("Resolved automatic values and frame details"):
         st.dataframe(pd.DataFrame([f.to_dict() for f in result.frames]), hide_index=True, width="stretch")
+
+
+def hand_of(seq: Sequence, i: int, config) -> np.ndarray | None:
+    """The hand or gripper mask the segmenter left out of frame ``i`` (None when it looks for none);
+    the segmenter keeps it from the run, so this costs no new segmentation."""
+    segmenter = state.stage_pipeline(config, "frame").segmenter(seq)
+    finder = getattr(segmenter, "hand_mask", None)
+    return None if finder is None else finder(seq[i], sequence=seq)
 
 
 def export(seq: Sequence, result, figs: dict) -> None:

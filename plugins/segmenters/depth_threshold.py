@@ -7,12 +7,15 @@ components of at least ``min_area_fraction`` of the image are the instances. Eac
 by hysteresis, the pixels within ``plane_distance_m`` of a plane that still stand out of it by more
 than ``grow_sigmas`` times its measured noise and connect to the instance (the lower centimetre of
 an object lying on a table; instances they connect become one: the two levers of pliers lying flat,
-whose pivot is too low to survive the plane removal). Instances whose 3-D points still come within
+whose pivot is too low to survive the plane removal). Such pixels that form a region of their own,
+whose colour differs from the surface around it by ``thin_contrast``, are an instance too: an
+object a few millimetres thick lying flat (scissors). Instances whose 3-D points still come within
 ``join_m`` of each other are one object: the parts of an articulated object touch at their joint.
 Each instance takes back the holes it encloses whose rim meets it within ``plane_distance_m`` in 3-D
 (a tray's floor lying on the table; not the table seen through a handle). Last, it takes the
-dropouts (pixels without a reading) that a closing of radius ``fill_px`` puts inside it. The shared
-selection (:mod:`.selection`) picks the one being manipulated.
+dropouts (pixels without a reading) that a closing of radius ``fill_px`` puts inside it. Hands and
+the gripper (:mod:`.hands`) are left out from the start, so a hand neither becomes an object nor
+joins two. The shared selection (:mod:`.selection`) picks the one being manipulated.
 """
 
 from __future__ import annotations
@@ -26,15 +29,16 @@ from scipy.spatial import cKDTree
 
 from artclass_core import Frame, Intrinsics, Sequence, param
 
+from .hands import HandParams, find_hands, widen
 from .selection import InstanceSegmenter, SelectionParams
-from .support import BackgroundParams, above_planes, background_mask, clean_depth, fit_planes
+from .support import BackgroundParams, Plane, above_planes, background_mask, clean_depth, fit_planes
 
-__all__ = ["DepthThresholdParams", "DepthThresholdSegmenter", "components", "fill_dropouts", "fill_floors", "grow",
-           "join_touching"]
+__all__ = ["DepthThresholdParams", "DepthThresholdSegmenter", "MaskFreeSegmenter", "components", "fill_dropouts",
+           "fill_floors", "grow", "join_touching", "thin_objects"]
 
 
 @dataclass(frozen=True)
-class DepthThresholdParams(SelectionParams, BackgroundParams):
+class DepthThresholdParams(SelectionParams, BackgroundParams, HandParams):
     open_px: int = param(0, unit="px", bounds=(0, 10),
                          help="Morphological opening radius: removes speckle and thin bridges (flying "
                               "pixels) between objects and the background.")
@@ -49,6 +53,11 @@ class DepthThresholdParams(SelectionParams, BackgroundParams):
                                     "stand out of it by more than this many times its measured depth noise join "
                                     "the instances they connect to (an object's lower centimetre on a table). "
                                     "0 = off.")
+    thin_contrast: float = param(10.0, unit="ΔE", bounds=(0.0, 100.0),
+                                 help="Thin objects lying flat: a region standing out of the support plane by more "
+                                      "than grow_sigmas times its noise, though nearer than plane_distance_m, is an "
+                                      "object of its own when its colour differs from the surface around it by at "
+                                      "least this CIE76 colour difference (2.3 is just noticeable). 0 = off.")
     join_m: float = param(0.01, unit="m", bounds=(0.0, 0.5),
                           help="Instances whose 3-D points come this close are one object: the parts of an "
                                "articulated object touch at the joint (the levers of pliers lying flat are cut "
@@ -141,6 +150,36 @@ def fill_floors(instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: In
     return out
 
 
+def thin_objects(low: np.ndarray, rgb: np.ndarray, *, min_area_fraction: float, contrast: float,
+                 ring_px: int = 3) -> list[np.ndarray]:
+    """Regions of ``low`` (pixels a little above the support plane) that are objects lying flat: the
+    connected components of ``low`` after a 3x3 opening (the plane's noise leaves single pixels), of at
+    least ``min_area_fraction`` of the image, whose mean CIE Lab colour differs by at least
+    ``contrast`` (CIE76 delta E) from that of a ring ``ring_px`` wide around them. Largest first.
+
+    Parameters
+    ----------
+    low : ndarray of bool, shape (H, W)
+    rgb : ndarray, shape (H, W, 3), uint8, RGB order
+
+    Returns
+    -------
+    list of ndarray of bool, shape (H, W)
+    """
+    found = components(low, open_px=1, min_area_fraction=min_area_fraction)
+    if not found:
+        return found
+    lab = cv2.cvtColor(np.ascontiguousarray(rgb, dtype=np.uint8), cv2.COLOR_RGB2Lab).astype(np.float32)
+    lab[..., 0] *= 100.0 / 255.0                  # OpenCV's 8-bit Lab: L scaled by 255/100, a and b offset by 128
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
+    out = []
+    for m in found:
+        ring = (cv2.dilate(m.astype(np.uint8), disc) > 0) & ~low
+        if ring.any() and np.linalg.norm(lab[m].mean(axis=0) - lab[ring].mean(axis=0)) >= contrast:
+            out.append(m)
+    return out
+
+
 def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> list[np.ndarray]:
     """The connected components (8-connected) of a mask after an opening, largest first.
 
@@ -171,21 +210,69 @@ def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> l
     return out
 
 
-class DepthThresholdSegmenter(InstanceSegmenter):
+class MaskFreeSegmenter(InstanceSegmenter):
+    """Base of the segmenters that find objects without given masks: the scene's background planes
+    from depth, and the hands (:mod:`.hands`) to leave out. ``Params`` include BackgroundParams and
+    HandParams."""
+
+    def scene(self, frame: Frame, *, sequence: Sequence) -> tuple[list[Plane], np.ndarray, np.ndarray]:
+        """The background planes of ``frame``, its background mask and its pixels with a reading
+        (see :func:`.support.background_mask`); the last frame's are kept, as hands and instances
+        both need them."""
+        key = (str(sequence.path), sequence.name, frame.index)
+        with self._lock:
+            last = getattr(self, "_last_scene", None)
+            if last is None or last[0] != key:
+                planes = fit_planes(frame.depth_m, sequence.intrinsics, params=self.params)
+                last = self._last_scene = (key, (planes, *background_mask(frame.depth_m, sequence.intrinsics, planes,
+                                                                           params=self.params)))
+            return last[1]
+
+    def hands(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
+        if not self.params.exclude_hands:
+            return None
+        _, background, _ = self.scene(frame, sequence=sequence)
+        return find_hands(frame, background, sequence.intrinsics, params=self.params, sequence_path=sequence.path)
+
+    def not_hand(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
+        """The pixels that are not hand, its margin included (None when hands are not looked for)."""
+        hand = self.hand_mask(frame, sequence=sequence)
+        return None if hand is None else ~widen(hand, self.params.hand_margin_px)
+
+
+def keep_within(instances: list[np.ndarray], allowed: np.ndarray | None, *, min_area_fraction: float
+                ) -> list[np.ndarray]:
+    """Each instance restricted to ``allowed`` (None = all); those left smaller than
+    ``min_area_fraction`` of the image dropped, largest first."""
+    if allowed is None:
+        return instances
+    least = max(1, int(np.ceil(min_area_fraction * allowed.size)))
+    out = [m for m in (m & allowed for m in instances) if np.count_nonzero(m) >= least]
+    return sorted(out, key=lambda m: -int(np.count_nonzero(m)))
+
+
+class DepthThresholdSegmenter(MaskFreeSegmenter):
     """Objects standing out of the support plane and background, chosen by how they move."""
 
     name = "depth_threshold"
-    description = "depth range + background-plane removal + connected components, moving instance chosen"
+    description = "depth range + background-plane removal + connected components, hands removed, moving instance chosen"
     Params = DepthThresholdParams
 
     def instances(self, frame: Frame, *, sequence: Sequence) -> list[np.ndarray]:
         p, K = self.params, sequence.intrinsics
-        planes = fit_planes(frame.depth_m, K, params=p)
-        background, valid = background_mask(frame.depth_m, K, planes, params=p)
-        found = components(valid & ~background, open_px=p.open_px, min_area_fraction=p.min_area_fraction)
-        if found and p.grow_sigmas > 0:
-            found = grow(found, background & above_planes(frame.depth_m, K, planes, params=p, sigmas=p.grow_sigmas))
+        planes, background, valid = self.scene(frame, sequence=sequence)
+        allowed = self.not_hand(frame, sequence=sequence)
+        objects = valid & ~background if allowed is None else valid & ~background & allowed
+        found = components(objects, open_px=p.open_px, min_area_fraction=p.min_area_fraction)
+        if p.grow_sigmas > 0:
+            low = background & above_planes(frame.depth_m, K, planes, params=p, sigmas=p.grow_sigmas)
+            low = low if allowed is None else low & allowed
+            if p.thin_contrast > 0:
+                found += thin_objects(low, frame.rgb, min_area_fraction=p.min_area_fraction, contrast=p.thin_contrast)
+            if found:
+                found = grow(found, low)
         depth = clean_depth(frame.depth_m)
         found = join_touching(found, depth, K, join_m=p.join_m)
         found = fill_floors(found, depth, K, gap_m=p.plane_distance_m)
-        return fill_dropouts(found, valid, fill_px=p.fill_px)
+        found = fill_dropouts(found, valid, fill_px=p.fill_px)
+        return keep_within(found, allowed, min_area_fraction=p.min_area_fraction)

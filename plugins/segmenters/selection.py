@@ -22,6 +22,11 @@ manipulated". :func:`choose_instance` is that choice as a pure function:
    ``area * (1 - r / R)``, where r is the distance of its centroid from the image centre and R the
    half-diagonal: the largest instance, weighted towards the image centre.
 
+With a hand mask (segmenters that look for hands, see :mod:`.hands`), the hand's pixels in either
+frame are left out of the change score (a hand passing in front of a still object does not make it
+move), and when the hand holds some of the moving instances, step 3 chooses among those only (an
+arm that moves with the object it carries is not chosen over it).
+
 "The previous choice" is the last choice made by rule 3 or by the fallback: a choice kept by rule 4
 does not replace it, so when a still object's segment merges with a neighbour's for a frame (two
 boxes touching in the image) the choice does not drift to the neighbour afterwards.
@@ -56,6 +61,7 @@ import numpy as np
 from artclass_core import Frame, Params, Segmenter, Sequence, param
 
 from .cache import DiskMaskCache, PackedMask
+from .hands import HandParams, held, widen
 from .support import clean_depth
 
 __all__ = ["Choice", "SelectionParams", "InstanceSegmenter", "mask_iou", "match_instances", "change_scores",
@@ -92,10 +98,11 @@ class Choice:
     tau_m: float | None = None         # depth change threshold used
     matches: tuple[int | None, ...] = ()   # matched instance in the neighbouring frame
     neighbour: int | None = None       # the neighbouring frame's index
+    held: tuple[bool, ...] = ()        # which instances a hand holds (empty: no hand mask)
 
     def to_dict(self) -> dict[str, Any]:
         return dict(index=self.index, rule=self.rule, scores=[round(s, 4) for s in self.scores],
-                    tau_m=self.tau_m, matches=list(self.matches), neighbour=self.neighbour)
+                    tau_m=self.tau_m, matches=list(self.matches), neighbour=self.neighbour, held=list(self.held))
 
 
 def _box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
@@ -152,7 +159,7 @@ def _depth_edges(depth_m: np.ndarray, step_m: float) -> np.ndarray:
 
 
 def change_scores(instances: list[np.ndarray], depth_m: np.ndarray, others: list[np.ndarray],
-                  other_depth_m: np.ndarray, *, change_m: float
+                  other_depth_m: np.ndarray, *, change_m: float, ignore: np.ndarray | None = None
                   ) -> tuple[list[float], list[tuple[int | None, float]], float]:
     """How much each instance changes between this frame and the neighbouring one.
 
@@ -162,6 +169,7 @@ def change_scores(instances: list[np.ndarray], depth_m: np.ndarray, others: list
     depth_m : ndarray, shape (H, W), metres, 0 = no reading -- this frame's depth
     others, other_depth_m : the same for the neighbouring frame
     change_m : smallest depth change that counts (metres), and the depth-edge step
+    ignore : ndarray of bool, shape (H, W), optional -- pixels left out (a hand in either frame)
 
     Returns
     -------
@@ -174,6 +182,8 @@ def change_scores(instances: list[np.ndarray], depth_m: np.ndarray, others: list
     matches = match_instances(instances, others)
     d, od = clean_depth(depth_m), clean_depth(other_depth_m)
     stable = (d > 0) & (od > 0) & ~_depth_edges(d, change_m) & ~_depth_edges(od, change_m)
+    if ignore is not None:
+        stable &= ~ignore
     diff = np.abs(d - od)
     sample = diff[::2, ::2][stable[::2, ::2]]          # a quarter of the pixels is plenty for a median
     sigma = 1.4826 * float(np.median(sample)) if sample.size else 0.0
@@ -211,7 +221,8 @@ def fallback_index(instances: list[np.ndarray]) -> int | None:
 
 def choose_instance(instances: list[np.ndarray], depth_m: np.ndarray, others: list[np.ndarray] | None,
                     other_depth_m: np.ndarray | None, *, previous: np.ndarray | None = None, change_m: float,
-                    min_change: float, keep_iou: float) -> Choice:
+                    min_change: float, keep_iou: float, ignore: np.ndarray | None = None,
+                    held: list[bool] | None = None) -> Choice:
     """Choose the manipulated instance of a frame (see the module docstring for the rule).
 
     Parameters
@@ -224,6 +235,8 @@ def choose_instance(instances: list[np.ndarray], depth_m: np.ndarray, others: li
     change_m : smallest depth change that counts (metres)
     min_change : change score above which an instance is moving
     keep_iou : IoU with ``previous`` from which an instance keeps the choice
+    ignore : ndarray of bool, shape (H, W), optional -- pixels left out of the change score (hands)
+    held : list of bool, optional -- which instances a hand holds; held moving instances come first
 
     Returns
     -------
@@ -235,10 +248,14 @@ def choose_instance(instances: list[np.ndarray], depth_m: np.ndarray, others: li
     if others is None or other_depth_m is None:
         scores, matches = [0.0] * len(instances), [(None, 0.0)] * len(instances)
     else:
-        scores, matches, tau = change_scores(instances, depth_m, others, other_depth_m, change_m=change_m)
+        scores, matches, tau = change_scores(instances, depth_m, others, other_depth_m, change_m=change_m,
+                                             ignore=ignore)
     kept = [mask_iou(m, previous) for m in instances] if previous is not None and previous.any() else None
     moving = [k for k, s in enumerate(scores) if s > min_change]
-    common = dict(scores=tuple(float(s) for s in scores), matches=tuple(j for j, _ in matches), tau_m=tau)
+    if held is not None and any(held[k] for k in moving):
+        moving = [k for k in moving if held[k]]
+    common = dict(scores=tuple(float(s) for s in scores), matches=tuple(j for j, _ in matches), tau_m=tau,
+                  held=tuple(bool(h) for h in held or ()))
     if moving:
         if kept is not None:
             staying = [k for k in moving if kept[k] >= keep_iou]
@@ -253,6 +270,7 @@ def choose_instance(instances: list[np.ndarray], depth_m: np.ndarray, others: li
 @dataclass
 class _SequenceState:
     instances: dict[int, list[PackedMask]] = field(default_factory=dict)
+    hands: dict[int, PackedMask | None] = field(default_factory=dict)
     chosen: list[PackedMask] = field(default_factory=list)   # frames 0 .. len - 1, in order
     choices: list[Choice | None] = field(default_factory=list)   # None: the mask came from the disk cache
     reference: PackedMask | None = None   # the choice that "previous" refers to (see _append)
@@ -281,6 +299,11 @@ class InstanceSegmenter(Segmenter):
         """The object instances of ``frame``: list of ndarray of bool, shape (H, W), non-empty."""
         raise NotImplementedError
 
+    def hands(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
+        """The hand or gripper pixels of ``frame`` (bool (H, W)), or None when this segmenter does not
+        look for hands (the default). ``instances`` should leave them out (see :meth:`hand_mask`)."""
+        return None
+
     # -- the segmenter API ----------------------------------------------------------------------
     def segment(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
         """The mask of the manipulated instance in ``frame`` (None when the frame has no instance)."""
@@ -298,6 +321,16 @@ class InstanceSegmenter(Segmenter):
         """``instances`` of a frame, computed once per frame and sequence."""
         with self._lock:
             return [m.unpack() for m in self._instances(sequence, frame.index, frame)]
+
+    def hand_mask(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
+        """``hands`` of a frame, computed once per frame and sequence (None: no hand search)."""
+        with self._lock:
+            state = self._state(sequence)
+            if frame.index not in state.hands:
+                hand = self.hands(frame, sequence=sequence)
+                state.hands[frame.index] = None if hand is None else PackedMask.pack(hand)
+            packed = state.hands[frame.index]
+        return None if packed is None else packed.unpack()
 
     # -- internals -------------------------------------------------------------------------------
     def _state(self, sequence: Sequence) -> _SequenceState:
@@ -346,9 +379,11 @@ class InstanceSegmenter(Segmenter):
             other_depth = sequence[nb].depth_m
         else:
             nb, others, other_depth = None, None, None
+        ignore, holding = self._hand_evidence(sequence, frame if frame is not None else sequence[j], nb, mine, depth)
         choice = choose_instance(mine, depth, others, other_depth,
                                  previous=None if state.reference is None else state.reference.unpack(),
-                                 change_m=p.change_m, min_change=p.min_change, keep_iou=p.keep_iou)
+                                 change_m=p.change_m, min_change=p.min_change, keep_iou=p.keep_iou,
+                                 ignore=ignore, held=holding)
         choice = dataclasses.replace(choice, neighbour=nb)
         shape = depth.shape
         packed = (PackedMask.pack(mine[choice.index]) if choice.index is not None
@@ -356,6 +391,19 @@ class InstanceSegmenter(Segmenter):
         if self._disk is not None:
             self._disk.store(sequence.path, sequence.name, name or sequence[j].name, packed.unpack())
         self._append(state, packed, choice)
+
+    def _hand_evidence(self, sequence: Sequence, frame: Frame, nb: int | None, instances: list[np.ndarray],
+                       depth_m: np.ndarray) -> tuple[np.ndarray | None, list[bool] | None]:
+        """The pixels to leave out of the change score (the hands of this and the neighbouring frame,
+        with their margin) and which instances the hand holds; (None, None) without a hand search."""
+        p = self.params
+        hand = self.hand_mask(frame, sequence=sequence)
+        if hand is None or not isinstance(p, HandParams):
+            return None, None
+        other = self.hand_mask(sequence[nb], sequence=sequence) if nb is not None else None
+        ignore = widen(hand if other is None else hand | other, p.hand_margin_px)
+        return ignore, held(instances, hand, clean_depth(depth_m), touch_m=p.hand_touch_m,
+                            reach_px=p.hand_margin_px + 1)
 
     @staticmethod
     def _append(state: _SequenceState, packed: PackedMask, choice: Choice | None) -> None:

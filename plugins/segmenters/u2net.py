@@ -2,10 +2,11 @@
 
 Per frame: the u2netp foreground probability (class-agnostic; onnxruntime on the CPU), thresholded;
 pixels that depth shows to be background (out of ``[near_m, far_m]``, on or behind a large plane: the
-support plane, the floor beyond it, a wall; see :mod:`.support`) are removed; the connected
-components of at least ``min_area_fraction`` of the image are the instances, and the shared selection
-(:mod:`.selection`) picks the one being manipulated. Pixels without a depth reading inside a salient
-region are kept: they carry no points, and dropping them would split objects along sensor shadows.
+support plane, the floor beyond it, a wall; see :mod:`.support`) and hands (:mod:`.hands`) are
+removed; the connected components of at least ``min_area_fraction`` of the image are the instances,
+and the shared selection (:mod:`.selection`) picks the one being manipulated. Pixels without a depth
+reading inside a salient region are kept: they carry no points, and dropping them would split
+objects along sensor shadows.
 
 Pre/post-processing (the model's own): RGB resized to 320 x 320, / 255, ImageNet mean
 (0.485, 0.456, 0.406) and std (0.229, 0.224, 0.225), NCHW float32 into ``input.1``; the output
@@ -26,10 +27,11 @@ import numpy as np
 from artclass_core import Frame, Sequence, param
 
 from . import onnx_models
-from .depth_threshold import components
+from .depth_threshold import MaskFreeSegmenter, components
+from .hands import HandParams
 from .onnx_models import TensorSpec
-from .selection import InstanceSegmenter, SelectionParams
-from .support import BackgroundParams, background_mask, fit_planes
+from .selection import SelectionParams
+from .support import BackgroundParams
 
 __all__ = ["U2netParams", "U2netSegmenter", "saliency", "load_u2net", "INPUT_SIZE"]
 
@@ -41,7 +43,7 @@ OUTPUTS = [TensorSpec("1959", "tensor(float)", 4, (1, 1, INPUT_SIZE, INPUT_SIZE)
 
 
 @dataclass(frozen=True)
-class U2netParams(SelectionParams, BackgroundParams):
+class U2netParams(SelectionParams, BackgroundParams, HandParams):
     model_path: str = param("", help="U^2-Net ONNX file; empty = the u2netp fetched into the model cache by "
                                      "`artclass models fetch u2netp`.")
     threshold: float = param(0.5, unit="probability", bounds=(0.01, 0.99),
@@ -81,16 +83,18 @@ def saliency(rgb: np.ndarray, *, session) -> np.ndarray:
     return cv2.resize(prob, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-class U2netSegmenter(InstanceSegmenter):
+class U2netSegmenter(MaskFreeSegmenter):
     """Salient objects (U^2-Net) that depth does not show to be background, chosen by how they move."""
 
     name = "u2net"
-    description = "U^2-Net (u2netp) salient objects minus depth background, moving instance chosen"
+    description = "U^2-Net (u2netp) salient objects minus depth background and hands, moving instance chosen"
     Params = U2netParams
 
     def instances(self, frame: Frame, *, sequence: Sequence) -> list[np.ndarray]:
         p = self.params
         prob = saliency(frame.rgb, session=load_u2net(p.model_path))
-        planes = fit_planes(frame.depth_m, sequence.intrinsics, params=p)
-        background, _ = background_mask(frame.depth_m, sequence.intrinsics, planes, params=p)
-        return components((prob > p.threshold) & ~background, open_px=0, min_area_fraction=p.min_area_fraction)
+        _, background, _ = self.scene(frame, sequence=sequence)
+        objects = (prob > p.threshold) & ~background
+        allowed = self.not_hand(frame, sequence=sequence)
+        return components(objects if allowed is None else objects & allowed, open_px=0,
+                          min_area_fraction=p.min_area_fraction)

@@ -1,0 +1,262 @@
+"""Hands and grippers: the pixels of a frame that handle the object and are not part of it.
+
+Shared by the mask-free segmenters (``depth_threshold``, ``u2net``). A frame's *hand mask* is the
+union of:
+
+* **hands by skin colour and shape**: pixels in the explicit skin-colour box of Chai & Ngan (1999)
+  in YCrCb (133 <= Cr <= 173, 77 <= Cb <= 127, 8-bit), that depth does not show to be background,
+  grouped into connected regions that do not cross a depth step of more than ``hand_touch_m`` (a
+  skin-coloured object behind the hand stays apart); a region is a hand when it reaches the image
+  border (a hand is held out from an arm that enters the picture; a skin-coloured object in the
+  scene seldom reaches it) and its surface, measured with depth, is at least ``hand_min_area_m2``
+  (two fingers: specks and patches of skin colour on objects are smaller);
+* **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``;
+* **given masks**: one PNG per frame in the folder ``hand_masks`` (a robot knows its own gripper),
+  used as they are.
+
+The hand mask is grown by ``hand_margin_px`` (its outline's mixed-colour pixels) and removed from
+the objects before the handled one is chosen, so a hand alone is never the object; its pixels are
+left out of the change score, so a hand waving in front of a still object does not make the object
+move. An object that the hand touches in 3-D (object pixels next to hand pixels, within
+``hand_touch_m`` of their depth) is *held*, and held objects are preferred (:mod:`.selection`).
+
+Notes
+-----
+The skin model is a fixed published rule, not fitted to any data here: D. Chai and K. N. Ngan,
+"Face segmentation using skin-color map in videophone applications", IEEE Trans. Circuits and
+Systems for Video Technology 9(4), 551-564, 1999. It ignores luminance, so it holds under most
+lighting, and it is known to accept wood, cardboard and some orange and pink surfaces: that is why
+only regions that reach the image border and stand out of the background planes count.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, param
+
+from .support import clean_depth
+
+__all__ = ["HandParams", "SKIN_CR", "SKIN_CB", "skin_mask", "hsv_mask", "parse_hsv", "hand_regions",
+           "held", "load_hand_mask", "find_hands", "widen"]
+
+# Chai & Ngan (1999): the skin-colour map in YCrCb, 8-bit (OpenCV's YCrCb has the same offsets).
+SKIN_CR = (133, 173)
+SKIN_CB = (77, 127)
+
+
+def parse_hsv(text: str) -> tuple[tuple[int, int, int], tuple[int, int, int]] | None:
+    """``"h0,s0,v0,h1,s1,v1"`` (OpenCV units: H 0-180, S and V 0-255) as (low, high); None for ``""``.
+
+    Raises :class:`~artclass_core.ParamError` naming ``gripper_hsv`` when the text is not six
+    integers in range with low <= high.
+    """
+    if not text.strip():
+        return None
+    try:
+        v = [int(x) for x in text.replace(" ", "").split(",")]
+    except ValueError:
+        v = []
+    highs = (180, 255, 255)
+    in_range = len(v) == 6 and all(0 <= x <= highs[k % 3] for k, x in enumerate(v))
+    if not in_range or any(v[k] > v[k + 3] for k in range(3)):
+        raise ParamError(f"parameter gripper_hsv = {text!r} is not 'h0,s0,v0,h1,s1,v1' with 0 <= h <= 180, "
+                         "0 <= s, v <= 255 and each low <= its high")
+    return (v[0], v[1], v[2]), (v[3], v[4], v[5])
+
+
+@dataclass(frozen=True)
+class HandParams(Params):
+    """Which pixels are a hand or gripper, removed from the objects (shared by the mask-free segmenters)."""
+
+    exclude_hands: bool = param(True, help="Remove hands (skin colour, regions reaching the image border) and the "
+                                           "configured gripper from the objects, and prefer the object a hand "
+                                           "holds; off = every region is an object candidate.")
+    hand_min_area_m2: float = param(0.003, unit="m^2", bounds=(0.0, 1.0),
+                                    help="Skin- or gripper-coloured regions whose surface (seen from the camera, "
+                                         "measured with depth) is smaller are not a hand: about two fingers, "
+                                         "30 cm^2; patches of skin colour on objects are smaller.")
+    hand_margin_px: int = param(2, unit="px", bounds=(0, 20),
+                                help="The hand mask grows by this radius before it is removed: the mixed-colour "
+                                     "pixels of its outline.")
+    hand_touch_m: float = param(0.02, unit="m", bounds=(0.0, 0.5),
+                                help="An object whose pixels next to the hand lie within this depth of the hand's "
+                                     "is held (about a finger's thickness); held objects are chosen first.")
+    gripper_hsv: str = param("", help="The gripper's colour as an HSV box 'h0,s0,v0,h1,s1,v1' in OpenCV units "
+                                      "(H 0-180, S and V 0-255), e.g. '0,0,0,180,100,100' for a dark grey "
+                                      "gripper; its regions that reach the image border are removed like "
+                                      "hands. Empty = none.")
+    hand_masks: str = param("", help="Folder of hand or gripper masks, one PNG per frame named like the frame "
+                                     "(non-zero = hand), relative to the sequence folder; added to the hand "
+                                     "mask. Empty = none.")
+
+    def __post_init__(self):
+        super().__post_init__()
+        parse_hsv(self.gripper_hsv)
+
+
+def _open(mask: np.ndarray) -> np.ndarray:
+    """Opening with a 3x3 square: single-pixel specks and one-pixel bridges removed."""
+    return cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+
+
+def skin_mask(rgb: np.ndarray) -> np.ndarray:
+    """Pixels of skin colour by Chai & Ngan's YCrCb rule.
+
+    Parameters
+    ----------
+    rgb : ndarray, shape (H, W, 3), uint8, RGB order
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+    """
+    ycrcb = cv2.cvtColor(np.ascontiguousarray(rgb, dtype=np.uint8), cv2.COLOR_RGB2YCrCb)
+    return cv2.inRange(ycrcb, (0, SKIN_CR[0], SKIN_CB[0]), (255, SKIN_CR[1], SKIN_CB[1])) > 0
+
+
+def hsv_mask(rgb: np.ndarray, low: tuple[int, int, int], high: tuple[int, int, int]) -> np.ndarray:
+    """Pixels whose OpenCV HSV (H 0-180, S and V 0-255) lies in the box [low, high]: bool (H, W)."""
+    hsv = cv2.cvtColor(np.ascontiguousarray(rgb, dtype=np.uint8), cv2.COLOR_RGB2HSV)
+    return cv2.inRange(hsv, low, high) > 0
+
+
+def hand_regions(candidates: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, *,
+                 min_area_m2: float) -> np.ndarray:
+    """The connected regions (8-connected, after a 3x3 opening) of ``candidates`` that reach the image
+    border and whose surface is at least ``min_area_m2``.
+
+    Parameters
+    ----------
+    candidates : ndarray of bool, shape (H, W)
+    depth_m : ndarray, shape (H, W), metres, 0 = no reading
+    intrinsics : pinhole intrinsics of the image
+    min_area_m2 : smallest surface, square metres: a pixel at depth z covers (z / fx) (z / fy); pixels
+        without a reading count at their region's mean depth
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+    """
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(_open(candidates).astype(np.uint8), connectivity=8)
+    if n < 2:
+        return np.zeros(candidates.shape, bool)
+    h, w = candidates.shape
+    x, y, bw, bh, count = (stats[1:, k] for k in range(5))
+    border = np.flatnonzero((x == 0) | (y == 0) | (x + bw == w) | (y + bh == h)) + 1
+    if not len(border):
+        return np.zeros(candidates.shape, bool)
+    d = clean_depth(depth_m)
+    out = np.zeros(candidates.shape, bool)
+    for k in border:
+        box = np.s_[y[k - 1]:y[k - 1] + bh[k - 1], x[k - 1]:x[k - 1] + bw[k - 1]]
+        region = labels[box] == k
+        z = d[box][region]
+        z = z[z > 0]
+        if not len(z):
+            continue
+        # the surface of the pixels with a reading, plus those without one at the mean depth
+        area = (float(np.sum(z * z)) + (count[k - 1] - len(z)) * float(z.mean()) ** 2) / (intrinsics.fx * intrinsics.fy)
+        if area >= min_area_m2:
+            out[box] |= region
+    return out
+
+
+def load_hand_mask(folder: Path, frame: Frame) -> np.ndarray:
+    """The given hand mask of ``frame``: ``folder/<frame name>.png``, non-zero = hand. bool (H, W).
+
+    Raises :class:`~artclass_core.InputError` naming the file when it is missing, unreadable or of
+    another size than the frame.
+    """
+    path = folder / f"{frame.name}.png"
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
+    if image is None:
+        raise InputError("hand mask missing or unreadable (hand_masks needs one PNG per frame)", path=path)
+    if image.shape[:2] != frame.depth_m.shape[:2]:
+        raise InputError(f"hand mask is {image.shape[1]}x{image.shape[0]}, the frame "
+                         f"{frame.depth_m.shape[1]}x{frame.depth_m.shape[0]}", path=path)
+    return (image.max(axis=2) if image.ndim == 3 else image) > 0
+
+
+def find_hands(frame: Frame, background: np.ndarray, intrinsics: Intrinsics, *, params: HandParams,
+               sequence_path: Path | str) -> np.ndarray:
+    """The hand (and gripper) mask of a frame (see the module docstring), not yet grown by its margin.
+
+    Parameters
+    ----------
+    frame : the frame (``rgb`` (H, W, 3) uint8)
+    background : ndarray of bool, shape (H, W) -- pixels depth shows to be background
+    intrinsics : pinhole intrinsics of the frame
+    params : the hand settings
+    sequence_path : the sequence folder (``hand_masks`` is relative to it)
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W); all False when ``exclude_hands`` is off
+    """
+    if not params.exclude_hands:
+        return np.zeros(background.shape, bool)
+    candidates = skin_mask(frame.rgb)
+    gripper = parse_hsv(params.gripper_hsv)
+    if gripper is not None:
+        candidates |= hsv_mask(frame.rgb, *gripper)
+    # cut along depth steps, so that a skin-coloured object behind the hand does not join it; then
+    # give the hand back its side of the step (its outline)
+    d, touch = clean_depth(frame.depth_m), params.hand_touch_m
+    near, far = _depth_range(d, np.ones(background.shape, bool), 1)
+    candidates &= ~background
+    step = far - near > touch                          # no readings around: -inf, not a step
+    hand = hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2)
+    if hand.any():
+        near, far = _depth_range(d, hand, 1)
+        hand |= candidates & step & (far > 0) & ((d == 0) | ((d >= near - touch) & (d <= far + touch)))
+    if params.hand_masks:
+        hand |= load_hand_mask(Path(sequence_path) / Path(params.hand_masks).expanduser(), frame)
+    return hand
+
+
+def _depth_range(d: np.ndarray, where: np.ndarray, reach_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest and farthest reading of ``d`` (0 = none) among the pixels ``where``, in the square of
+    half-width ``reach_px`` around each pixel; +inf and 0 where there is none. float32 (H, W) each."""
+    seen = where & (d > 0)
+    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
+    near = cv2.erode(np.where(seen, d, np.float32(np.inf)).astype(np.float32), kernel, borderValue=np.inf)
+    far = cv2.dilate(np.where(seen, d, np.float32(0)).astype(np.float32), kernel, borderValue=0)
+    return near, far
+
+
+def widen(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    """``mask`` dilated by a disc of ``radius_px`` (no copy when 0 or empty): bool (H, W)."""
+    if not radius_px or not mask.any():
+        return mask
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
+    return cv2.dilate(mask.astype(np.uint8), disc) > 0
+
+
+def held(instances: list[np.ndarray], hand: np.ndarray, depth_m: np.ndarray, *, touch_m: float,
+         reach_px: int = 1) -> list[bool]:
+    """Which instances the hand touches in 3-D: an instance pixel within ``reach_px`` (a square) of
+    hand pixels, whose depth lies within ``touch_m`` of the range of their depths.
+
+    Parameters
+    ----------
+    instances : list of ndarray of bool, shape (H, W)
+    hand : ndarray of bool, shape (H, W) -- before any margin is added (its own depths)
+    depth_m : ndarray, shape (H, W), metres, 0 = no reading
+    touch_m : depth tolerance, metres
+    reach_px : how far from the hand an object pixel may be (the margin removed with the hand, + 1)
+
+    Returns
+    -------
+    list of bool, one per instance
+    """
+    if not hand.any() or not instances:
+        return [False] * len(instances)
+    d = clean_depth(depth_m)
+    near, far = _depth_range(d, hand, reach_px)      # of the hand's readings around each pixel
+    contact = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
+    return [bool(np.any(m & contact)) for m in instances]
