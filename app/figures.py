@@ -286,14 +286,15 @@ def motion_parts(pair: PairResult, target: Cloud, *, max_points: int = 6000, mag
     pts = _subsample(np.asarray(target.points), max_points)
     fig.add_trace(go.Scatter3d(x=pts[:, 0], y=pts[:, 1], z=pts[:, 2], mode="markers", name=f"frame {pair.j}",
                                marker=dict(size=1.4, color="#B8B8B8", opacity=0.35), hoverinfo="skip"))
-    ev, labels = pair.evidence, pair.labels
-    size = float(np.linalg.norm(np.ptp(ev.points, axis=0))) if len(ev.points) else 0.1
-    moved = [ev.points[labels == n] for n in range(len(pair.motions))]
+    ev = pair.evidence
+    points, labels = ev.points[ev.forward], pair.labels[ev.forward]      # the source's points
+    size = float(np.linalg.norm(np.ptp(points, axis=0))) if len(points) else 0.1
+    moved = [points[labels == n] for n in range(len(pair.motions))]
     centroids = [m.mean(axis=0) if len(m) else np.zeros(3) for m in moved]
     shifts = [transform(c[None], m.T_target_from_source)[0] - c for c, m in zip(centroids, pair.motions)]
     longest = max((float(np.linalg.norm(d)) for d in shifts), default=0.0)
     gain = magnify if magnify is not None else (float(np.clip(0.2 * size / longest, 1.0, 500.0)) if longest > 0 else 1.0)
-    step = max(1, len(ev.points) // max_points)
+    step = max(1, len(points) // max_points)
     for n, (motion, own, c, d) in enumerate(zip(pair.motions, moved, centroids, shifts)):
         colour = CLUSTER_COLOURS[n % len(CLUSTER_COLOURS)]
         name = f"motion {n} · {motion.n_points} points"
@@ -309,7 +310,7 @@ def motion_parts(pair: PairResult, target: Cloud, *, max_points: int = 6000, mag
                                   sizeref=1.0, anchor="tail", colorscale=[[0, colour], [1, colour]], showscale=False,
                                   name=name, legendgroup=f"m{n}", showlegend=False, text=[text],
                                   hovertemplate="%{text}<extra></extra>"))
-    loose = ev.points[labels < 0][::step]
+    loose = points[labels < 0][::step]
     if len(loose):
         fig.add_trace(go.Scatter3d(x=loose[:, 0], y=loose[:, 1], z=loose[:, 2], mode="markers",
                                    name=f"no evidence ({int((labels < 0).sum())})", hoverinfo="skip",

@@ -242,6 +242,11 @@ class MotionEvidence:
         Their (column, row) in the source image.
     pixel_m : float
         The size of one pixel on the object (median depth / focal length), metres.
+    n_source : int or None
+        When set, only ``points[:n_source]`` are source points; the rest are target points judged the
+        other way (moved by each motion's inverse onto the source image), so that a surface the
+        motion says should have come from nowhere counts against it too. ``pixels`` of those are in
+        the target image.
     """
 
     motions: np.ndarray
@@ -254,6 +259,14 @@ class MotionEvidence:
     pixels: np.ndarray
     pixel_m: float
     info: dict[str, Any] = field(default_factory=dict)
+    n_source: int | None = None
+
+    @property
+    def forward(self) -> np.ndarray:
+        """Which points are source points (judged from the source image onto the target's)."""
+        out = np.zeros(len(self.points), bool)
+        out[: len(self.points) if self.n_source is None else self.n_source] = True
+        return out
 
 
 @dataclass

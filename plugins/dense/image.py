@@ -94,7 +94,8 @@ def normal_map(vertices: np.ndarray, *, window_px: int = 5, min_support: float =
 
 def measured_noise(depth_m: np.ndarray, valid: np.ndarray) -> float:
     """Depth noise (metres, one sigma) measured on an image: the RMS deviation of the valid pixels from
-    the median of their 5x5 neighbourhood, the largest 5% (edges, flying pixels) left out.
+    the median of their 5x5 neighbourhood, over pixels whose neighbourhood is all valid, the largest 5%
+    (creases, flying pixels) left out; 0 when too few pixels have such a neighbourhood.
 
     Notes
     -----
@@ -102,8 +103,10 @@ def measured_noise(depth_m: np.ndarray, valid: np.ndarray) -> float:
     exactly their neighbours' depth, and the MAD of that is zero however coarse the steps are.
     """
     depth = np.where(valid, depth_m, 0).astype(np.float32)
-    spread = np.abs(depth - cv2.medianBlur(depth, 5))[valid]
-    if not len(spread):
+    # Only pixels whose whole neighbourhood is valid: at an edge the median mixes in another surface.
+    interior = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    spread = np.abs(depth - cv2.medianBlur(depth, 5))[interior]
+    if len(spread) < MIN_POINTS:
         return 0.0
     kept = np.sort(spread)[: max(1, int(0.95 * len(spread)))]
     return float(np.sqrt(np.mean(np.square(kept))))

@@ -9,6 +9,9 @@
 4. Every hypothesis is scored on every point (:func:`~.projective.look`, and the flow), and the
    motions a default selection picks are refitted on the points they explain; a motion is also fitted
    to the points none of them explains (a part that spans several cells). Near-copies are dropped.
+5. The hypotheses are scored the other way round too: every target point, moved by each motion's
+   inverse, against the source image. A part sliding out of a still base leaves surface where the
+   base's own motion says there should be none; only this direction sees that.
 
 The result (:class:`~artclass_core.types.MotionEvidence`) holds no decision: a rule selects from it.
 """
@@ -125,10 +128,19 @@ class DenseRegistrar(PairRegistrar):
             more_status, more_residual = _look_all(hyps[n_before:], points, tgt, reach)
             status, residual = np.vstack([status, more_status]), np.vstack([residual, more_residual])
             flow_err = np.vstack([flow_err, _flow_errors(hyps[n_before:], points, flow_px, across, tgt)])
+        # The other way round: each target point moved by each motion's inverse onto the source image.
+        back = Target.of(source)
+        inverse = [np.linalg.inv(T) for T in hyps]
+        reach_back = (p.reach_sigmas * noise_m(target.points[:, 2], p.depth_noise_m)
+                      + 2 * target.points[:, 2] / tgt.intrinsics.fx)
+        status_back, residual_back = _look_all(inverse, target.points, back, reach_back)
         info = dict(stride_px=int(source.info.get("stride_px", 1)), n_flow=int(matched.sum()),
                     n_points=len(points), seconds=round(time.perf_counter() - t0, 4))
-        return MotionEvidence(np.stack(hyps), names, residual, status, flow_err, noise, points, source.pixels,
-                              pixel_m, info)
+        return MotionEvidence(np.stack(hyps), names, np.hstack([residual, residual_back]),
+                              np.hstack([status, status_back]),
+                              np.hstack([flow_err, np.full(status_back.shape, np.nan, np.float32)]), noise,
+                              np.vstack([points, target.points]), np.vstack([source.pixels, target.pixels]),
+                              pixel_m, info, n_source=len(points))
 
     def _refits(self, ev: MotionEvidence, fit: "_Fit", rule: DenseRuleParams, round_: int,
                 reach: list[float]) -> tuple[list, list]:

@@ -88,7 +88,8 @@ def _coherence(members: np.ndarray, pixels: np.ndarray, stride: int) -> float:
 
 def label_coherence(labels: np.ndarray, pixels: np.ndarray, stride: int) -> np.ndarray:
     """For each point, the share of its 8 image neighbours (points on the ``stride`` grid) that carry
-    its label; NaN for a point without neighbours."""
+    its label, among those labelled -1 or more (a label below -1 marks a point to leave out); NaN for
+    a point without such neighbours."""
     g = pixels // max(stride, 1)
     g = g - g.min(axis=0) + 1
     image = np.full(tuple(g.max(axis=0)[::-1] + 2), -2, np.int64)
@@ -99,7 +100,7 @@ def label_coherence(labels: np.ndarray, pixels: np.ndarray, stride: int) -> np.n
         for du in (-1, 0, 1):
             if dv or du:
                 other = image[g[:, 1] + dv, g[:, 0] + du]
-                present += other != -2
+                present += other >= -1
                 same += other == labels
     with np.errstate(invalid="ignore", divide="ignore"):
         return same / present
@@ -138,6 +139,16 @@ def _spread(values: np.ndarray, *, centred: bool = True) -> float:
     return float(1.4826 * np.median(np.abs(values - centre)))
 
 
+def _layout(ev: MotionEvidence) -> np.ndarray:
+    """The points' pixels on one canvas: the target's points (judged the other way) to the right of
+    the source's, so that image neighbours are always points of the same image."""
+    pixels = ev.pixels.copy()
+    forward = ev.forward
+    if not forward.all():
+        pixels[~forward, 0] += pixels[:, 0].max() + 8 * int(ev.info.get("stride_px", 1))
+    return pixels
+
+
 def _displacement(points: np.ndarray, A: np.ndarray, B: np.ndarray) -> float:
     """Median distance between the points moved by A and by B (metres)."""
     return float(np.median(np.linalg.norm(transform(points, A) - transform(points, B), axis=1))) if len(points) else 0.0
@@ -174,18 +185,19 @@ class DenseRule(DecisionRule):
         """The hypotheses selected for the seen points (indices into ``ev.motions``)."""
         p = self.params
         n = int(seen.sum())
-        return select(costs[:, seen], ev.pixels[seen], penalty=p.bic_factor * 6 * np.log(max(n, 2)),
+        return select(costs[:, seen], _layout(ev)[seen], penalty=p.bic_factor * 6 * np.log(max(n, 2)),
                       misfit=p.noise_factor ** 2, min_points=max(p.min_part_points, int(p.min_part_share * n)),
                       min_coherence=p.min_coherence, stride=int(ev.info.get("stride_px", 1)))
 
     def decide(self, ev: MotionEvidence, *, source=None, target=None) -> RuleDecision:
         p = self.params
         seen = (ev.status == SURFACE).any(axis=0)
+        forward = ev.forward
         if not seen.any():
             return RuleDecision("skipped", [], reason="no point lands on the target surface under any motion")
         noise, flow_noise, costs = self.noise(ev, seen)
         first = int(np.argmin(costs.sum(axis=1)))
-        share = float((ev.status[first] == SURFACE).mean()) if ev.status.shape[1] else 0.0
+        share = float((ev.status[first, forward] == SURFACE).mean()) if forward.any() else 0.0
         if share < p.min_seen_share:
             return RuleDecision("skipped", [], reason=f"only {share:.0%} of the points seen on the target surface "
                                                       f"(alpha = {p.min_seen_share:g})", info=dict(seen_share=share))
@@ -194,22 +206,26 @@ class DenseRule(DecisionRule):
         threshold = p.noise_factor * noise + ev.pixel_m
         base = chosen[0]
         parts = []
-        coherence = label_coherence(labels, ev.pixels, int(ev.info.get("stride_px", 1)))
+        # Coherence counts the decisive points only: where one selected motion explains a point clearly
+        # better than the others (a surface both explain, sliding in itself, belongs to neither).
+        ranked = np.sort(costs[chosen], axis=0)
+        decisive = np.where(seen & (ranked[1] - ranked[0] >= p.noise_factor ** 2 / 2), labels, -3) if len(chosen) > 1 else labels
+        coherence = label_coherence(decisive, _layout(ev), int(ev.info.get("stride_px", 1)))
         for h in chosen[1:]:
-            own, rest = ev.points[labels == h], ev.points[(labels >= 0) & (labels != h)]
+            own, rest = ev.points[forward & (labels == h)], ev.points[forward & (labels >= 0) & (labels != h)]
             apart = min(_displacement(own, ev.motions[h], ev.motions[base]),
                         _displacement(rest, ev.motions[h], ev.motions[base]))
-            if apart > threshold and np.nanmean(coherence[labels == h]) >= p.min_coherence:
+            if apart > threshold and np.nanmean(coherence[decisive == h]) >= p.min_coherence:
                 parts.append(h)
         kept = [base, *parts]
         labels = np.where(seen, np.asarray(kept)[np.argmin(costs[kept], axis=0)], -1)
-        motions = [Motion(ev.motions[h], ev.names[h], int((labels == h).sum()),
-                          _displacement(ev.points[labels == h], ev.motions[h], np.eye(4))) for h in kept]
+        motions = [Motion(ev.motions[h], ev.names[h], int((forward & (labels == h)).sum()),
+                          _displacement(ev.points[forward & (labels == h)], ev.motions[h], np.eye(4))) for h in kept]
         index = {h: i for i, h in enumerate(kept)}
         labels = np.array([index.get(int(h), -1) for h in labels]) if len(labels) else labels
         info = dict(noise_m=round(noise, 6), frame_noise_m=round(ev.noise_m, 6), flow_noise_px=round(flow_noise, 3), threshold_m=round(threshold, 6), seen_share=round(share, 4),
                     n_hypotheses=len(ev.motions), selected=[ev.names[h] for h in chosen],
-                    part_shares=[round(m.n_points / max(int(seen.sum()), 1), 4) for m in motions])
+                    part_shares=[round(m.n_points / max(int((seen & forward).sum()), 1), 4) for m in motions])
         if parts:
             shares = ", ".join(f"{s:.0%}" for s in info["part_shares"][1:])
             return RuleDecision("AM", [], reason=f"{len(kept)} distinct motions (parts of {shares} of the points)",
