@@ -338,20 +338,23 @@ def _ordered(rows: list[dict[str, Any]], wanted: dict[tuple, tuple[int, int]]) -
     return pd.DataFrame([r for _, r in ranked])
 
 
-def read_table(path: str | Path) -> pd.DataFrame:
-    """A sweep's table, from ``.parquet`` or ``.csv``. Raises :class:`InputError` if it is not one."""
-    path = Path(path)
+def read_table(source) -> pd.DataFrame:
+    """A sweep's table, from ``.parquet`` or ``.csv``: a path, or a binary file object with a ``name``
+    (an upload). Raises :class:`InputError` naming the file if it is not a sweep's table."""
+    name = Path(getattr(source, "name", None) or source)
     try:
-        if path.suffix == ".csv":      # the swept values are text, as in the Parquet table
-            names = swept_names(pd.read_csv(path, usecols=["recipe"]))
-            table = pd.read_csv(path, dtype={n: str for n in names})
+        if name.suffix == ".csv":      # the swept values are text, as in the Parquet table
+            names = swept_names(pd.read_csv(source, usecols=["recipe"]))
+            if hasattr(source, "seek"):
+                source.seek(0)
+            table = pd.read_csv(source, dtype={n: str for n in names})
         else:
-            table = pd.read_parquet(path)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"not a readable sweep table ({one_line(exc)})", path=path) from None
+            table = pd.read_parquet(source)
+    except (OSError, ValueError, KeyError) as exc:
+        raise InputError(f"not a readable sweep table ({one_line(exc)})", path=name) from None
     missing = [c for c in (*KEY_COLUMNS, "setting", "correct") if c not in table.columns]
     if missing:
-        raise InputError(f"not a sweep table: no column {', '.join(missing)}", path=path)
+        raise InputError(f"not a sweep table: no column {', '.join(missing)}", path=name)
     return table
 
 

@@ -244,3 +244,29 @@ def test_table_reader_names_the_file(tmp_path):
     write_table(pd.DataFrame(dict(a=[1])), tmp_path / "y.parquet")
     with pytest.raises(ArtclassError, match="not a sweep table: no column path, sequence, recipe"):
         read_table(tmp_path / "y.parquet")
+
+
+# -- the app ---------------------------------------------------------------------------------------------
+
+def test_evaluate_page_opens_a_sweep_table(registry, sequences, root, tmp_path, monkeypatch):
+    from streamlit.testing.v1 import AppTest
+    monkeypatch.syspath_prepend(str(ROOT))
+    monkeypatch.setenv("ARTCLASS_SAMPLE_DATA", str(root))
+    monkeypatch.delenv("ARTCLASS_DATA_ROOTS", raising=False)
+    monkeypatch.setenv("ARTCLASS_UPLOAD_DIR", str(tmp_path / "uploads"))
+    table = sweep(registry, sequences, grid_settings(registry, {"w": ["1", "5"]}, params={"k": "7"}),
+                  out=tmp_path / "t.parquet")
+    app = AppTest.from_file(str(ROOT / "app" / "streamlit_app.py"), default_timeout=300)
+    app.run()
+    app.switch_page("app_pages/evaluate.py").run()
+    app.radio(key="ev_source").set_value("Open a sweep table").run()
+    assert not app.exception and not app.error
+    assert not app.get("plotly_chart"), "no figure before a table is uploaded"
+    app.get("file_uploader")[0].set_value(("t.parquet", (tmp_path / "t.parquet").read_bytes(), "application/octet-stream")).run()
+    assert not app.exception and not app.error, [e.value for e in app.error]
+    shown = json.loads(app.get("plotly_chart")[0].proto.spec)
+    assert shown == json.loads(figure(table).to_json()), "the page shows the figure the command writes"
+    app.get("file_uploader")[0].set_value(("t.csv", b"not,a,sweep\n1,2,3\n", "text/csv")).run()
+    assert not app.exception
+    errors = [e.value for e in app.error]
+    assert len(errors) == 1 and errors[0].startswith("t.csv: not a readable sweep table ("), errors
