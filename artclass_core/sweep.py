@@ -47,6 +47,7 @@ DASK_HINT = "pip install 'artclass[dask]'"
 DECISION_PIPELINE_PARAMS = ("alpha", "min_fitness", "w")
 KEY_COLUMNS = ("path", "sequence", "recipe")
 TABLE_SUFFIXES = (".parquet", ".csv")
+DECISION_LETTERS = {"AM": "A", "RM": "R", "NM": "N", "skipped": "-"}      # the ``decisions`` column
 
 
 @dataclass(frozen=True)
@@ -207,6 +208,8 @@ def _row(source: SequenceSource, setting: Setting, o: SequenceOutcome, result) -
         **{d: o.fractions.get(d, float("nan")) if o.fractions else float("nan") for d in DECISIONS},
         pair_correct=o.pair_correct, pair_total=o.pair_total,
         pair_accuracy=o.pair_correct / o.pair_total if o.pair_total else float("nan"), n_pairs=o.n_pairs,
+        skipped_pairs=sum(p.decision == "skipped" for p in result.pairs) if result is not None else 0,
+        decisions="".join(DECISION_LETTERS[p.decision] for p in result.pairs) if result is not None else None,
         **{f"time_{s}_s": float(timing.get(s, float("nan"))) for s in (*STAGES, "total")},
         seconds=o.seconds, error=o.error,
         params=json.dumps(result.params, sort_keys=True, default=str) if result is not None else None,

@@ -101,6 +101,8 @@ def test_rows_equal_separate_runs(registry, sequences, tmp_path):
         truthful = [p for p in fresh.pairs if p.truth and p.decision != "skipped"]
         assert (row.label, row.AM, row.RM, row.NM) == (fresh.label, *(fresh.fractions[d] for d in ("AM", "RM", "NM")))
         assert (row.pair_correct, row.pair_total) == (sum(p.decision == p.truth for p in truthful), len(truthful))
+        assert row.decisions == "".join({"skipped": "-"}.get(p.decision, p.decision[0]) for p in fresh.pairs)
+        assert row.skipped_pairs == sum(p.decision == "skipped" for p in fresh.pairs)
         assert json.loads(row.params) == json.loads(json.dumps(fresh.params, default=str))
         seen.add((row.label, row.pair_correct))
     assert len(seen) > 1, "the settings should not all give the same outcome"
