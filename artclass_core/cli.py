@@ -19,7 +19,7 @@ from .pipeline import PLUGIN_KINDS, Config, Pipeline
 from .plugins import Registry, load_registry
 from .sequences import find_sequences, open_sequences
 from .interfaces import KINDS
-from .sweep import DASK_HINT, grid_settings, parse_grid, run_tasks, summary, sweep, swept_names, write_figure
+from .sweep import DASK_HINT, grid_settings, parse_grid, plan_tasks, run_tasks, summary, sweep, swept_names, write_figure
 from .types import DECISIONS
 
 
@@ -84,12 +84,9 @@ def _overrides(args) -> dict[str, str]:
     return overrides
 
 
-def config_from_args(registry: Registry, args: argparse.Namespace, **replace: str) -> Config:
-    names = {kind: replace.get(kind, getattr(args, kind)) for kind in PLUGIN_KINDS}
-    for kind, name in names.items():
-        if not (kind == "segmenter" and name == "auto"):
-            registry.get(kind, name)   # unknown plugin -> PluginError naming the registered ones
-    return Config(**names).with_overrides(registry, _overrides(args))
+def config_from_args(registry: Registry, args: argparse.Namespace) -> Config:
+    plugins = {kind: getattr(args, kind) for kind in PLUGIN_KINDS}
+    return grid_settings(registry, {}, params=_overrides(args), **plugins)[0].config(registry)
 
 
 def cmd_classify(registry: Registry, args) -> int:
@@ -138,13 +135,13 @@ def cmd_evaluate(registry: Registry, args) -> int:
                                   **{**plugins, "preprocessor": "paper", "rule": "paper"})
     outcomes: list[dict[int, Any]] = [{} for _ in settings]
     bars = _progress(sys.stderr.isatty())
-    tasks = [(i, seq, list(range(len(settings)))) for i, seq in enumerate(sequences)]
+    tasks = plan_tasks(registry, sequences, settings)
     lost: list[str] = []
     for n, (i, m, _row, outcome) in enumerate(run_tasks(registry, tasks, settings, scheduler=args.scheduler,
                                                         workers=_workers(args), reader=args.reader, lost=lost), 1):
         outcomes[m][i] = outcome
         if bars:
-            bars("sequences", n, len(tasks) * len(settings))
+            bars("runs", n, len(sequences) * len(settings))
     if lost:
         raise ArtclassError(f"{len(lost)} sequence(s) were lost by the cluster (e.g. {lost[0]}); run again")
     evals = [evaluation(st.config(registry), [o[i] for i in sorted(o)]) for st, o in zip(settings, outcomes)]

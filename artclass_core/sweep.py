@@ -26,7 +26,7 @@ import itertools
 import json
 import logging
 import os
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Collection, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
@@ -35,7 +35,7 @@ from typing import Any
 
 import pandas as pd
 
-from .errors import ArtclassError, InputError
+from .errors import ArtclassError, InputError, ParamError
 from .evaluate import SequenceOutcome, one_line, run_outcome
 from .pipeline import PLUGIN_KINDS, STAGES, Config, Pipeline, Progress, StageCache
 from .plugins import Registry, load_registry
@@ -117,7 +117,7 @@ def grid_settings(registry: Registry, grid: dict[str, list[str]], *, params: dic
         try:
             setting.config(registry)
         except ArtclassError as exc:
-            raise type(exc)(f"setting {setting.label}: {exc}") from None
+            raise type(exc)(f"setting {setting.label}: {exc}" if grid else str(exc)) from None
         out.append(setting)
     return out
 
@@ -134,7 +134,7 @@ class SequenceSource:
 
     @classmethod
     def of(cls, sequence: Sequence, *, reader: str | None = None) -> "SequenceSource":
-        return cls(str(Path(sequence.path).resolve()), sequence.name, reader)
+        return cls(*_where(sequence), reader)
 
     def open(self, registry: Registry) -> Sequence:
         found = [s for s in open_sequences(registry, self.path, reader=self.reader) if s.name == self.name]
@@ -231,6 +231,31 @@ def _worker_registry() -> Registry:
 Task = tuple[int, Sequence, list[int]]          # (sequence index, sequence, indices of the settings to run)
 
 
+def plan_tasks(registry: Registry, sequences: list[Sequence], settings: list[Setting], *,
+               done: Collection[tuple[str, str, str]] = ()) -> list[Task]:
+    """The tasks of a sweep: one per sequence and frame stages (segmenter, preprocessor and their
+    params), since settings with other frame stages share nothing; the settings of a row in ``done``
+    (``(path, sequence, recipe)``) are left out."""
+    stages = [_frame_stages(st.config(registry)) for st in settings]
+    tasks = []
+    for i, seq in enumerate(sequences):
+        groups: dict[tuple, list[int]] = {}
+        for m, st in enumerate(settings):
+            if (*_where(seq), st.recipe) not in done:
+                groups.setdefault(stages[m], []).append(m)
+        tasks += [(i, seq, chosen) for chosen in groups.values()]
+    return tasks
+
+
+def _frame_stages(config: Config) -> tuple:
+    return config.segmenter, config.segmenter_params, config.preprocessor, config.preprocessor_params
+
+
+def _where(sequence: Sequence) -> tuple[str, str]:
+    """``(path, name)``: the sequence in the table's ``path`` and ``sequence`` columns."""
+    return str(Path(sequence.path).resolve()), sequence.name
+
+
 def run_tasks(registry: Registry, tasks: list[Task], settings: list[Setting], *, scheduler=None,
               workers: int = 1, reader: str | None = None, lost: list[str] | None = None
               ) -> Iterator[tuple[int, int, dict[str, Any], SequenceOutcome]]:
@@ -241,6 +266,8 @@ def run_tasks(registry: Registry, tasks: list[Task], settings: list[Setting], *,
     ``distributed.Client``, each task is one Dask task. A task lost to the cluster (a worker died, the
     scheduler went away) is not raised: its sequence's name and the error are appended to ``lost``.
     """
+    if not (isinstance(workers, int) and workers >= 1):     # here, not as a failed row in every task
+        raise ParamError(f"workers = {workers!r} must be a positive integer")
     if scheduler is None:
         for i, seq, chosen in tasks:
             for n, row, outcome in sequence_rows(registry, seq, [settings[m] for m in chosen], workers=workers):
@@ -306,17 +333,12 @@ def sweep(registry: Registry, sequences: list[Sequence], settings: list[Setting]
     except OSError as exc:
         raise ArtclassError(f"{out.parent}: cannot create the folder of the table ({one_line(exc)})") from None
     table = read_table(out) if out.exists() else pd.DataFrame()
-    wanted = {(str(Path(s.path).resolve()), s.name, st.recipe): (i, m)
+    wanted = {(*_where(s), st.recipe): (i, m)
               for i, s in enumerate(sequences) for m, st in enumerate(settings)}
     rows = table.to_dict("records") if len(table) else []
     if force:
         rows = [r for r in rows if _key(r) not in wanted]
-    done = {_key(r) for r in rows}
-    tasks: list[Task] = []
-    for i, s in enumerate(sequences):
-        chosen = [m for m, st in enumerate(settings) if (str(Path(s.path).resolve()), s.name, st.recipe) not in done]
-        if chosen:
-            tasks.append((i, s, chosen))
+    tasks = plan_tasks(registry, sequences, settings, done={_key(r) for r in rows})
     total = sum(len(c) for _, _, c in tasks)
     if progress:
         progress("rows", 0, total)

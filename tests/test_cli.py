@@ -173,6 +173,17 @@ def test_evaluate_on_a_local_dask_cluster_is_the_serial_evaluation(capsys, tmp_p
     assert runs[0] == runs[1]
 
 
+def test_progress_bars_show_counts_and_close(capsys):
+    from artclass_core.cli import _Bars
+    bars = _Bars()
+    for done in range(4):
+        bars("pairs", done, 3)
+    bars("rows", 0, 0)                      # nothing to do: opened and closed at once
+    err = capsys.readouterr().err
+    assert "pairs: 100%" in err and "3/3" in err and "rows: 0row" in err, err
+    assert not bars._bars, "finished bars are closed"
+
+
 def test_plugins_lists_the_registry(capsys, registry):
     status, out, err = run_cli(capsys, "plugins", "--json")
     assert status == 0, err

@@ -20,8 +20,8 @@ import pytest
 
 from artclass_core import ArtclassError, Config, ParamError, Pipeline, load_registry, open_sequences
 from artclass_core.cli import main
-from artclass_core.sweep import (figure, grid_settings, parse_grid, read_table, summary, sweep, swept_names,
-                                 write_table)
+from artclass_core.sweep import (figure, grid_settings, parse_grid, plan_tasks, read_table, summary, sweep,
+                                 swept_names, write_table)
 
 from conftest import ROOT
 
@@ -80,6 +80,17 @@ def test_grid_settings_are_every_combination(registry):
         grid_settings(registry, {"k": ["3", "0"]})
     with pytest.raises(ArtclassError, match="unknown parameter 'nope'"):
         grid_settings(registry, {"nope": ["1"]})
+
+
+def test_one_task_per_sequence_and_frame_stages(registry, sequences):
+    decisions = grid_settings(registry, {"w": ["1", "3"], "k": ["3", "4"]})
+    assert [(i, chosen) for i, _, chosen in plan_tasks(registry, sequences, decisions)] == \
+        [(0, [0, 1, 2, 3]), (1, [0, 1, 2, 3]), (2, [0, 1, 2, 3])]
+    frames = grid_settings(registry, {"voxels_per_diameter": ["30", "40"], "w": ["1", "3"]})
+    tasks = plan_tasks(registry, sequences, frames, done={(str(sequences[0].path.resolve()), sequences[0].name,
+                                                            frames[0].recipe)})
+    assert [(i, chosen) for i, _, chosen in tasks] == [(0, [1]), (0, [2, 3]), (1, [0, 1]), (1, [2, 3]),
+                                                      (2, [0, 1]), (2, [2, 3])]
 
 
 # -- what a sweep computes ------------------------------------------------------------------------------
@@ -200,6 +211,7 @@ def test_sweep_command(capsys, root, tmp_path):
     (["--grid", "k=0,3"], "setting k=0: parameter k = 0 is out of bounds"),
     (["--grid", "rule=nope"], "unknown rule 'nope'"),
     (["--grid", "k=3", "--out", "results.xlsx"], "the table is written as .parquet or .csv"),
+    (["--grid", "k=3", "--workers", "0"], "workers = 0 must be a positive integer"),
 ])
 def test_sweep_bad_options_give_one_line(capsys, root, tmp_path, monkeypatch, argv, message):
     monkeypatch.chdir(tmp_path)
@@ -272,3 +284,12 @@ def test_evaluate_page_opens_a_sweep_table(registry, sequences, root, tmp_path, 
     assert not app.exception
     errors = [e.value for e in app.error]
     assert len(errors) == 1 and errors[0].startswith("t.csv: not a readable sweep table ("), errors
+
+
+def test_docs_name_every_column(registry, sequences, tmp_path):
+    text = (ROOT / "docs" / "datasets-and-clusters.md").read_text()
+    table = sweep(registry, sequences[:1], grid_settings(registry, {"w": ["1"]}, params={"k": "7"}),
+                  out=tmp_path / "t.parquet")
+    undocumented = [c for c in table.columns if c != "w" and f"`{c}`" not in text]
+    assert not undocumented, f"docs/datasets-and-clusters.md does not describe the columns {undocumented}"
+    assert "datasets-and-clusters.md" in (ROOT / "docs" / "index.md").read_text()
