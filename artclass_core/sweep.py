@@ -424,7 +424,7 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
 
 def figure(table: pd.DataFrame, *, title: str = "Accuracy against each swept parameter"):
     """A Plotly figure: one panel per swept name, sequence accuracy (solid) and pair accuracy (dashed)
-    against its values, one line per combination of the other swept names."""
+    against its values, one line per combination of the other swept names (named in the legend)."""
     import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 
@@ -432,24 +432,26 @@ def figure(table: pd.DataFrame, *, title: str = "Accuracy against each swept par
     names = swept_names(table) or ["setting"]
     fig = make_subplots(rows=1, cols=len(names), subplot_titles=names, shared_yaxes=True)
     palette = ["#2E86AB", "#E4572E", "#76B041", "#F2A541", "#8E6C8A", "#17BEBB", "#4D4D4D"]
+    line = itertools.count()             # one colour per line, across the panels
     for col, name in enumerate(names, 1):
         others = [n for n in names if n != name]
         values = pd.to_numeric(summ[name], errors="coerce")
         numeric = bool(values.notna().all())
         summ["_x"] = values if numeric else summ[name]
-        for c, (key, part) in enumerate(summ.groupby(others, sort=False) if others else [((), summ)]):
+        for key, part in summ.groupby(others, sort=False) if others else [((), summ)]:
             key = key if isinstance(key, tuple) else (key,)
             label = ", ".join(f"{n}={v}" for n, v in zip(others, key)) or "all"
             part = part.sort_values("_x") if numeric else part
-            colour = palette[c % len(palette)]
+            colour = palette[next(line) % len(palette)]
             for metric, dash in (("accuracy", None), ("pair_accuracy", "dash")):
                 fig.add_trace(go.Scatter(
                     x=part["_x"], y=part[metric], mode="lines+markers", legendgroup=label,
                     name=f"{'sequence' if metric == 'accuracy' else 'pair'} accuracy, {label}",
-                    showlegend=col == 1, line=dict(color=colour, dash=dash),
+                    line=dict(color=colour, dash=dash),
                     hovertemplate=f"{name}=%{{x}}<br>{metric.replace('_', ' ')} %{{y:.1%}}<extra>{label}</extra>"),
                     row=1, col=col)
-        fig.update_xaxes(title_text=name, type=None if numeric else "category", row=1, col=col)
+        fig.update_xaxes(title_text=name, type=None if numeric else "category",
+                         tickvals=sorted(values.unique()) if numeric else None, row=1, col=col)
     fig.update_yaxes(range=[-0.05, 1.05], tickformat=".0%", title_text="accuracy", col=1)
     fig.update_layout(template="plotly_white", title=title, height=420, margin=dict(t=80),
                       legend=dict(orientation="h", y=-0.25))
