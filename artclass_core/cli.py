@@ -242,7 +242,7 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p.set_defaults(func=partial(cmd_evaluate, registry))
     p = sub.add_parser("sweep", help="evaluate every labelled sequence under a folder for every setting of a grid, "
                                      "into one table")
-    p.add_argument("root")
+    p.add_argument("root", help="folder searched for labelled sequences (recursively)")
     p.add_argument("--grid", action="append", default=[], required=True, metavar="NAME=V1,V2,...",
                    help="a parameter (by name or paper symbol) or a plugin kind and the values to try; repeatable: "
                         "every combination runs")
