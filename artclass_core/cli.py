@@ -7,32 +7,42 @@ import json
 import os
 import sys
 from functools import partial
+from pathlib import Path
 from typing import Any
 
+from tqdm import tqdm
+
 from .errors import ArtclassError
-from .evaluate import evaluate, markdown
+from .evaluate import evaluation, markdown
 from .params import PipelineParams, describe
 from .pipeline import PLUGIN_KINDS, Config, Pipeline
 from .plugins import Registry, load_registry
 from .sequences import find_sequences, open_sequences
 from .interfaces import KINDS
+from .sweep import DASK_HINT, grid_settings, parse_grid, plan_tasks, run_tasks, summary, sweep, swept_names, write_figure
+from .types import DECISIONS
 
 
-def _progress(enabled: bool):
-    if not enabled:
-        return None
+class _Bars:
+    """``progress(stage, done, total)`` shown as tqdm bars with an ETA, one per stage, closed when done."""
 
-    def show(stage: str, done: int, total: int) -> None:
-        width = 30
-        filled = int(width * done / max(total, 1))
-        sys.stderr.write(f"\r{stage:>10} [{'#' * filled}{'.' * (width - filled)}] {done}/{total}")
+    def __init__(self):
+        self._bars: dict[str, tqdm] = {}
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        bar = self._bars.get(stage)
+        if bar is None:
+            bar = self._bars[stage] = tqdm(total=total, desc=stage, unit=stage.rstrip("s"), dynamic_ncols=True)
+        bar.update(done - bar.n)
         if done >= total:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
-    return show
+            self._bars.pop(stage).close()
 
 
-def _pipeline_options(p: argparse.ArgumentParser) -> None:
+def _progress(enabled: bool) -> _Bars | None:
+    return _Bars() if enabled else None
+
+
+def _pipeline_options(p: argparse.ArgumentParser, *, cluster: bool = False) -> None:
     defaults = Config()
     p.add_argument("--reader", help="dataset reader (default: the first that recognises the path)")
     for kind in PLUGIN_KINDS:
@@ -42,23 +52,41 @@ def _pipeline_options(p: argparse.ArgumentParser) -> None:
                    help="set a parameter by name or paper symbol (v, r, s, x, q_bar, t_bar, k, w, alpha); "
                         "'auto' restores an automatic value; repeatable")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
-                   help="threads that process frames and pairs; the result is the same for any number "
-                        "(default: one per CPU, %(default)s here)")
+    cpus = os.cpu_count() or 1
+    if not cluster:
+        p.add_argument("--workers", type=int, default=cpus,
+                       help="threads that process frames and pairs; the result is the same for any number "
+                            "(default: one per CPU, %(default)s here)")
+        return
+    p.add_argument("--workers", type=int, default=None,
+                   help=f"threads that process the frames and pairs of one sequence; the result is the same for "
+                        f"any number (default: one per CPU, {cpus} here; 1 with --scheduler, where Dask runs "
+                        f"one sequence per worker thread)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run one task per sequence on a Dask cluster: the address of its scheduler "
+                        "(tcp://host:8786), or 'local' to start one on this machine; the data must be at the "
+                        f"same path on every worker (needs {DASK_HINT})")
 
 
-def config_from_args(registry: Registry, args: argparse.Namespace, **replace: str) -> Config:
-    names = {kind: replace.get(kind, getattr(args, kind)) for kind in PLUGIN_KINDS}
-    for kind, name in names.items():
-        if not (kind == "segmenter" and name == "auto"):
-            registry.get(kind, name)   # unknown plugin -> PluginError naming the registered ones
+def _workers(args) -> int:
+    if args.workers is not None:
+        return args.workers
+    return 1 if args.scheduler else os.cpu_count() or 1
+
+
+def _overrides(args) -> dict[str, str]:
     overrides = {}
     for item in args.param:
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise ArtclassError(f"--param {item!r}: expected NAME=VALUE")
         overrides[key.strip()] = value.strip()
-    return Config(**names).with_overrides(registry, overrides)
+    return overrides
+
+
+def config_from_args(registry: Registry, args: argparse.Namespace) -> Config:
+    plugins = {kind: getattr(args, kind) for kind in PLUGIN_KINDS}
+    return grid_settings(registry, {}, params=_overrides(args), **plugins)[0].config(registry)
 
 
 def cmd_classify(registry: Registry, args) -> int:
@@ -87,25 +115,73 @@ def cmd_classify(registry: Registry, args) -> int:
     return 0
 
 
-def cmd_evaluate(registry: Registry, args) -> int:
+def _labelled_sequences(registry: Registry, args) -> list:
     sequences, errors = find_sequences(registry, args.root, reader=args.reader)
     for err in errors:
         print(f"artclass: skipping {err}", file=sys.stderr)
     if not sequences:
         raise ArtclassError(f"{args.root}: no labelled sequence found")
-    configs = [config_from_args(registry, args)]
+    return sequences
+
+
+def cmd_evaluate(registry: Registry, args) -> int:
+    sequences = _labelled_sequences(registry, args)
+    plugins = {kind: getattr(args, kind) for kind in PLUGIN_KINDS}
+    settings = grid_settings(registry, {}, params=_overrides(args), **plugins)
     if args.compare_rule:
-        configs.append(config_from_args(registry, args, rule=args.compare_rule))
+        settings += grid_settings(registry, {}, params=_overrides(args), **{**plugins, "rule": args.compare_rule})
     if args.compare_paper:
-        configs.append(config_from_args(registry, args, preprocessor="paper", rule="paper")
-                       .with_overrides(registry, {"prealign": False}))
-    evals = [evaluate(registry, sequences, c, progress=_progress(sys.stderr.isatty()), workers=args.workers)
-             for c in configs]
+        settings += grid_settings(registry, {}, params={**_overrides(args), "prealign": "false"},
+                                  **{**plugins, "preprocessor": "paper", "rule": "paper"})
+    outcomes: list[dict[int, Any]] = [{} for _ in settings]
+    bars = _progress(sys.stderr.isatty())
+    tasks = plan_tasks(registry, sequences, settings)
+    lost: list[str] = []
+    for n, (i, m, _row, outcome) in enumerate(run_tasks(registry, tasks, settings, scheduler=args.scheduler,
+                                                        workers=_workers(args), reader=args.reader, lost=lost), 1):
+        outcomes[m][i] = outcome
+        if bars:
+            bars("runs", n, len(sequences) * len(settings))
+    if lost:
+        raise ArtclassError(f"{len(lost)} sequence(s) were lost by the cluster (e.g. {lost[0]}); run again")
+    evals = [evaluation(st.config(registry), [o[i] for i in sorted(o)]) for st, o in zip(settings, outcomes)]
     if args.json:
         print(json.dumps(dict(evaluations=[e.to_dict() for e in evals]), indent=1))
     else:
         print(markdown(evals))
     return 0
+
+
+def cmd_sweep(registry: Registry, args) -> int:
+    grid = parse_grid(args.grid)
+    out = Path(args.out)
+    sequences = _labelled_sequences(registry, args)
+    settings = grid_settings(registry, grid, params=_overrides(args),
+                             **{kind: getattr(args, kind) for kind in PLUGIN_KINDS})
+    lost: list[str] = []
+    try:
+        table = sweep(registry, sequences, settings, out=out, scheduler=args.scheduler, workers=_workers(args),
+                      force=args.force, reader=args.reader, progress=_progress(sys.stderr.isatty()), lost=lost)
+    except KeyboardInterrupt:
+        print(f"artclass: interrupted; the finished rows are in {out}: run the same command again to resume",
+              file=sys.stderr)
+        raise
+    html = write_figure(table, out.with_suffix(".html"))
+    summ = summary(table)
+    if args.json:
+        print(json.dumps(dict(table=str(out), figure=str(html), summary=summ.to_dict("records"), lost=lost),
+                         default=str))
+    else:
+        print(summ.drop(columns=swept_names(table), errors="ignore").to_string(index=False, na_rep="–", formatters={
+            "accuracy": "{:.1%}".format, "pair_accuracy": "{:.1%}".format, "seconds": "{:.1f}".format,
+            **{d: "{:.3f}".format for d in DECISIONS}}))
+        failed = table["error"].notna().sum()
+        print(f"\n{len(table)} rows ({failed} failed, see the error column) in {out}; figure: {html}")
+    for item in lost:
+        print(f"artclass: lost by the cluster, not recorded: {item}", file=sys.stderr)
+    if lost:
+        print("artclass: run the same command again to run the lost sequences", file=sys.stderr)
+    return 1 if lost else 0
 
 
 def _param_dicts(params_cls: type) -> list[dict[str, Any]]:
@@ -159,11 +235,24 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p.set_defaults(func=partial(cmd_classify, registry))
     p = sub.add_parser("evaluate", help="classify every labelled sequence under a folder and report accuracy")
     p.add_argument("root")
-    _pipeline_options(p)
+    _pipeline_options(p, cluster=True)
     p.add_argument("--compare-rule", metavar="RULE", help="also evaluate this decision rule, side by side")
     p.add_argument("--compare-paper", action="store_true",
                    help="also evaluate the paper's pipeline as written (paper preprocessor and rule, no prealignment)")
     p.set_defaults(func=partial(cmd_evaluate, registry))
+    p = sub.add_parser("sweep", help="evaluate every labelled sequence under a folder for every setting of a grid, "
+                                     "into one table")
+    p.add_argument("root", help="folder searched for labelled sequences (recursively)")
+    p.add_argument("--grid", action="append", default=[], required=True, metavar="NAME=V1,V2,...",
+                   help="a parameter (by name or paper symbol) or a plugin kind and the values to try; repeatable: "
+                        "every combination runs")
+    _pipeline_options(p, cluster=True)
+    p.add_argument("--out", default="sweep.parquet", metavar="TABLE",
+                   help="the results table, .parquet or .csv, written as it grows; the figure goes next to it as "
+                        ".html (default: %(default)s)")
+    p.add_argument("--force", action="store_true",
+                   help="run again the rows already in the table (by default they are kept and skipped)")
+    p.set_defaults(func=partial(cmd_sweep, registry))
     p = sub.add_parser("plugins", help="list the registered plugins and their parameters")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=partial(cmd_plugins, registry))

@@ -8,9 +8,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .errors import ArtclassError
-from .pipeline import Config, Pipeline
+from .pipeline import Config, Pipeline, StageCache
 from .plugins import Registry
-from .types import DECISIONS, LABELS, Sequence
+from .types import DECISIONS, LABELS, RunResult, Sequence
 
 
 @dataclass
@@ -96,27 +96,46 @@ def evaluate(registry: Registry, sequences: list[Sequence], config: Config, *, p
     pipeline = Pipeline(registry, config)
     outcomes = []
     for n, seq in enumerate(sequences):
-        o = SequenceOutcome(seq.name, seq.object_name, seq.label, tuple(seq.accepted_labels), None)
-        t0 = time.perf_counter()
-        try:
-            result = pipeline.run(seq, workers=workers)
-        except ArtclassError as exc:
-            o.error = str(exc)
-        else:
-            o.predicted, o.fractions = result.label, result.fractions
-            truthful = [p for p in result.pairs if p.truth and p.decision != "skipped"]
-            o.pair_total = len(truthful)
-            o.pair_correct = sum(p.decision == p.truth for p in truthful)
-            legacy = [(p, seq.pair_truth_legacy(p.i, p.j)) for p in result.pairs if p.decision != "skipped"]
-            o.pair_total_legacy = sum(t is not None for _, t in legacy)
-            o.pair_correct_legacy = sum(p.decision == t for p, t in legacy)
-            o.n_pairs = len(result.pairs)
-        o.seconds = time.perf_counter() - t0
-        outcomes.append(o)
+        outcomes.append(run_outcome(pipeline, seq, workers=workers)[0])
         if progress:
             progress("sequences", n + 1, len(sequences))
+    return evaluation(config, outcomes)
+
+
+def run_outcome(pipeline: Pipeline, seq: Sequence, *, workers: int = 1,
+                cache: StageCache | None = None) -> tuple[SequenceOutcome, RunResult | None]:
+    """Run one sequence and score it against its truth. Any failure is caught and recorded as the
+    outcome's one-line ``error`` (the result is then None), so that the sequences after it still run."""
+    o = SequenceOutcome(seq.name, seq.object_name, seq.label, tuple(seq.accepted_labels), None)
+    t0 = time.perf_counter()
+    result = None
+    try:
+        result = pipeline.run(seq, workers=workers, cache=cache)
+    except Exception as exc:       # bad data, or a plugin's bug: one line here, and the next sequence runs
+        o.error = one_line(exc)
+    else:
+        o.predicted, o.fractions = result.label, result.fractions
+        truthful = [p for p in result.pairs if p.truth and p.decision != "skipped"]
+        o.pair_total = len(truthful)
+        o.pair_correct = sum(p.decision == p.truth for p in truthful)
+        legacy = [(p, seq.pair_truth_legacy(p.i, p.j)) for p in result.pairs if p.decision != "skipped"]
+        o.pair_total_legacy = sum(t is not None for _, t in legacy)
+        o.pair_correct_legacy = sum(p.decision == t for p, t in legacy)
+        o.n_pairs = len(result.pairs)
+    o.seconds = time.perf_counter() - t0
+    return o, result
+
+
+def one_line(exc: BaseException) -> str:
+    """The first line of an error's message; prefixed with its type unless it is an :class:`ArtclassError`."""
+    text = (str(exc).strip().splitlines() or [""])[0]
+    return text if isinstance(exc, ArtclassError) else f"{type(exc).__name__}: {text}".rstrip(": ")
+
+
+def evaluation(config: Config, outcomes: list[SequenceOutcome]) -> Evaluation:
+    """The :class:`Evaluation` of ``config`` made of these outcomes."""
     return Evaluation(config_label(config), outcomes, dict(plugins={k: getattr(config, k) for k in
-                                                            ("segmenter", "preprocessor", "registrar", "rule")}))
+                                                               ("segmenter", "preprocessor", "registrar", "rule")}))
 
 
 def config_label(config: Config) -> str:

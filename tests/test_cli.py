@@ -153,6 +153,37 @@ def test_evaluate_synthetic_smoke_set(capsys, tmp_path):
         assert f"| {p.name} |" in out
 
 
+def test_evaluate_on_a_local_dask_cluster_is_the_serial_evaluation(capsys, tmp_path):
+    pytest.importorskip("distributed", reason="Dask is in the test extra: pip install -e '.[test]'")
+    from artclass_plugins.synth import generate_sequence
+    for n, (obj, motion) in enumerate((("laptop", "articulate"), ("mug", "carry"))):
+        generate_sequence(tmp_path / obj, object_name=obj, motion=motion, noise="low", n_frames=8, seed=n,
+                          width=160, height=120)
+    runs = []
+    for extra in ([], ["--scheduler", "local"]):
+        status, out, err = run_cli(capsys, "evaluate", tmp_path, "--json", "--param", "k=3", "--compare-rule", "paper",
+                                   *extra)
+        assert status == 0, err
+        evals = json.loads(out)["evaluations"]
+        for e in evals:
+            for s in e["sequences"]:
+                s.pop("seconds")
+        runs.append(evals)
+    assert [e["rule"] for e in runs[0]] == ["robust", "paper"]
+    assert runs[0] == runs[1]
+
+
+def test_progress_bars_show_counts_and_close(capsys):
+    from artclass_core.cli import _Bars
+    bars = _Bars()
+    for done in range(4):
+        bars("pairs", done, 3)
+    bars("rows", 0, 0)                      # nothing to do: opened and closed at once
+    err = capsys.readouterr().err
+    assert "pairs: 100%" in err and "3/3" in err and "rows: 0row" in err, err
+    assert not bars._bars, "finished bars are closed"
+
+
 def test_plugins_lists_the_registry(capsys, registry):
     status, out, err = run_cli(capsys, "plugins", "--json")
     assert status == 0, err

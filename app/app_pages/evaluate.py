@@ -11,9 +11,11 @@ import streamlit as st
 from app import figures, state, uploads
 from artclass_core import ArtclassError, Config, InputError, Sequence
 from artclass_core.evaluate import Evaluation, evaluate, markdown
+from artclass_core.sweep import figure as sweep_figure, read_table, summary
 
 log = logging.getLogger("artclass.app")
 NO_COMPARE = "(none)"
+FOLDER, SWEEP = "Evaluate a folder", "Open a sweep table"
 
 
 @st.cache_data(max_entries=512, show_spinner=False)
@@ -43,6 +45,9 @@ def main() -> None:
         config = state.config_sidebar(reg)
     except ArtclassError as exc:
         config_error = exc
+    if st.radio("Results", [FOLDER, SWEEP], horizontal=True, key="ev_source", label_visibility="collapsed") == SWEEP:
+        show_sweep()
+        return
     roots = state.data_roots()
     st.session_state.setdefault("ev_folder", str(roots[0]) if roots else "")
     c1, c2 = st.columns([3, 1])
@@ -78,6 +83,22 @@ def main() -> None:
                               registrar_params=config.registrar_params))
     evals = [run_evaluation(sequences, c, title=f"rule {c.rule}") for c in configs]
     show(evals)
+
+
+def show_sweep() -> None:
+    st.caption("The table that `artclass sweep ROOT --grid NAME=V1,V2,... --out TABLE` wrote: one row per "
+               "sequence and setting. The settings in the sidebar are not used here.")
+    upload = st.file_uploader("Sweep table (.parquet or .csv)", type=["parquet", "csv"], key="ev_sweep_upload")
+    if upload is None:
+        st.info("Upload a sweep's table to see its accuracy against each swept parameter.")
+        return
+    table = read_table(upload)
+    st.plotly_chart(sweep_figure(table), key="ev_sweep_figure", config={"displaylogo": False}, theme=None)
+    st.dataframe(summary(table), hide_index=True, key="ev_sweep_summary")
+    failed = table[table["error"].notna()]
+    if len(failed):
+        with st.expander(f"{len(failed)} row(s) failed"):
+            st.dataframe(failed[["sequence", "setting", "error"]], hide_index=True)
 
 
 def show(evals: list[Evaluation]) -> None:
