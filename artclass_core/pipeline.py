@@ -524,10 +524,10 @@ class Pipeline:
 
     def pair_key(self, sequence: Sequence, i: int, j: int, cache: StageCache) -> tuple:
         """The cache key of the registrations of pair (i, j): both frames' keys, the registrar and
-        the grid (``cell_size_m``, ``min_cell_points``)."""
+        the grid (``cell_size_m``, ``min_cell_points``, ``prealign``)."""
         fi, fj = self.frame_key(sequence, i, cache), self.frame_key(sequence, j, cache)
         return (fi[0], fi[1:], fj[1:], self.config.registrar, self.config.plugin_params(self.registry, "registrar"),
-                self.params.cell_size_m, self.params.min_cell_points)
+                self.params.cell_size_m, self.params.min_cell_points, self.params.prealign)
 
     def _pair(self, a: FrameResult, b: FrameResult, timing: dict[str, float], cache: StageCache | None,
               key: tuple | None, between: tuple[Cloud | None, ...] = ()) -> PairResult:
@@ -715,7 +715,7 @@ class Pipeline:
                 before = result.params.get(kind, {})
                 changed += [f"{kind} {n} {before.get(n)!r} -> {v!r}" for n, v in now.items() if before.get(n) != v]
         before = result.params.get("pipeline", {})
-        changed += [f"{n} {before.get(n)!r} -> {getattr(self.params, n)!r}" for n in ("k", "cell_size_m", "min_cell_points")
+        changed += [f"{n} {before.get(n)!r} -> {getattr(self.params, n)!r}" for n in ("k", "cell_size_m", "min_cell_points", "prealign")
                     if before.get(n) != getattr(self.params, n)]
         if changed:
             raise ArtclassError("cannot re-decide: the registrations depend on settings that changed ("

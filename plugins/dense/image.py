@@ -46,8 +46,9 @@ class ImageParams(Params):
                             help="The cloud keeps every n-th pixel of every n-th row, with n the smallest "
                                  "stride that leaves at most this many points.")
     edge_px: int | None = param(None, unit="px", bounds=(0, 50), auto="image width / 160 (4 px at 640x480)",
-                                help="Erode the mask by this many pixels first: a silhouette slides over the "
-                                     "surface when the view changes.")
+                                help="Peel this many pixels off the mask first (a silhouette slides over the "
+                                     "surface when the view changes); where the object is thinner than twice "
+                                     "this, half of each side.")
 
 
 def noise_m(depth_m: np.ndarray | float, at_1m: float) -> np.ndarray | float:
@@ -90,6 +91,15 @@ def normal_map(vertices: np.ndarray, *, window_px: int = 5, min_support: float =
     facing = np.sum(n * vertices[h:-h, h:-h], axis=-1, keepdims=True) > 0
     normals[h:-h, h:-h] = np.where(facing, -n, n)
     return normals
+
+
+def peel(mask: np.ndarray, edge_px: int) -> np.ndarray:
+    """The mask without its outer ``edge_px`` pixels, except where it is thinner than twice that:
+    there only the outer half of each side goes (a lever a few pixels wide keeps its middle)."""
+    inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 3)
+    kernel = np.ones((4 * edge_px + 1, 4 * edge_px + 1), np.uint8)
+    half_width = cv2.dilate(inside, kernel)            # the largest distance to the edge nearby
+    return mask & (inside > np.minimum(edge_px, half_width / 2))
 
 
 def measured_noise(depth_m: np.ndarray, valid: np.ndarray) -> float:
@@ -139,7 +149,7 @@ class ImagePreprocessor(Preprocessor):
         raw = np.where(np.isfinite(frame.depth_m), frame.depth_m, 0).astype(np.float32)
         mask = mask.astype(bool)
         px = p.edge_px if p.edge_px is not None else max(1, round(intrinsics.width / 160))
-        inner = cv2.erode(mask.astype(np.uint8), np.ones((2 * px + 1, 2 * px + 1), np.uint8)) > 0 if px else mask
+        inner = peel(mask, px) if px else mask
         valid = inner & (raw > 0)
         gray = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
         empty = Cloud(frame.index, np.zeros((0, 3)), np.zeros((0, 3)), dict(n_raw=int(valid.sum())),

@@ -81,7 +81,7 @@ class DenseRegistrar(PairRegistrar):
         coarse = [max(size / d, fine) for d in (4, 4, 8, 8, 16, 16, 32)] + [fine] * 3
 
         # Residuals compare two smoothed surfaces: the noise left in each, added in quadrature.
-        noise = max(np.sqrt(2) * max(c.info.get("smoothed_noise_m", 0.0) for c in (source, target)), sigma0 / 2)
+        noise = max(np.sqrt(2) * max(c.info.get("smoothed_noise_m", 0.0) for c in (source, target)), sigma0)
         rule = DenseRuleParams()
         no_flow = np.full((len(points), 2), np.nan)
         flow_px, across = (flow_targets(source, target, min_texture=p.min_texture, max_roundtrip_px=p.max_roundtrip_px)
