@@ -16,7 +16,8 @@ explains it best: that labelling is the pair's part segmentation, and a part who
 with another's (two fits that each explain half of a rigid object) is not a part.
 
 Decision: two or more motions that really differ (their relative motion moves the median point of
-each side by more than ``noise_factor`` sigma plus one pixel) are AM; one motion is RM when it moves
+each side by more than ``noise_factor`` sigma plus one pixel, and each fails points that the other
+explains) are AM; one motion is RM when it moves
 the median point by as much, else NM. Too few points seen in both frames: skipped.
 """
 
@@ -211,11 +212,16 @@ class DenseRule(DecisionRule):
         ranked = np.sort(costs[chosen], axis=0)
         decisive = np.where(seen & (ranked[1] - ranked[0] >= p.noise_factor ** 2 / 2), labels, -3) if len(chosen) > 1 else labels
         coherence = label_coherence(decisive, _layout(ev), int(ev.info.get("stride_px", 1)))
+        misfit, enough = p.noise_factor ** 2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
         for h in chosen[1:]:
             own, rest = ev.points[forward & (labels == h)], ev.points[forward & (labels >= 0) & (labels != h)]
             apart = min(_displacement(own, ev.motions[h], ev.motions[base]),
                         _displacement(rest, ev.motions[h], ev.motions[base]))
-            if apart > threshold and np.nanmean(coherence[decisive == h]) >= p.min_coherence:
+            # Each motion must fail points the other explains: two fits of one rigid body explain
+            # nearly the same points, a part and its base do not.
+            needed = all(int((seen & (costs[a] < misfit / 2) & (costs[b] >= misfit)).sum()) >= enough
+                         for a, b in ((h, base), (base, h)))
+            if apart > threshold and needed and np.nanmean(coherence[decisive == h]) >= p.min_coherence:
                 parts.append(h)
         kept = [base, *parts]
         labels = np.where(seen, np.asarray(kept)[np.argmin(costs[kept], axis=0)], -1)
