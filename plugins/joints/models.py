@@ -16,6 +16,7 @@ predicted and the observed pose (radians), each divided by its noise level.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -108,9 +109,9 @@ def twist_log(R: Rotation, t: np.ndarray) -> np.ndarray:
 def _tangent_basis(u: np.ndarray) -> np.ndarray:
     """Two unit vectors (2, 3) perpendicular to the unit vector ``u`` and to each other."""
     helper = np.eye(3)[np.argmin(np.abs(u))]
-    e1 = np.cross(u, helper)
+    e1 = _cross(u, helper)
     e1 /= np.linalg.norm(e1)
-    return np.stack([e1, np.cross(u, e1)])
+    return np.stack([e1, _cross(u, e1)])
 
 
 # -- the models ------------------------------------------------------------------------------------------
@@ -133,24 +134,30 @@ class _Shape:
         """Joint parameters that change the motion (the screw's twist has a free scale)."""
         return {"fixed": 0, "prismatic": 2, "revolute": 4, "screw": 5}[self.name]
 
+    @functools.cached_property
+    def _basis(self) -> np.ndarray:
+        """Directions (2, 3) of the steps across the start's axis (revolute) or direction (prismatic)."""
+        return _tangent_basis(self.start[3:] if self.name == "prismatic" else self.start[:3])
+
+    @functools.cached_property
+    def _axis_point(self) -> np.ndarray:
+        """The revolute start's axis point nearest the origin, or nearest the anchor."""
+        w0, v0 = self.start[:3], self.start[3:]
+        c = _cross(w0, v0)
+        return c if self.anchor is None else c + w0 * float((self.anchor - c) @ w0)
+
     def twist(self, g: np.ndarray) -> np.ndarray:
         if self.name == "fixed":
             return np.zeros(6)
         if self.name == "screw":
             xi = self.start + g
             return xi / np.linalg.norm(xi)
-        w0, v0 = self.start[:3], self.start[3:]
         if self.name == "prismatic":
-            d = v0 + g[:2] @ _tangent_basis(v0)
+            d = self.start[3:] + g[:2] @ self._basis
             return np.concatenate([np.zeros(3), d / np.linalg.norm(d)])
-        basis = _tangent_basis(w0)
-        u = w0 + g[:2] @ basis
+        u = self.start[:3] + g[:2] @ self._basis
         u /= np.linalg.norm(u)
-        c = np.cross(w0, v0)                      # the axis point nearest the origin ...
-        if self.anchor is not None:               # ... or nearest the anchor
-            c = c + w0 * float((self.anchor - c) @ w0)
-        c = c + g[2:4] @ basis
-        return np.concatenate([u, np.cross(c, u)])
+        return np.concatenate([u, _cross(self._axis_point + g[2:4] @ self._basis, u)])
 
 
 def _shape_from_twist(name: str, xi: np.ndarray, displacement: np.ndarray) -> _Shape | None:
@@ -167,8 +174,8 @@ def _shape_from_twist(name: str, xi: np.ndarray, displacement: np.ndarray) -> _S
     if theta == 0:
         return None
     u = w / theta
-    c = np.cross(w, xi[3:]) / theta**2            # the point of the screw axis nearest the origin
-    return _Shape(name, np.concatenate([u, np.cross(c, u)]))
+    c = _cross(w, xi[3:]) / theta**2              # the point of the screw axis nearest the origin
+    return _Shape(name, np.concatenate([u, _cross(c, u)]))
 
 
 @dataclass
@@ -398,7 +405,7 @@ def _estimate(fit: _Fit, *, known: np.ndarray, inlier: np.ndarray, n_frames: int
         w = xi[:3]
         scale = np.linalg.norm(w)
         direction, q, q_std = w / scale, q * scale, q_std * scale
-        point = np.cross(w, xi[3:]) / scale**2
+        point = _cross(w, xi[3:]) / scale**2
         point = point + direction * float((t0 - point) @ direction)    # nearest the part at state 0
         if name == "screw":
             info["pitch_m_per_rad"] = float(w @ xi[3:] / scale**2)
