@@ -29,7 +29,8 @@ def main() -> None:
     parser.add_argument("--outliers", type=int, default=3, help="wrong poses per sequence")
     args = parser.parse_args()
     print(f"{args.frames} frames, {args.outliers} wrong poses, {args.seeds} seeds per row\n")
-    print("| noise (mm / deg) | joint | type right | axis direction (deg) | axis position (mm) | state | CPU per fit (ms) |")
+    print("| noise (mm / deg) | joint | type right | axis direction (deg) | axis position (mm) | state "
+          "| CPU per fit (ms) |")
     print("|---|---|---|---|---|---|---|")
     for noise_m, noise_deg in NOISE:
         for kind, travel in TRAVEL.items():

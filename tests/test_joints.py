@@ -7,6 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from artclass_core import InputError, Params, hookimpl, load_registry
 from artclass_core.interfaces import JointEstimate, JointEstimator
@@ -39,7 +40,9 @@ def test_revolute_is_recovered_and_chosen_over_prismatic(seed):
     assert est.scores["revolute"] < min(est.scores["prismatic"], est.scores["fixed"])
     assert np.degrees(axis_direction_error_rad(truth.direction, est.axis_direction)) < 1.0
     part = truth.poses[0, :3, 3]
-    assert axis_position_error_m(truth.point_m, truth.direction, est.axis_point_m, est.axis_direction, at_m=part) < 0.003
+    position_error = axis_position_error_m(truth.point_m, truth.direction, est.axis_point_m, est.axis_direction,
+                                           at_m=part)
+    assert position_error < 0.003
     assert np.degrees(state_error(truth.states, est.states, same_direction=aligned(truth, est))) < 0.5
     assert est.inliers.all() and est.states[0] == 0.0
     assert np.nanmax(est.states) == pytest.approx(np.radians(74), abs=np.radians(1))
@@ -223,3 +226,14 @@ def test_hook_register_joint_estimators():
     poses = noisy("revolute").poses
     assert registry.create("joint_estimator", "always_fixed").estimate(poses).type == "fixed"
     assert registry.create("joint_estimator", "bic").estimate(poses).type == "revolute"
+
+
+def test_a_part_moving_freely_gets_no_joint():
+    """Poses scattered 10 cm and 40 degrees at random fit no joint within the largest plausible noise."""
+    rng = np.random.default_rng(0)
+    poses = noisy("fixed").poses
+    poses[:, :3, 3] += rng.normal(0, 0.1, (len(poses), 3))
+    poses[:, :3, :3] = Rotation.from_rotvec(rng.normal(0, 0.7, (len(poses), 3))).as_matrix() @ poses[:, :3, :3]
+    est = fit_joint(poses)
+    assert est.type == "free" and est.axis_direction is None and np.isnan(est.states).all()
+    assert est.summary(up=UP).startswith("free motion: no single joint explains the part's motion")

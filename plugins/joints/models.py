@@ -38,16 +38,23 @@ MAX_EVALUATIONS = 50
 @dataclass(frozen=True)
 class BICJointParams(Params):
     sigma_position_m: float | None = param(
-        None, unit="m", bounds=(1e-5, 1.0), auto="from the residuals of the screw model, at least min_sigma_position_m",
+        None, unit="m", bounds=(1e-5, 1.0),
+        auto="from the residuals of the screw model, within min/max_sigma_position_m",
         help="Noise of the part's position in one pose (standard deviation per axis).")
     sigma_orientation_rad: float | None = param(
         None, unit="rad", bounds=(1e-5, 1.0),
-        auto="from the residuals of the screw model, at least min_sigma_orientation_rad",
+        auto="from the residuals of the screw model, within min/max_sigma_orientation_rad",
         help="Noise of the part's orientation in one pose (standard deviation per axis of the rotation vector).")
     min_sigma_position_m: float = param(0.0005, unit="m", bounds=(1e-6, 0.1),
                                         help="Lowest position noise the estimate may assume: the depth resolution.")
     min_sigma_orientation_rad: float = param(0.002, unit="rad", bounds=(1e-6, 0.5),
                                              help="Lowest orientation noise the estimate may assume.")
+    max_sigma_position_m: float = param(0.01, unit="m", bounds=(1e-5, 1.0),
+                                        help="Highest position noise the estimate may assume: a part whose "
+                                             "poses scatter more about every joint moves freely.")
+    max_sigma_orientation_rad: float = param(0.09, unit="rad", bounds=(1e-5, 1.0),
+                                             help="Highest orientation noise the estimate may assume (0.09 rad "
+                                                  "is about 5 degrees).")
     outlier_level: float = param(0.999, unit="fraction", bounds=(0.5, 0.999999),
                                  help="A pose beyond this quantile of the chi-square distribution (6 dof) of the "
                                       "screw model's residuals is an outlier, left out of every model's score.")
@@ -57,6 +64,44 @@ class BICJointParams(Params):
     n_hypotheses: int = param(48, unit="pairs", bounds=(1, 10_000),
                               help="Pose pairs drawn to start each model (least median of squares).")
     seed: int = param(0, unit="1", bounds=(0, 2**31 - 1), help="Seed of the drawing of pose pairs.")
+
+
+# -- rotations as unit quaternions (x, y, z, w), the layout of scipy's Rotation.as_quat --------------
+# scipy's Rotation does the same with about 0.1 ms of overhead a call; a fit evaluates its residuals
+# a few hundred times with a dozen rotation operations each, so the few operations it needs are here.
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Products a b of quaternions (..., 4), broadcast."""
+    av, aw, bv, bw = a[..., :3], a[..., 3:], b[..., :3], b[..., 3:]
+    return np.concatenate([aw * bv + bw * av + _cross(av, bv), aw * bw - np.sum(av * bv, -1, keepdims=True)], -1)
+
+
+def _quat_inv(q: np.ndarray) -> np.ndarray:
+    return q * np.array([-1.0, -1.0, -1.0, 1.0])
+
+
+def _quat_from_rotvec(v: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) of rotation vectors (..., 3), radians."""
+    angle = np.linalg.norm(v, axis=-1, keepdims=True)
+    small = angle < 1e-6
+    half_sinc = np.where(small, 0.5 - angle**2 / 48, np.sin(angle / 2) / np.where(small, 1.0, angle))
+    return np.concatenate([v * half_sinc, np.cos(angle / 2)], -1)
+
+
+def _quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3), angle in [0, pi], of quaternions (..., 4)."""
+    q = np.where(q[..., 3:] < 0, -q, q)
+    sin_half = np.linalg.norm(q[..., :3], axis=-1, keepdims=True)
+    angle = 2 * np.arctan2(sin_half, q[..., 3:])
+    small = sin_half < 1e-9
+    return q[..., :3] * np.where(small, 2.0, angle / np.where(small, 1.0, sin_half))
+
+
+def _quat_apply(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vectors (..., 3) rotated by quaternions (..., 4)."""
+    u, w = q[..., :3], q[..., 3:]
+    uv = _cross(u, v)
+    return v + 2 * (w * uv + _cross(u, uv))
 
 
 # -- rigid motions ---------------------------------------------------------------------------------------
@@ -83,10 +128,10 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                      a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
 
 
-def twist_exp(xi: np.ndarray, q: np.ndarray) -> tuple[Rotation, np.ndarray]:
-    """Rotations (N) and translations (N, 3) of the screw motions exp(q_i ξ)."""
+def twist_exp(xi: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations as quaternions (N, 4) and translations (N, 3) of the screw motions exp(q_i ξ)."""
     w, v = xi[:3], xi[3:]
-    R = Rotation.from_rotvec(np.outer(q, w))
+    R = _quat_from_rotvec(np.outer(q, w))
     a, b = _series_coefficients(np.abs(q) * np.linalg.norm(w))
     wv = _cross(w, v)
     wwv = _cross(w, wv)
@@ -94,9 +139,9 @@ def twist_exp(xi: np.ndarray, q: np.ndarray) -> tuple[Rotation, np.ndarray]:
     return R, t
 
 
-def twist_log(R: Rotation, t: np.ndarray) -> np.ndarray:
-    """Twists (N, 6) with exp(ξ) = (R, t), for rotations (N) and translations (N, 3)."""
-    w = R.as_rotvec()
+def twist_log(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Twists (N, 6) with exp(ξ) = (R, t), for rotations as quaternions (N, 4) and translations (N, 3)."""
+    w = _quat_to_rotvec(R)
     theta = np.linalg.norm(w, axis=-1)
     small = theta < 1e-4
     th = np.where(small, 1.0, theta)
@@ -182,14 +227,14 @@ def _shape_from_twist(name: str, xi: np.ndarray, displacement: np.ndarray) -> _S
 class _Poses:
     """The known poses, and the noise levels their residuals are divided by."""
 
-    R: Rotation                  # (N)
+    R: np.ndarray                # (N, 4), quaternions
     t: np.ndarray                # (N, 3), the part's origin
     sigma_m: float
     sigma_rad: float
 
     def residuals(self, R_hat: np.ndarray, t_hat: np.ndarray) -> np.ndarray:
         """Normalised residuals (N, 6): origin displacement, then rotation vector."""
-        rot = (self.R.inv() * R_hat).as_rotvec()
+        rot = _quat_to_rotvec(_quat_mul(_quat_inv(self.R), R_hat))
         return np.concatenate([(t_hat - self.t) / self.sigma_m, rot / self.sigma_rad], axis=1)
 
     def project(self, xi: np.ndarray, R0: np.ndarray, t0: np.ndarray) -> np.ndarray:
@@ -198,7 +243,8 @@ class _Poses:
         by their noise; exact for poses on the joint's path."""
         if not xi.any():
             return np.zeros(len(self.t))
-        logs = twist_log(self.R * R0.inv(), self.t - t0)   # relative motions in coordinates centred on t0
+        # the relative motions in coordinates centred on t0
+        logs = twist_log(_quat_mul(self.R, _quat_inv(R0)), self.t - t0)
         xi_centred = np.r_[xi[:3], xi[3:] + _cross(xi[:3], t0)]
         weight = np.r_[np.full(3, (self.sigma_m / self.sigma_rad) ** 2), np.ones(3)]
         return logs @ (weight * xi_centred) / (xi_centred @ (weight * xi_centred))
@@ -216,7 +262,7 @@ class _Fit:
 
     shape: _Shape
     x: np.ndarray                # joint steps (n_joint), then the pose correction (6)
-    R0: Rotation
+    R0: np.ndarray               # (4,), quaternion
     t0: np.ndarray
     chi2: float = np.inf
     jac: np.ndarray | None = None
@@ -225,43 +271,63 @@ class _Fit:
         """(twist, R0, t0) from the parameter vector."""
         x = self.x if x is None else x
         n = self.shape.n_joint
-        return self.shape.twist(x[:n]), Rotation.from_rotvec(x[n:n + 3]) * self.R0, self.t0 + x[n + 3:n + 6]
+        return self.shape.twist(x[:n]), _quat_mul(_quat_from_rotvec(x[n:n + 3]), self.R0), self.t0 + x[n + 3:n + 6]
 
     def predict(self, poses: _Poses, x: np.ndarray | None = None):
-        """States (N,) and predicted poses: rotations (N), origins (N, 3)."""
+        """States (N,) and predicted poses: rotations (N, 4) as quaternions, origins (N, 3)."""
         xi, R0, t0 = self.unpack(x)
         q = poses.project(xi, R0, t0)
         R_m, t_m = twist_exp(xi, q)
-        return q, R_m * R0, R_m.apply(t0) + t_m
+        return q, _quat_mul(R_m, R0), _quat_apply(R_m, t0) + t_m
+
+    def pose_residuals(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
+        """Normalised residuals (N, 6) of the poses."""
+        _, R_hat, t_hat = self.predict(poses, x)
+        return poses.residuals(R_hat, t_hat)
 
     def residuals(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
-        _, R_hat, t_hat = self.predict(poses, x)
-        return poses.residuals(R_hat, t_hat).ravel()
+        """What least squares minimises: the pose residuals, flattened, and the gauge residuals."""
+        return np.concatenate([self.pose_residuals(x, poses).ravel(), self._gauge(x, poses)])
+
+    def _gauge(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
+        """Residuals that are zero along the directions no pose can see (sliding the pose at state 0
+        along the joint; the screw twist's scale), so least squares has a unique optimum."""
+        n = self.shape.n_joint
+        if self.shape.name == "fixed":
+            return np.zeros(0)
+        w, v = self.shape.start[:3], self.shape.start[3:]
+        along = np.r_[w / poses.sigma_rad, (_cross(w, self.t0) + v) / poses.sigma_m]
+        rows = [x[n:n + 6] @ along / np.linalg.norm(along)]
+        if self.shape.name == "screw":
+            rows.append(x[:n] @ self.shape.start)
+        return np.array(rows)
 
 
 def _best_start(name: str, poses: _Poses, pairs: np.ndarray) -> _Fit | None:
     """Least median of squares over starts from the drawn pose pairs (a, b): the model's twist closest
     to the pair's relative motion, and pose a as the pose at state 0."""
-    R_rel = poses.R[pairs[:, 1]] * poses.R[pairs[:, 0]].inv()
-    xis = twist_log(R_rel, poses.t[pairs[:, 1]] - R_rel.apply(poses.t[pairs[:, 0]]))
+    R_rel = _quat_mul(poses.R[pairs[:, 1]], _quat_inv(poses.R[pairs[:, 0]]))
+    xis = twist_log(R_rel, poses.t[pairs[:, 1]] - _quat_apply(R_rel, poses.t[pairs[:, 0]]))
     best, best_score = None, np.inf
     for (a, b), xi in zip(pairs, xis):
         shape = _shape_from_twist(name, xi, poses.t[b] - poses.t[a])
         if shape is None:
             continue
         fit = _Fit(shape, np.zeros(shape.n_joint + 6), poses.R[a], poses.t[a])
-        score = np.median(np.sum(fit.residuals(fit.x, poses).reshape(-1, 6) ** 2, axis=1))
+        score = np.median(np.sum(fit.pose_residuals(fit.x, poses) ** 2, axis=1))
         if score < best_score:
             best, best_score = fit, score
     return best
 
 
 def _refine(fit: _Fit, poses: _Poses, *, robust: bool) -> _Fit:
-    """Least squares over the joint's parameters and the pose at state 0."""
-    result = least_squares(fit.residuals, fit.x, args=(poses,), method="trf", tr_solver="exact", ftol=1e-5, xtol=1e-6,
-                           max_nfev=MAX_EVALUATIONS, loss="cauchy" if robust else "linear")
+    """Least squares over the joint's parameters and the pose at state 0: Levenberg-Marquardt, or the
+    trust-region method with a Cauchy loss when some poses may be outliers."""
+    method = dict(method="trf", tr_solver="exact", loss="cauchy") if robust else dict(method="lm")
+    result = least_squares(fit.residuals, fit.x, args=(poses,), ftol=1e-5, xtol=1e-6, max_nfev=MAX_EVALUATIONS,
+                           **method)
     out = _Fit(fit.shape, result.x, fit.R0, fit.t0)
-    out.chi2 = float(np.sum(result.fun ** 2)) if not robust else float(np.sum(out.residuals(result.x, poses) ** 2))
+    out.chi2 = float(np.sum(out.pose_residuals(result.x, poses) ** 2))
     out.jac = result.jac
     return out
 
@@ -281,12 +347,13 @@ def _noise_levels(per_pose: np.ndarray, poses: _Poses, *, n_fitted: int, params:
     """Noise levels (m, rad) from the normalised residuals (N, 6) of the general model: the median
     squared position and rotation error against the median of chi-square with 3 degrees of freedom
     (robust to up to half the poses being outliers), scaled up for the ``n_fitted`` parameters that
-    took part of the noise, kept above the floors unless given."""
+    took part of the noise, kept between the bounds unless given."""
     scale = np.sqrt(per_pose.size / max(per_pose.size - n_fitted, 1) / chi2.median(3))
     sigma_m = poses.sigma_m * scale * np.sqrt(np.median(np.sum(per_pose[:, :3] ** 2, axis=1)))
     sigma_rad = poses.sigma_rad * scale * np.sqrt(np.median(np.sum(per_pose[:, 3:] ** 2, axis=1)))
-    return (params.sigma_position_m or max(sigma_m, params.min_sigma_position_m),
-            params.sigma_orientation_rad or max(sigma_rad, params.min_sigma_orientation_rad))
+    sigma_m = float(np.clip(sigma_m, params.min_sigma_position_m, params.max_sigma_position_m))
+    sigma_rad = float(np.clip(sigma_rad, params.min_sigma_orientation_rad, params.max_sigma_orientation_rad))
+    return params.sigma_position_m or sigma_m, params.sigma_orientation_rad or sigma_rad
 
 
 def _subset(poses: _Poses, keep: np.ndarray, sigma_m: float, sigma_rad: float) -> _Poses:
@@ -350,7 +417,7 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
     if len(known) < 3:
         raise InputError(f"a joint needs at least 3 known poses, got {len(known)}")
     rng = np.random.default_rng(params.seed)
-    observed = _Poses(Rotation.from_matrix(poses[known, :3, :3]), poses[known, :3, 3],
+    observed = _Poses(Rotation.from_matrix(poses[known, :3, :3]).as_quat(), poses[known, :3, 3],
                       params.sigma_position_m or params.min_sigma_position_m,
                       params.sigma_orientation_rad or params.min_sigma_orientation_rad)
     pairs = _draw_pairs(len(known), params.n_hypotheses, rng)
@@ -358,11 +425,11 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
     # 1. the general model, robustly: noise levels and outliers
     start = _best_start("screw", observed, pairs) or _best_start("fixed", observed, pairs)
     general = _refine(start, observed, robust=True)
-    sigma_m, sigma_rad = _noise_levels(general.residuals(general.x, observed).reshape(-1, 6), observed,
+    sigma_m, sigma_rad = _noise_levels(general.pose_residuals(general.x, observed), observed,
                                        n_fitted=_n_params(general.shape, len(known)), params=params)
     limit = chi2.ppf(params.outlier_level, 6)
     scaled = _subset(observed, np.ones(len(known), bool), sigma_m, sigma_rad)
-    inlier = np.sum(general.residuals(general.x, scaled).reshape(-1, 6) ** 2, axis=1) <= limit
+    inlier = np.sum(general.pose_residuals(general.x, scaled) ** 2, axis=1) <= limit
     fitted = _subset(observed, inlier, sigma_m, sigma_rad)
     inlier_pairs = _draw_pairs(int(inlier.sum()), params.n_hypotheses, rng)
 
@@ -423,6 +490,7 @@ def _estimate(fit: _Fit, *, known: np.ndarray, inlier: np.ndarray, n_frames: int
     joint_type = name if inlier.mean() >= params.min_inlier_fraction else "free"
     if joint_type == "free":
         direction = point = None
+        states[:], states_std[:] = np.nan, np.nan
     return JointEstimate(joint_type, direction, point, states, inliers, dir_std, point_std, states_std,
                          {k: float(v) for k, v in scores.items()}, info)
 

@@ -43,7 +43,8 @@ def synthetic_joint(kind: str, *, n_frames: int = 60, travel: float, noise_m: fl
     else:
         xi, point, travel = np.zeros(6), part, 0.0
     states = np.linspace(0.0, travel, n_frames)
-    R, t = twist_exp(xi, states)
+    quats, t = twist_exp(xi, states)
+    R = Rotation.from_quat(quats)
     poses = np.tile(np.eye(4), (n_frames, 1, 1))
     poses[:, :3, :3] = (Rotation.from_rotvec(rng.normal(0, noise_rad, (n_frames, 3))) * R * origin).as_matrix()
     poses[:, :3, 3] = R.apply(part) + t + rng.normal(0, noise_m, (n_frames, 3))
