@@ -34,7 +34,6 @@ MODELS = ("fixed", "prismatic", "revolute", "screw")
 MAX_EVALUATIONS = 50
 
 
-
 @dataclass(frozen=True)
 class BICJointParams(Params):
     sigma_position_m: float | None = param(
