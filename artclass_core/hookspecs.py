@@ -72,3 +72,14 @@ def register_commands(subparsers) -> None:
     ``subparsers`` is an :mod:`argparse` sub-parsers object; call ``subparsers.add_parser(...)`` and
     ``set_defaults(func=handler)`` where ``handler(args) -> int`` returns the exit status.
     """
+
+
+@hookspec
+def register_joint_estimators(register) -> None:
+    """Register joint estimators: classes with ``estimate(poses) -> JointEstimate``.
+
+    ``poses`` (N, 4, 4) are a moving part's poses in its parent's frame over the video (metres, NaN
+    where unknown); the estimator returns the joint type, its axis, the joint state per frame
+    (radians or metres, relative to the first known frame) and their uncertainties, as an
+    :class:`~artclass_core.interfaces.JointEstimate`.
+    """

@@ -21,6 +21,7 @@ BUILTINS = {
     "preprocessor": {"paper", "fine"},
     "registrar": {"icp_point_to_point", "icp_point_to_plane"},
     "rule": {"paper", "robust"},
+    "joint_estimator": {"bic"},
 }
 SAMPLES = sample_sequences()
 

@@ -366,3 +366,38 @@ def test_motion_rule_tells_the_three_motions_apart(name, registrar, motion, expe
 def test_a_rule_and_a_registrar_that_do_not_fit_are_refused(name):
     with pytest.raises(ArtclassError, match="decides from"):
         Pipeline(REGISTRY, Config(registrar=cell_registrars()[0], rule=name))
+
+
+# -- joint estimators ------------------------------------------------------------------------------------
+
+def _hinge_poses(n: int = 20) -> np.ndarray:
+    """A part 20 cm from a vertical hinge, turned 0-60 degrees, noise-free; frame 3 unknown."""
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    angles = np.linspace(0.0, np.radians(60), n)
+    poses[:, :3, :3] = Rotation.from_rotvec(np.outer(angles, [0, 0, 1])).as_matrix()
+    poses[:, :3, 3] = poses[:, :3, :3] @ [0.2, 0.0, 0.0] + [0.0, 0.0, 0.8]
+    poses[3] = np.nan
+    return poses
+
+
+@pytest.mark.parametrize("name", ids("joint_estimator"))
+def test_joint_estimator_returns_a_joint_estimate(name):
+    from artclass_core.interfaces import JOINT_TYPES, JointEstimate
+    poses = _hinge_poses()
+    out = REGISTRY.create("joint_estimator", name).estimate(poses)
+    assert isinstance(out, JointEstimate) and out.type in JOINT_TYPES
+    assert out.states.shape == (len(poses),) and out.inliers.shape == (len(poses),) and out.inliers.dtype == bool
+    assert np.isnan(out.states[3]) and not out.inliers[3], "an unknown pose has no state"
+    if out.axis_direction is not None:
+        assert out.axis_direction.shape == (3,) and np.linalg.norm(out.axis_direction) == pytest.approx(1.0)
+    json.dumps(out.scores), json.dumps(out.info)
+    assert out.summary(up=np.array([0.0, 0.0, 1.0])).strip() and "\n" not in out.summary(up=np.array([0.0, 0.0, 1.0]))
+    again = REGISTRY.create("joint_estimator", name).estimate(poses)
+    assert again.type == out.type and np.array_equal(again.states, out.states, equal_nan=True), "deterministic"
+
+
+@pytest.mark.parametrize("name", ids("joint_estimator"))
+def test_joint_estimator_refuses_poses_of_the_wrong_shape(name):
+    with pytest.raises(InputError) as err:
+        REGISTRY.create("joint_estimator", name).estimate(np.zeros((4, 3, 4)))
+    one_line_error(err.value)

@@ -41,7 +41,7 @@ SPECS = [(where, cls, spec) for where, cls in PARAMS for spec in describe(cls)]
 
 def test_hooks_are_found():
     assert {"register_readers", "register_segmenters", "register_preprocessors", "register_registrars",
-            "register_rules", "register_commands"} <= set(HOOKS)
+            "register_rules", "register_joint_estimators", "register_commands"} <= set(HOOKS)
 
 
 @pytest.mark.parametrize("hook", HOOKS)
@@ -76,7 +76,7 @@ def test_guide_documents_no_unknown_hook():
 
 def test_parameters_are_collected():
     kinds = {where.split()[0] for where, _ in PARAMS}
-    assert {"pipeline", "reader", "segmenter", "preprocessor", "registrar", "rule"} <= kinds
+    assert {"pipeline", "reader", "segmenter", "preprocessor", "registrar", "rule", "joint_estimator"} <= kinds
     assert len(SPECS) >= 15
 
 

@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 OUTPUT = ROOT / "docs" / "parameters.md"
 DISTRIBUTION = "artclass"
 KIND_TITLES = {"reader": "Readers", "segmenter": "Segmenters", "preprocessor": "Preprocessors",
-               "registrar": "Registrars", "rule": "Decision rules"}
+               "registrar": "Registrars", "rule": "Decision rules", "joint_estimator": "Joint estimators"}
 
 
 def builtin_registry() -> Registry:

@@ -1,0 +1,30 @@
+"""Joints: which way a moving part moves relative to its parent, and how far.
+
+The built-in joint estimator fits the fixed, prismatic, revolute and screw models to the part's poses
+and chooses one by BIC (:func:`fit_joint`). :mod:`.metrics` compares an estimate with the truth and
+:mod:`.urdf` writes a model of parts and joints as a URDF.
+"""
+
+from artclass_core import hookimpl
+from artclass_core.interfaces import JointEstimate, JointEstimator
+
+from .models import MODELS, BICJointParams, chain_pair_motions, fit_joint
+
+
+class BICJointEstimator(JointEstimator):
+    """Fixed, prismatic, revolute or screw joint, chosen by BIC (Sturm, Stachniss & Burgard 2011)."""
+
+    name = "bic"
+    description = "fits fixed, prismatic, revolute and screw joints to the part's poses and keeps the best by BIC"
+    Params = BICJointParams
+
+    def estimate(self, poses) -> JointEstimate:
+        return fit_joint(poses, params=self.params)
+
+
+@hookimpl
+def register_joint_estimators(register):
+    register(BICJointEstimator)
+
+
+__all__ = ["BICJointEstimator", "BICJointParams", "MODELS", "chain_pair_motions", "fit_joint"]

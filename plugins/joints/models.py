@@ -1,0 +1,539 @@
+"""Joint models fitted to a part's poses in its parent's frame, one chosen by BIC.
+
+A one-degree-of-freedom joint moves the part by ``exp(q ξ)``, a screw motion with a fixed twist ξ
+(6-vector: angular part ω, linear part v) and a state q per frame:
+
+- ``fixed``: no motion;
+- ``prismatic``: ξ = (0, d), d a unit direction, q in metres;
+- ``revolute``: ξ = (u, c × u), u the unit axis direction and c a point on the axis, q in radians;
+- ``screw``: any ξ (the general one-degree-of-freedom motion, with revolute and prismatic as
+  special cases), the fallback.
+
+The part's pose in frame i is predicted as ``exp(q_i ξ) P0``, with ``P0`` its pose at state 0; the
+residual of a pose is the displacement of the part's origin (metres) and the rotation between the
+predicted and the observed pose (radians), each divided by its noise level.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from artclass_core import InputError, Params, param
+from artclass_core.interfaces import JointEstimate
+
+MODELS = ("fixed", "prismatic", "revolute", "screw")
+
+#: Residual evaluations a least-squares fit may take (a revolute model of a straight path drifts its
+#: axis away without end; the path's prismatic model wins anyway).
+MAX_EVALUATIONS = 50
+
+
+@dataclass(frozen=True)
+class BICJointParams(Params):
+    sigma_position_m: float | None = param(
+        None, unit="m", bounds=(1e-5, 1.0),
+        auto="from the residuals of the screw model, within min/max_sigma_position_m",
+        help="Noise of the part's position in one pose (standard deviation per axis).")
+    sigma_orientation_rad: float | None = param(
+        None, unit="rad", bounds=(1e-5, 1.0),
+        auto="from the residuals of the screw model, within min/max_sigma_orientation_rad",
+        help="Noise of the part's orientation in one pose (standard deviation per axis of the rotation vector).")
+    min_sigma_position_m: float = param(0.0005, unit="m", bounds=(1e-6, 0.1),
+                                        help="Lowest position noise the estimate may assume: the depth resolution.")
+    min_sigma_orientation_rad: float = param(0.002, unit="rad", bounds=(1e-6, 0.5),
+                                             help="Lowest orientation noise the estimate may assume.")
+    max_sigma_position_m: float = param(0.01, unit="m", bounds=(1e-5, 1.0),
+                                        help="Highest position noise the estimate may assume: a part whose "
+                                             "poses scatter more about every joint moves freely.")
+    max_sigma_orientation_rad: float = param(0.09, unit="rad", bounds=(1e-5, 1.0),
+                                             help="Highest orientation noise the estimate may assume (0.09 rad "
+                                                  "is about 5 degrees).")
+    outlier_level: float = param(0.999, unit="fraction", bounds=(0.5, 0.999999),
+                                 help="A pose beyond this quantile of the chi-square distribution (6 dof) of the "
+                                      "screw model's residuals is an outlier, left out of every model's score.")
+    min_inlier_fraction: float = param(0.5, unit="fraction", bounds=(0.0, 1.0),
+                                       help="When the chosen model explains fewer of the poses than this, the "
+                                            "part's motion is reported as free.")
+    n_hypotheses: int = param(48, unit="pairs", bounds=(1, 10_000),
+                              help="Pose pairs drawn to start each model (least median of squares).")
+    seed: int = param(0, unit="1", bounds=(0, 2**31 - 1), help="Seed of the drawing of pose pairs.")
+
+
+# -- rotations as unit quaternions (x, y, z, w), the layout of scipy's Rotation.as_quat --------------
+# scipy's Rotation does the same with about 0.1 ms of overhead a call; a fit evaluates its residuals
+# a few hundred times with a dozen rotation operations each, so the few operations it needs are here.
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Products a b of quaternions (..., 4), broadcast."""
+    av, aw, bv, bw = a[..., :3], a[..., 3:], b[..., :3], b[..., 3:]
+    return np.concatenate([aw * bv + bw * av + _cross(av, bv), aw * bw - np.sum(av * bv, -1, keepdims=True)], -1)
+
+
+def _quat_inv(q: np.ndarray) -> np.ndarray:
+    return q * np.array([-1.0, -1.0, -1.0, 1.0])
+
+
+def _quat_from_rotvec(v: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) of rotation vectors (..., 3), radians."""
+    angle = np.linalg.norm(v, axis=-1, keepdims=True)
+    small = angle < 1e-6
+    half_sinc = np.where(small, 0.5 - angle**2 / 48, np.sin(angle / 2) / np.where(small, 1.0, angle))
+    return np.concatenate([v * half_sinc, np.cos(angle / 2)], -1)
+
+
+def _quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3), angle in [0, pi], of quaternions (..., 4)."""
+    q = np.where(q[..., 3:] < 0, -q, q)
+    sin_half = np.linalg.norm(q[..., :3], axis=-1, keepdims=True)
+    angle = 2 * np.arctan2(sin_half, q[..., 3:])
+    small = sin_half < 1e-9
+    return q[..., :3] * np.where(small, 2.0, angle / np.where(small, 1.0, sin_half))
+
+
+def _quat_apply(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vectors (..., 3) rotated by quaternions (..., 4)."""
+    u, w = q[..., :3], q[..., 3:]
+    uv = _cross(u, v)
+    return v + 2 * (w * uv + _cross(u, uv))
+
+
+# -- rigid motions ---------------------------------------------------------------------------------------
+
+def _hat(w: np.ndarray) -> np.ndarray:
+    """Cross-product matrices, shape (..., 3, 3), of vectors (..., 3)."""
+    z = np.zeros(w.shape[:-1])
+    return np.stack([np.stack([z, -w[..., 2], w[..., 1]], -1), np.stack([w[..., 2], z, -w[..., 0]], -1),
+                     np.stack([-w[..., 1], w[..., 0], z], -1)], -2)
+
+
+def _series_coefficients(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(1 - cos θ) / θ² and (θ - sin θ) / θ³, with their series near 0."""
+    small = theta < 1e-4
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 0.5 - theta**2 / 24, (1 - np.cos(t)) / t**2)
+    b = np.where(small, 1 / 6 - theta**2 / 120, (t - np.sin(t)) / t**3)
+    return a, b
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product of vectors (..., 3), broadcast (numpy's own is slow on small arrays)."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1], a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
+def twist_exp(xi: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations as quaternions (N, 4) and translations (N, 3) of the screw motions exp(q_i ξ)."""
+    w, v = xi[:3], xi[3:]
+    R = _quat_from_rotvec(np.outer(q, w))
+    a, b = _series_coefficients(np.abs(q) * np.linalg.norm(w))
+    wv = _cross(w, v)
+    wwv = _cross(w, wv)
+    t = np.outer(q, v) + (a * q**2)[:, None] * wv + (b * q**3)[:, None] * wwv
+    return R, t
+
+
+def twist_log(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Twists (N, 6) with exp(ξ) = (R, t), for rotations as quaternions (N, 4) and translations (N, 3)."""
+    w = _quat_to_rotvec(R)
+    theta = np.linalg.norm(w, axis=-1)
+    small = theta < 1e-4
+    th = np.where(small, 1.0, theta)
+    c = np.where(small, 1 / 12, (1 - th * np.sin(th) / (2 * (1 - np.cos(th)))) / th**2)
+    K = _hat(w)
+    V_inv = np.eye(3) - 0.5 * K + c[:, None, None] * (K @ K)
+    return np.concatenate([w, np.einsum("nij,nj->ni", V_inv, t)], axis=1)
+
+
+def _tangent_basis(u: np.ndarray) -> np.ndarray:
+    """Two unit vectors (2, 3) perpendicular to the unit vector ``u`` and to each other."""
+    helper = np.eye(3)[np.argmin(np.abs(u))]
+    e1 = _cross(u, helper)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, _cross(u, e1)])
+
+
+# -- the models ------------------------------------------------------------------------------------------
+
+@dataclass
+class _Shape:
+    """One model's joint parameters as small steps g from a starting twist (so least squares sees no
+    constraint): a unit direction moves in its tangent plane, an axis point across the axis."""
+
+    name: str
+    start: np.ndarray            # starting twist (6,)
+    anchor: np.ndarray | None = None   # an axis position is varied across the axis at this point
+
+    @property
+    def n_joint(self) -> int:
+        return {"fixed": 0, "prismatic": 2, "revolute": 4, "screw": 6}[self.name]
+
+    @property
+    def dof(self) -> int:
+        """Joint parameters that change the motion (the screw's twist has a free scale)."""
+        return {"fixed": 0, "prismatic": 2, "revolute": 4, "screw": 5}[self.name]
+
+    @functools.cached_property
+    def _basis(self) -> np.ndarray:
+        """Directions (2, 3) of the steps across the start's axis (revolute) or direction (prismatic)."""
+        return _tangent_basis(self.start[3:] if self.name == "prismatic" else self.start[:3])
+
+    @functools.cached_property
+    def _axis_point(self) -> np.ndarray:
+        """The revolute start's axis point nearest the origin, or nearest the anchor."""
+        w0, v0 = self.start[:3], self.start[3:]
+        c = _cross(w0, v0)
+        return c if self.anchor is None else c + w0 * float((self.anchor - c) @ w0)
+
+    def twist(self, g: np.ndarray) -> np.ndarray:
+        if self.name == "fixed":
+            return np.zeros(6)
+        if self.name == "screw":
+            xi = self.start + g
+            return xi / np.linalg.norm(xi)
+        if self.name == "prismatic":
+            d = self.start[3:] + g[:2] @ self._basis
+            return np.concatenate([np.zeros(3), d / np.linalg.norm(d)])
+        u = self.start[:3] + g[:2] @ self._basis
+        u /= np.linalg.norm(u)
+        return np.concatenate([u, _cross(self._axis_point + g[2:4] @ self._basis, u)])
+
+
+def _shape_from_twist(name: str, xi: np.ndarray, displacement: np.ndarray) -> _Shape | None:
+    """The model's starting shape from a pair's relative motion ξ and its origin displacement (3,)."""
+    w = xi[:3]
+    theta = np.linalg.norm(w)
+    if name == "fixed":
+        return _Shape(name, np.zeros(6))
+    if name == "prismatic":
+        length = np.linalg.norm(displacement)
+        return _Shape(name, np.concatenate([np.zeros(3), displacement / length])) if length > 0 else None
+    if name == "screw":
+        return _Shape(name, xi / np.linalg.norm(xi)) if np.linalg.norm(xi) > 0 else None
+    if theta == 0:
+        return None
+    u = w / theta
+    c = _cross(w, xi[3:]) / theta**2              # the point of the screw axis nearest the origin
+    return _Shape(name, np.concatenate([u, _cross(c, u)]))
+
+
+@dataclass
+class _Poses:
+    """The known poses, and the noise levels their residuals are divided by."""
+
+    R: np.ndarray                # (N, 4), quaternions
+    t: np.ndarray                # (N, 3), the part's origin
+    sigma_m: float
+    sigma_rad: float
+
+    def residuals(self, R_hat: np.ndarray, t_hat: np.ndarray) -> np.ndarray:
+        """Normalised residuals (N, 6): origin displacement, then rotation vector."""
+        rot = _quat_to_rotvec(_quat_mul(_quat_inv(self.R), R_hat))
+        return np.concatenate([(t_hat - self.t) / self.sigma_m, rot / self.sigma_rad], axis=1)
+
+    def project(self, xi: np.ndarray, R0: np.ndarray, t0: np.ndarray) -> np.ndarray:
+        """States (N,) of the poses along ξ from the pose (R0, t0): the twist of each relative motion,
+        about the part's origin t0, projected on ξ (about the same point), positions and angles weighed
+        by their noise; exact for poses on the joint's path."""
+        if not xi.any():
+            return np.zeros(len(self.t))
+        # the relative motions in coordinates centred on t0
+        logs = twist_log(_quat_mul(self.R, _quat_inv(R0)), self.t - t0)
+        xi_centred = np.r_[xi[:3], xi[3:] + _cross(xi[:3], t0)]
+        weight = np.r_[np.full(3, (self.sigma_m / self.sigma_rad) ** 2), np.ones(3)]
+        return logs @ (weight * xi_centred) / (xi_centred @ (weight * xi_centred))
+
+    def state_std(self, xi: np.ndarray, t_hat: np.ndarray) -> np.ndarray:
+        """One standard deviation (N,) of each projected state: the noise over the speed of the pose
+        along the joint, at the predicted part origins (N, 3)."""
+        speed_m = np.linalg.norm(_cross(xi[:3], t_hat) + xi[3:], axis=1)
+        return 1.0 / np.sqrt((speed_m / self.sigma_m) ** 2 + (np.linalg.norm(xi[:3]) / self.sigma_rad) ** 2)
+
+
+@dataclass
+class _Fit:
+    """A model's joint steps and pose at state 0 (a correction of R0, t0); the states follow by projection."""
+
+    shape: _Shape
+    x: np.ndarray                # joint steps (n_joint), then the pose correction (6)
+    R0: np.ndarray               # (4,), quaternion
+    t0: np.ndarray
+    chi2: float = np.inf
+    jac: np.ndarray | None = None
+
+    def unpack(self, x: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(twist, R0, t0) from the parameter vector."""
+        x = self.x if x is None else x
+        n = self.shape.n_joint
+        return self.shape.twist(x[:n]), _quat_mul(_quat_from_rotvec(x[n:n + 3]), self.R0), self.t0 + x[n + 3:n + 6]
+
+    def predict(self, poses: _Poses, x: np.ndarray | None = None):
+        """States (N,) and predicted poses: rotations (N, 4) as quaternions, origins (N, 3)."""
+        xi, R0, t0 = self.unpack(x)
+        q = poses.project(xi, R0, t0)
+        R_m, t_m = twist_exp(xi, q)
+        return q, _quat_mul(R_m, R0), _quat_apply(R_m, t0) + t_m
+
+    def pose_residuals(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
+        """Normalised residuals (N, 6) of the poses."""
+        _, R_hat, t_hat = self.predict(poses, x)
+        return poses.residuals(R_hat, t_hat)
+
+    def residuals(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
+        """What least squares minimises: the pose residuals, flattened, and the gauge residuals."""
+        return np.concatenate([self.pose_residuals(x, poses).ravel(), self._gauge(x, poses)])
+
+    def _gauge(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
+        """Residuals that are zero along the directions no pose can see (sliding the pose at state 0
+        along the joint; the screw twist's scale), so least squares has a unique optimum."""
+        n = self.shape.n_joint
+        if self.shape.name == "fixed":
+            return np.zeros(0)
+        w, v = self.shape.start[:3], self.shape.start[3:]
+        along = np.r_[w / poses.sigma_rad, (_cross(w, self.t0) + v) / poses.sigma_m]
+        rows = [x[n:n + 6] @ along / np.linalg.norm(along)]
+        if self.shape.name == "screw":
+            rows.append(x[:n] @ self.shape.start)
+        return np.array(rows)
+
+
+def _best_start(name: str, poses: _Poses, pairs: np.ndarray) -> _Fit | None:
+    """Least median of squares over starts from the drawn pose pairs (a, b): the model's twist closest
+    to the pair's relative motion, and pose a as the pose at state 0."""
+    R_rel = _quat_mul(poses.R[pairs[:, 1]], _quat_inv(poses.R[pairs[:, 0]]))
+    xis = twist_log(R_rel, poses.t[pairs[:, 1]] - _quat_apply(R_rel, poses.t[pairs[:, 0]]))
+    best, best_score = None, np.inf
+    for (a, b), xi in zip(pairs, xis):
+        shape = _shape_from_twist(name, xi, poses.t[b] - poses.t[a])
+        if shape is None:
+            continue
+        fit = _Fit(shape, np.zeros(shape.n_joint + 6), poses.R[a], poses.t[a])
+        score = np.median(np.sum(fit.pose_residuals(fit.x, poses) ** 2, axis=1))
+        if score < best_score:
+            best, best_score = fit, score
+    return best
+
+
+def _refine(fit: _Fit, poses: _Poses, *, robust: bool) -> _Fit:
+    """Least squares over the joint's parameters and the pose at state 0: Levenberg-Marquardt, or the
+    trust-region method with a Cauchy loss when some poses may be outliers."""
+    method = dict(method="trf", tr_solver="exact", loss="cauchy") if robust else dict(method="lm")
+    result = least_squares(fit.residuals, fit.x, args=(poses,), ftol=1e-5, xtol=1e-6, max_nfev=MAX_EVALUATIONS,
+                           **method)
+    out = _Fit(fit.shape, result.x, fit.R0, fit.t0)
+    out.chi2 = float(np.sum(out.pose_residuals(result.x, poses) ** 2))
+    out.jac = result.jac
+    return out
+
+
+def _recentred(fit: _Fit, poses: _Poses) -> _Fit:
+    """The same fit with its steps folded into the start, so the parameters are 0 at the optimum and
+    the axis point is varied at the part (the covariance of the steps is then that of the axis
+    direction and of the axis position at the part)."""
+    xi, R0, t0 = fit.unpack()
+    shape = _Shape(fit.shape.name, xi, anchor=t0)
+    return _refine(_Fit(shape, np.zeros(fit.shape.n_joint + 6), R0, t0), poses, robust=False)
+
+
+# -- noise and outliers ----------------------------------------------------------------------------------
+
+def _noise_levels(per_pose: np.ndarray, poses: _Poses, *, n_fitted: int, params: BICJointParams) -> tuple[float, float]:
+    """Noise levels (m, rad) from the normalised residuals (N, 6) of the general model: the median
+    squared position and rotation error against the median of chi-square with 3 degrees of freedom
+    (robust to up to half the poses being outliers), scaled up for the ``n_fitted`` parameters that
+    took part of the noise, kept between the bounds unless given."""
+    scale = np.sqrt(per_pose.size / max(per_pose.size - n_fitted, 1) / chi2.median(3))
+    sigma_m = poses.sigma_m * scale * np.sqrt(np.median(np.sum(per_pose[:, :3] ** 2, axis=1)))
+    sigma_rad = poses.sigma_rad * scale * np.sqrt(np.median(np.sum(per_pose[:, 3:] ** 2, axis=1)))
+    sigma_m = float(np.clip(sigma_m, params.min_sigma_position_m, params.max_sigma_position_m))
+    sigma_rad = float(np.clip(sigma_rad, params.min_sigma_orientation_rad, params.max_sigma_orientation_rad))
+    return params.sigma_position_m or sigma_m, params.sigma_orientation_rad or sigma_rad
+
+
+def _subset(poses: _Poses, keep: np.ndarray, sigma_m: float, sigma_rad: float) -> _Poses:
+    return _Poses(poses.R[keep], poses.t[keep], sigma_m, sigma_rad)
+
+
+def _draw_pairs(n: int, count: int, rng: np.random.Generator) -> np.ndarray:
+    """``count`` distinct pose pairs (a, b), a != b, or all of them when there are fewer."""
+    all_pairs = np.array([(a, b) for a in range(n) for b in range(n) if a != b])
+    if len(all_pairs) <= count:
+        return all_pairs
+    return all_pairs[np.sort(rng.choice(len(all_pairs), count, replace=False))]
+
+
+# -- the estimate ----------------------------------------------------------------------------------------
+
+def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -> JointEstimate:
+    """Fit the fixed, prismatic, revolute and screw models to a part's poses and choose one by BIC.
+
+    Parameters
+    ----------
+    poses : ndarray, shape (N, 4, 4)
+        The part's pose in its parent's frame in each frame (``poses[i]`` maps part coordinates to
+        parent coordinates, metres; the part's origin is a point of the part, e.g. its centroid).
+        A frame whose pose is unknown is NaN.
+    params : BICJointParams
+
+    Returns
+    -------
+    JointEstimate
+        The chosen model, its axis in the parent's frame, the state per frame relative to the first
+        known frame (radians or metres, NaN where unknown or an outlier), one standard deviation of
+        each, and the BIC of every model in ``scores``.
+
+    Raises
+    ------
+    InputError
+        If ``poses`` is not (N, 4, 4) or fewer than 3 poses are known.
+
+    Notes
+    -----
+    After Sturm, Stachniss & Burgard, "A probabilistic framework for learning kinematic models of
+    articulated objects" (JAIR 41, 2011) and their ROS ``articulation_models`` package: every model
+    predicts the part's pose from a state, the residual is the position and orientation error between
+    predicted and observed pose under Gaussian noise (their ``sigma_position``, ``sigma_orientation``),
+    the models start from minimal samples (here pose pairs, scored by least median of squares in the
+    spirit of their MLESAC), are refined by non-linear least squares, and
+    ``BIC = -2 log L + k log n`` chooses among them (n poses, k parameters).
+    Two choices differ from theirs: (1) the per-frame states count in k, so a one-degree-of-freedom
+    model that only absorbs noise (one residual component per pose) does not beat ``fixed``;
+    (2) instead of a per-model inlier/outlier mixture, the poses the general screw model cannot
+    explain (beyond the ``outlier_level`` quantile of chi-square with 6 degrees of freedom) are left
+    out of every model's score, so all models are compared on the same poses. The noise levels are
+    the screw model's residual RMS unless given. Uncertainties are one standard deviation from the
+    inverse of JᵀJ of the chosen model at its optimum.
+    """
+    poses = np.asarray(poses, dtype=float)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise InputError(f"joint poses must have shape (N, 4, 4), got {poses.shape}")
+    known = np.flatnonzero(np.isfinite(poses).all(axis=(1, 2)))
+    if len(known) < 3:
+        raise InputError(f"a joint needs at least 3 known poses, got {len(known)}")
+    rng = np.random.default_rng(params.seed)
+    observed = _Poses(Rotation.from_matrix(poses[known, :3, :3]).as_quat(), poses[known, :3, 3],
+                      params.sigma_position_m or params.min_sigma_position_m,
+                      params.sigma_orientation_rad or params.min_sigma_orientation_rad)
+    pairs = _draw_pairs(len(known), params.n_hypotheses, rng)
+
+    # 1. the general model, robustly: noise levels and outliers
+    start = _best_start("screw", observed, pairs) or _best_start("fixed", observed, pairs)
+    general = _refine(start, observed, robust=True)
+    sigma_m, sigma_rad = _noise_levels(general.pose_residuals(general.x, observed), observed,
+                                       n_fitted=_n_params(general.shape, len(known)), params=params)
+    limit = chi2.ppf(params.outlier_level, 6)
+    scaled = _subset(observed, np.ones(len(known), bool), sigma_m, sigma_rad)
+    inlier = np.sum(general.pose_residuals(general.x, scaled) ** 2, axis=1) <= limit
+    fitted = _subset(observed, inlier, sigma_m, sigma_rad)
+    inlier_pairs = _draw_pairs(int(inlier.sum()), params.n_hypotheses, rng)
+
+    # 2. every model on the same poses, scored by BIC
+    n = len(fitted.t)
+    log_norm = 3 * np.log(2 * np.pi * sigma_m**2) + 3 * np.log(2 * np.pi * sigma_rad**2)
+    fits, scores = {}, {}
+    for name in MODELS:
+        start = _best_start(name, fitted, inlier_pairs)
+        if start is None:
+            continue
+        fits[name] = _refine(start, fitted, robust=False)
+        scores[name] = fits[name].chi2 + n * log_norm + _n_params(fits[name].shape, n) * np.log(n)
+    chosen = min(scores, key=scores.get)
+
+    # 3. the chosen model's parameters and their uncertainty
+    best = _recentred(fits[chosen], fitted)
+    return _estimate(best, known=known, inlier=inlier, n_frames=len(poses), fitted=fitted,
+                     scores=scores, params=params,
+                     info=dict(sigma_position_m=float(sigma_m), sigma_orientation_rad=float(sigma_rad),
+                               n_known=int(len(known)), n_outliers=int((~inlier).sum())))
+
+
+def _n_params(shape: _Shape, n_poses: int) -> int:
+    """BIC's k: the pose at state 0 (6), the joint's own parameters, and a state per pose but one."""
+    return 6 + shape.dof + (n_poses - 1 if shape.name != "fixed" else 0)
+
+
+def _estimate(fit: _Fit, *, known: np.ndarray, inlier: np.ndarray, n_frames: int, fitted: _Poses,
+              scores: dict, params: BICJointParams, info: dict) -> JointEstimate:
+    xi, R0, t0 = fit.unpack()
+    name = fit.shape.name
+    q, _, t_hat = fit.predict(fitted)
+    q_std = fitted.state_std(xi, t_hat) if name != "fixed" else np.zeros(len(q))
+    q = q - q[0]                                       # relative to the first pose the model explains
+    std = np.sqrt(np.clip(np.diag(np.linalg.pinv(fit.jac.T @ fit.jac)), 0.0, None))
+    direction = point = None
+    dir_std = point_std = float("nan")
+    if name in ("revolute", "screw"):
+        w = xi[:3]
+        scale = np.linalg.norm(w)
+        direction, q, q_std = w / scale, q * scale, q_std * scale
+        point = _cross(w, xi[3:]) / scale**2
+        point = point + direction * float((t0 - point) @ direction)    # nearest the part at state 0
+        if name == "screw":
+            info["pitch_m_per_rad"] = float(w @ xi[3:] / scale**2)
+        else:
+            dir_std, point_std = float(np.hypot(*std[:2])), float(np.hypot(*std[2:4]))
+    elif name == "prismatic":
+        direction, point = xi[3:], t0
+        dir_std = float(np.hypot(*std[:2]))
+    if direction is not None and q[np.argmax(np.abs(q))] < 0:
+        direction, q = -direction, -q                  # positive states: the part moves along +axis
+    states, states_std = np.full(n_frames, np.nan), np.full(n_frames, np.nan)
+    inliers = np.zeros(n_frames, bool)
+    inliers[known[inlier]] = True
+    states[inliers], states_std[inliers] = q, q_std
+    joint_type = name if inlier.mean() >= params.min_inlier_fraction else "free"
+    if joint_type == "free":
+        direction = point = None
+        states[:], states_std[:] = np.nan, np.nan
+    return JointEstimate(joint_type, direction, point, states, inliers, dir_std, point_std, states_std,
+                         {k: float(v) for k, v in scores.items()}, info)
+
+
+# -- poses from pair motions -------------------------------------------------------------------------------
+
+def chain_pair_motions(n_frames: int, pairs, *, origin_m: np.ndarray) -> np.ndarray:
+    """Per-frame poses of a part from its motions between frame pairs.
+
+    Parameters
+    ----------
+    n_frames : int
+    pairs : iterable of (i, j, T_j_from_i)
+        ``T_j_from_i`` (4, 4) moves the part, in its parent's frame, from where it is in frame i to
+        where it is in frame j (metres).
+    origin_m : ndarray, shape (3,)
+        The part's origin (e.g. its centroid) in the parent's frame in the first frame reached.
+
+    Returns
+    -------
+    ndarray, shape (n_frames, 4, 4): the part's pose in each frame, identity rotation and ``origin_m``
+    in the first frame of any pair; NaN for frames no chain of pairs reaches from it. Each frame is
+    reached by the fewest pairs (breadth first), so errors add up over as few steps as possible.
+    """
+    links: dict[int, list[tuple[int, np.ndarray]]] = {}
+    for i, j, T in pairs:
+        T = np.asarray(T, float)
+        if not np.isfinite(T).all():
+            continue
+        links.setdefault(int(i), []).append((int(j), T))
+        links.setdefault(int(j), []).append((int(i), np.linalg.inv(T)))
+    poses = np.full((n_frames, 4, 4), np.nan)
+    if not links:
+        return poses
+    root = min(links)
+    poses[root] = np.eye(4)
+    poses[root, :3, 3] = origin_m
+    frontier = [root]
+    while frontier:
+        following = []
+        for i in frontier:
+            for j, T in links[i]:
+                if np.isnan(poses[j, 0, 0]):
+                    poses[j] = T @ poses[i]
+                    following.append(j)
+        frontier = following
+    return poses
