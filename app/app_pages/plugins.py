@@ -24,7 +24,7 @@ def _rows(specs) -> list[dict]:
 
 
 for kind, items in plugin_table(reg).items():
-    st.subheader(f"{kind.replace("_", " ").capitalize()}s")
+    st.subheader(f"{kind.replace('_', ' ').capitalize()}s")
     if not items:
         st.caption("none registered")
     for item in items:
