@@ -21,7 +21,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from artclass_core import Cloud, MotionEvidence, PairRegistrar, Params, param
@@ -31,7 +30,7 @@ from artclass_core.types import SURFACE
 from .flow import flow_targets
 from .image import noise_m
 from .projective import Target, icp, look, robust_kabsch
-from .rule import DenseRuleParams, point_costs, select
+from .rule import DenseRuleParams, point_costs, regions, select
 
 _MIN_FLOW_MATCHES = 6
 
@@ -165,7 +164,7 @@ class DenseRegistrar(PairRegistrar):
             if len(own) >= self.params.min_seed_points:
                 members.append(own)
                 inits.append(ev.motions[h])
-        for region in _regions(seen & (best >= misfit), ev.pixels, int(ev.info["stride_px"]),
+        for region in regions(seen & (best >= misfit), ev.pixels, int(ev.info["stride_px"]),
                                min_points=self.params.min_seed_points, most=3):
             for h in chosen:
                 members.append(region)
@@ -176,22 +175,6 @@ class DenseRegistrar(PairRegistrar):
         groups = np.repeat(np.arange(len(members)), [len(m) for m in members])
         T = fit(ev.points, index, groups, np.stack(inits), reach)
         return list(T), [f"refit {round_}.{g}" for g in range(len(T))]
-
-
-def _regions(members: np.ndarray, pixels: np.ndarray, stride: int, *, min_points: int, most: int) -> list[np.ndarray]:
-    """The ``most`` largest 8-connected image regions (indices of points) of the ``members`` points,
-    each of at least ``min_points``."""
-    if members.sum() < min_points:
-        return []
-    grid = pixels // max(stride, 1)
-    origin = grid.min(axis=0)
-    g = grid - origin
-    image = np.zeros(tuple(g.max(axis=0)[::-1] + 1), np.uint8)
-    image[g[members, 1], g[members, 0]] = 1
-    _, labels, stats, _ = cv2.connectedComponentsWithStats(image, connectivity=8)
-    label = np.where(members, labels[g[:, 1], g[:, 0]], 0)
-    big = [c for c in np.argsort(-stats[:, cv2.CC_STAT_AREA], kind="stable") if c and stats[c, cv2.CC_STAT_AREA] >= min_points]
-    return [np.flatnonzero(label == c) for c in big[:most]]
 
 
 def _flow_points(flow_px: np.ndarray, tgt: Target) -> tuple[np.ndarray, np.ndarray]:

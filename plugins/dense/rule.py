@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from artclass_core import DecisionRule, Motion, MotionEvidence, Params, RuleDecision, param
@@ -105,6 +106,22 @@ def label_coherence(labels: np.ndarray, pixels: np.ndarray, stride: int) -> np.n
                 same += other == labels
     with np.errstate(invalid="ignore", divide="ignore"):
         return same / present
+
+
+def regions(members: np.ndarray, pixels: np.ndarray, stride: int, *, min_points: int, most: int) -> list[np.ndarray]:
+    """The ``most`` largest 8-connected image regions (indices of points) of the ``members`` points,
+    each of at least ``min_points``."""
+    if members.sum() < min_points:
+        return []
+    grid = pixels // max(stride, 1)
+    origin = grid.min(axis=0)
+    g = grid - origin
+    image = np.zeros(tuple(g.max(axis=0)[::-1] + 1), np.uint8)
+    image[g[members, 1], g[members, 0]] = 1
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(image, connectivity=8)
+    label = np.where(members, labels[g[:, 1], g[:, 0]], 0)
+    big = [c for c in np.argsort(-stats[:, cv2.CC_STAT_AREA], kind="stable") if c and stats[c, cv2.CC_STAT_AREA] >= min_points]
+    return [np.flatnonzero(label == c) for c in big[:most]]
 
 
 def select(costs: np.ndarray, pixels: np.ndarray, *, penalty: float, misfit: float, min_points: int,
@@ -211,7 +228,8 @@ class DenseRule(DecisionRule):
         # better than the others (a surface both explain, sliding in itself, belongs to neither).
         ranked = np.sort(costs[chosen], axis=0)
         decisive = np.where(seen & (ranked[1] - ranked[0] >= p.noise_factor ** 2 / 2), labels, -3) if len(chosen) > 1 else labels
-        coherence = label_coherence(decisive, _layout(ev), int(ev.info.get("stride_px", 1)))
+        layout, stride = _layout(ev), int(ev.info.get("stride_px", 1))
+        coherence = label_coherence(decisive, layout, stride)
         misfit, enough = p.noise_factor ** 2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
         for h in chosen[1:]:
             own, rest = ev.points[forward & (labels == h)], ev.points[forward & (labels >= 0) & (labels != h)]
@@ -221,7 +239,9 @@ class DenseRule(DecisionRule):
             # nearly the same points, a part and its base do not.
             needed = all(int((seen & (costs[a] < misfit / 2) & (costs[b] >= misfit)).sum()) >= enough
                          for a, b in ((h, base), (base, h)))
-            if apart > threshold and needed and np.nanmean(coherence[decisive == h]) >= p.min_coherence:
+            # ... and a part is one region of the image where its motion is clearly the better one.
+            region = regions(decisive == h, layout, stride, min_points=enough // 2, most=1)
+            if apart > threshold and needed and region and np.nanmean(coherence[decisive == h]) >= p.min_coherence:
                 parts.append(h)
         kept = [base, *parts]
         labels = np.where(seen, np.asarray(kept)[np.argmin(costs[kept], axis=0)], -1)
