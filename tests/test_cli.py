@@ -170,7 +170,7 @@ def test_evaluate_on_a_local_dask_cluster_is_the_serial_evaluation(capsys, tmp_p
             for s in e["sequences"]:
                 s.pop("seconds")
         runs.append(evals)
-    assert [e["rule"] for e in runs[0]] == ["robust", "paper"]
+    assert [e["rule"] for e in runs[0]] == ["dense", "paper"]
     assert runs[0] == runs[1]
 
 

@@ -10,13 +10,14 @@ import copy
 import dataclasses
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from artclass_core import (ArtclassError, CellMotion, Cloud, Config, Frame, InputError, Params, Pipeline,
-                           PluginError, RuleDecision, Sequence, describe, load_registry)
+                           PluginError, RuleDecision, Sequence, describe, hookimpl, load_registry)
 from artclass_core.geometry import transform
 from artclass_core.interfaces import KINDS
 
@@ -363,9 +364,17 @@ def test_motion_rule_tells_the_three_motions_apart(name, registrar, motion, expe
 
 
 @pytest.mark.parametrize("name", rules("motions"))
-def test_a_rule_and_a_registrar_that_do_not_fit_are_refused(name):
-    with pytest.raises(ArtclassError, match="decides from"):
-        Pipeline(REGISTRY, Config(registrar=cell_registrars()[0], rule=name))
+def test_a_default_partner_fits_the_chosen_plugin_and_two_chosen_misfits_are_refused(name):
+    assert Pipeline(REGISTRY, Config(registrar=cell_registrars()[0], rule=name)).config.rule == "paper"
+    assert Pipeline(REGISTRY, Config(rule="paper")).config.registrar == "icp_point_to_point"
+
+    class OtherPairs(REGISTRY.get("registrar", pair_registrars()[0])):
+        name = "other_pairs"
+
+    plugin = SimpleNamespace(register_registrars=hookimpl(lambda register: register(OtherPairs)))
+    registry = load_registry(extra_plugins=(plugin,))
+    with pytest.raises(ArtclassError, match="decides from cells"):
+        Pipeline(registry, Config(registrar="other_pairs", rule="paper"))
 
 
 # -- joint estimators ------------------------------------------------------------------------------------

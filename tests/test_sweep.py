@@ -86,7 +86,7 @@ def test_one_task_per_sequence_and_frame_stages(registry, sequences):
     decisions = grid_settings(registry, {"w": ["1", "3"], "k": ["3", "4"]})
     assert [(i, chosen) for i, _, chosen in plan_tasks(registry, sequences, decisions)] == \
         [(0, [0, 1, 2, 3]), (1, [0, 1, 2, 3]), (2, [0, 1, 2, 3])]
-    frames = grid_settings(registry, {"voxels_per_diameter": ["30", "40"], "w": ["1", "3"]})
+    frames = grid_settings(registry, {"max_points": ["2000", "3000"], "w": ["1", "3"]})
     tasks = plan_tasks(registry, sequences, frames, done={(str(sequences[0].path.resolve()), sequences[0].name,
                                                             frames[0].recipe)})
     assert [(i, chosen) for i, _, chosen in tasks] == [(0, [1]), (0, [2, 3]), (1, [0, 1]), (1, [2, 3]),
