@@ -55,7 +55,7 @@ class DenseParams(Params):
                                     "(two-dimensional texture).")
     max_roundtrip_px: float = param(1.0, unit="px", bounds=(0.1, 20.0),
                                     help="Flow is used where the backward flow brings a point back within this.")
-    refine_rounds: int = param(2, unit="rounds", bounds=(0, 10),
+    refine_rounds: int = param(1, unit="rounds", bounds=(0, 10),
                                help="Rounds of refitting the selected motions on the points they explain.")
 
 
