@@ -99,7 +99,7 @@ def look(moved: np.ndarray, target: Target, *, reach_m: np.ndarray, off_object_p
     return status, residual
 
 
-def _skew_rotation(omega: np.ndarray) -> np.ndarray:
+def _rotations(omega: np.ndarray) -> np.ndarray:
     """Rotation matrices (G, 3, 3) of rotation vectors (G, 3) (Rodrigues)."""
     out = np.empty((len(omega), 3, 3))
     for g, w in enumerate(omega):
@@ -211,7 +211,7 @@ def icp(points: np.ndarray, groups: np.ndarray, T: np.ndarray, target: Target, *
             break
         A = A[solvable] + _DAMPING * np.einsum("gii->g", A[solvable])[:, None, None] * np.eye(6) + 1e-12 * np.eye(6)
         x = -np.linalg.solve(A, b[solvable][..., None])[..., 0]
-        R = _skew_rotation(x[:, :3])
+        R = _rotations(x[:, :3])
         step = np.tile(np.eye(4), (len(x), 1, 1))
         step[:, :3, :3] = R
         # A turn about the group's moved centroid c' followed by a shift: x -> R (x - c') + c' + t.

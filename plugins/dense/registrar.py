@@ -74,7 +74,7 @@ class DenseRegistrar(PairRegistrar):
         depth = float(np.median(points[:, 2]))
         pixel_m = depth / tgt.intrinsics.fx
         sigma0 = float(noise_m(depth, p.depth_noise_m))
-        reach = p.reach_sigmas * noise_m(points[:, 2], p.depth_noise_m) + 2 * points[:, 2] / tgt.intrinsics.fx
+        reach = self._reach(points, tgt.intrinsics.fx)
         fine = 4 * sigma0 + 2 * pixel_m
         size = float(np.linalg.norm(np.ptp(points, axis=0)))
         coarse = [max(size / d, fine) for d in (4, 4, 8, 8, 16, 16, 32)] + [fine] * 3
@@ -130,9 +130,7 @@ class DenseRegistrar(PairRegistrar):
         # The other way round: each target point moved by each motion's inverse onto the source image.
         back = Target.of(source)
         inverse = [np.linalg.inv(T) for T in hyps]
-        reach_back = (p.reach_sigmas * noise_m(target.points[:, 2], p.depth_noise_m)
-                      + 2 * target.points[:, 2] / tgt.intrinsics.fx)
-        status_back, residual_back = _look_all(inverse, target.points, back, reach_back)
+        status_back, residual_back = _look_all(inverse, target.points, back, self._reach(target.points, back.intrinsics.fx))
         info = dict(stride_px=int(source.info.get("stride_px", 1)), n_flow=int(matched.sum()),
                     n_points=len(points), seconds=round(time.perf_counter() - t0, 4))
         return MotionEvidence(np.stack(hyps), names, np.hstack([residual, residual_back]),
@@ -140,6 +138,11 @@ class DenseRegistrar(PairRegistrar):
                               np.hstack([flow_err, np.full(status_back.shape, np.nan, np.float32)]), noise,
                               np.vstack([points, target.points]), np.vstack([source.pixels, target.pixels]),
                               pixel_m, info, n_source=len(points))
+
+    def _reach(self, points: np.ndarray, fx: float) -> np.ndarray:
+        """How far from the observed depth each moved point still counts as on that surface (metres):
+        ``reach_sigmas`` noise sigmas at its depth, plus two pixels."""
+        return self.params.reach_sigmas * noise_m(points[:, 2], self.params.depth_noise_m) + 2 * points[:, 2] / fx
 
     def _refits(self, ev: MotionEvidence, fit: "_Fit", rule: DenseRuleParams, round_: int,
                 reach: list[float]) -> tuple[list, list]:

@@ -71,30 +71,28 @@ def point_costs(ev: MotionEvidence, *, noise_factor: float, flow_sigma_px: float
     return (cost + np.nan_to_num(flow, nan=0.0)).astype(np.float32)
 
 
+def _grid(pixels: np.ndarray, stride: int, *, pad: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """Each point's (column, row) cell on the ``stride`` grid, offset so that ``pad`` empty cells
+    surround the points, and the grid's shape (rows, columns)."""
+    g = pixels // max(stride, 1)
+    g = g - g.min(axis=0) + pad
+    return g, tuple(g.max(axis=0)[::-1] + 1 + pad)
+
+
 def _coherence(members: np.ndarray, pixels: np.ndarray, stride: int) -> float:
     """Share of ``members`` (a boolean mask of points) with a member among their 8 image neighbours."""
     if members.sum() == 0:
         return 0.0
-    grid = pixels // stride
-    origin = grid.min(axis=0)
-    g = grid - origin
-    image = np.zeros(tuple(g.max(axis=0)[::-1] + 3), bool)
-    image[g[members, 1] + 1, g[members, 0] + 1] = True
-    near = np.zeros_like(image)
-    for dv in (-1, 0, 1):
-        for du in (-1, 0, 1):
-            if dv or du:
-                near |= np.roll(np.roll(image, dv, 0), du, 1)
-    return float(near[g[members, 1] + 1, g[members, 0] + 1].mean())
+    same = label_coherence(members.astype(np.int64), pixels, stride)[members]
+    return float((np.nan_to_num(same) > 0).mean())
 
 
 def label_coherence(labels: np.ndarray, pixels: np.ndarray, stride: int) -> np.ndarray:
     """For each point, the share of its 8 image neighbours (points on the ``stride`` grid) that carry
     its label, among those labelled -1 or more (a label below -1 marks a point to leave out); NaN for
     a point without such neighbours."""
-    g = pixels // max(stride, 1)
-    g = g - g.min(axis=0) + 1
-    image = np.full(tuple(g.max(axis=0)[::-1] + 2), -2, np.int64)
+    g, shape = _grid(pixels, stride, pad=1)
+    image = np.full(shape, -2, np.int64)
     image[g[:, 1], g[:, 0]] = labels
     same = np.zeros(len(labels))
     present = np.zeros(len(labels))
@@ -113,10 +111,8 @@ def regions(members: np.ndarray, pixels: np.ndarray, stride: int, *, min_points:
     each of at least ``min_points``."""
     if members.sum() < min_points:
         return []
-    grid = pixels // max(stride, 1)
-    origin = grid.min(axis=0)
-    g = grid - origin
-    image = np.zeros(tuple(g.max(axis=0)[::-1] + 1), np.uint8)
+    g, shape = _grid(pixels, stride, pad=0)
+    image = np.zeros(shape, np.uint8)
     image[g[members, 1], g[members, 0]] = 1
     _, labels, stats, _ = cv2.connectedComponentsWithStats(image, connectivity=8)
     label = np.where(members, labels[g[:, 1], g[:, 0]], 0)
