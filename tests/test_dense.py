@@ -1,0 +1,221 @@
+"""The dense pipeline's parts on scenes whose answer is known: projective look-ups, the motion
+hypotheses of the registrar, and the rule's model selection.
+
+The scenes are textured flat pieces rendered here (a z-buffer that keeps each pixel's surface point,
+so the colour image carries a texture that moves with the surface, as optical flow needs).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from artclass_core import Frame, Intrinsics, MotionEvidence
+from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
+from artclass_plugins.dense.image import ImagePreprocessor
+from artclass_plugins.dense.projective import Target, kabsch, look, robust_kabsch
+from artclass_plugins.dense.registrar import DenseRegistrar
+from artclass_plugins.dense.rule import DenseRule, DenseRuleParams
+
+from conftest import panel_points
+
+K = Intrinsics(fx=320.0, fy=320.0, cx=159.5, cy=119.5, width=320, height=240)
+DEPTH_M = 0.5
+
+
+def rotation(axis, angle_deg: float) -> np.ndarray:
+    return cv2.Rodrigues(np.radians(angle_deg) * np.asarray(axis, float))[0]
+
+
+def pose(R: np.ndarray = np.eye(3), t=(0.0, 0.0, 0.0)) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
+
+
+_NOISE = cv2.GaussianBlur(np.random.default_rng(7).normal(0, 1, (1024, 1024)).astype(np.float32), (0, 0), 3)
+_NOISE = np.clip(128 + 60 * _NOISE / _NOISE.std(), 0, 255).astype(np.uint8)
+
+
+def texture(surface_xy: np.ndarray) -> np.ndarray:
+    """Grey levels of a texture fixed to the surface (so that it moves with it): white noise blurred
+    to 3 mm, sampled at 1 mm, so that it is neither periodic nor aliased by the pixels."""
+    cell = np.floor(surface_xy / 0.001).astype(np.int64) % len(_NOISE)
+    return _NOISE[cell[:, 1], cell[:, 0]]
+
+
+def frame(pieces: list[tuple[np.ndarray, np.ndarray, int]], index: int = 0) -> Frame:
+    """Render pieces ``(points in the piece's own frame (N, 3), T_camera_from_piece, id)``: the
+    object is every piece with id >= 1; a table (id 0) may lie behind it. ``frame.owner`` is the id
+    seen at each pixel (-1: nothing)."""
+    cam, surf, ids = [], [], []
+    for points, T, ident in pieces:
+        cam.append(points @ T[:3, :3].T + T[:3, 3])
+        surf.append(points[:, :2] + 0.3 * ident)  # each piece its own patch
+        ids.append(np.full(len(points), ident))
+    cam, surf, ids = np.concatenate(cam), np.concatenate(surf), np.concatenate(ids)
+    u = np.round(K.fx * cam[:, 0] / cam[:, 2] + K.cx).astype(int)
+    v = np.round(K.fy * cam[:, 1] / cam[:, 2] + K.cy).astype(int)
+    ok = (u >= 0) & (u < K.width) & (v >= 0) & (v < K.height)
+    pix = (v * K.width + u)[ok]
+    order = np.lexsort((cam[ok, 2], pix))
+    first = order[np.unique(pix[order], return_index=True)[1]]
+    depth = np.zeros(K.width * K.height, np.float32)
+    grey = np.zeros(K.width * K.height, np.uint8)
+    owner = np.full(K.width * K.height, -1)
+    depth[pix[first]] = cam[ok][first, 2]
+    grey[pix[first]] = texture(surf[ok][first])
+    owner[pix[first]] = ids[ok][first]
+    shape = (K.height, K.width)
+    rgb = np.repeat(grey.reshape(shape)[..., None], 3, axis=2)
+    out = Frame(index, f"{index:06d}", rgb, depth.reshape(shape), owner.reshape(shape) >= 1)
+    out.owner = owner.reshape(shape)
+    return out
+
+
+def cloud(f: Frame):
+    return ImagePreprocessor().process(f, f.mask, intrinsics=K)
+
+
+TABLE = (panel_points(0.5, 0.4, spacing_m=0.0008) - [0.25, 0.0, 0.0], pose(t=(0.0, 0.0, DEPTH_M + 0.03)), 0)
+BASE = panel_points(0.16, 0.10, spacing_m=0.0004) - [0.08, 0.0, 0.0]     # 16 x 10 cm plate
+LEVER = panel_points(0.10, 0.02, spacing_m=0.0004)                        # 10 x 2 cm, pivot at x = 0
+
+
+def plate_with_lever(angle_deg: float, carry: np.ndarray = np.eye(4), index: int = 0) -> Frame:
+    """A plate facing the camera with a lever on it (5 mm proud), lifted by ``angle_deg`` about its
+    hinge, a vertical line through the plate's centre; the whole object moved by ``carry``."""
+    plate = carry @ pose(t=(0.0, 0.0, DEPTH_M))
+    lever = plate @ pose(rotation((0, 1, 0), angle_deg), t=(0.0, 0.0, -0.005))
+    return frame([(BASE, plate, 1), (LEVER, lever, 2), TABLE], index)
+
+
+# -- projective look-ups --------------------------------------------------------------------------
+
+def test_look_tells_surface_occluded_free_space_off_object_and_unseen():
+    """A plate 0.5 m away in front of a table 3 cm behind it: what a point finds at its pixel."""
+    f = frame([(BASE, pose(t=(0.0, 0.0, DEPTH_M)), 1), TABLE])
+    target = Target.of(cloud(f))
+    points = np.array([[0.0, 0.0, DEPTH_M + 0.001],     # on the plate, 1 mm behind it
+                       [0.0, 0.0, DEPTH_M + 0.02],      # hidden behind the plate
+                       [0.0, 0.0, DEPTH_M - 0.02],      # in front of the plate: the camera sees past it
+                       [0.2, 0.0, DEPTH_M + 0.03],      # on the table, far from the object
+                       [5.0, 0.0, DEPTH_M]])            # outside the image
+    status, residual = look(points, target, reach_m=np.full(5, 0.005), off_object_px=3.0)
+    assert status.tolist() == [SURFACE, OCCLUDED, FREE_SPACE, OFF_OBJECT, UNSEEN]
+    assert abs(residual[0]) == pytest.approx(0.001, abs=2e-4)
+    assert np.isnan(residual[1:]).all()
+
+
+def test_robust_kabsch_recovers_a_motion_despite_wrong_matches():
+    rng = np.random.default_rng(0)
+    source = rng.uniform(-0.1, 0.1, (200, 3)) + [0, 0, DEPTH_M]
+    T = pose(rotation((0, 0, 1), 12.0), t=(0.02, -0.01, 0.03))
+    target = source @ T[:3, :3].T + T[:3, 3]
+    target[:40] += rng.uniform(-0.05, 0.05, (40, 3))          # 20 % wrong matches
+    assert not np.allclose(kabsch(source, target), T, atol=1e-3)
+    np.testing.assert_allclose(robust_kabsch(source, target, inlier_m=0.002), T, atol=1e-6)
+
+
+# -- the registrar and the rule on rendered pairs ----------------------------------------------
+
+def decide(a: Frame, b: Frame, **params):
+    source, target = cloud(a), cloud(b)
+    evidence = DenseRegistrar().register_pair(source, target)
+    return evidence, DenseRule(DenseRuleParams(**params)).decide(evidence), source
+
+
+def angle_deg(R: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
+
+
+@pytest.mark.parametrize("angle", [8.0, 15.0])
+def test_a_lifted_lever_is_articulated_and_segmented(angle):
+    """A thin part (2 cm wide, 14 % of the points) lifted about its hinge: two motions, each the
+    true one, and the pair's labels are the parts."""
+    _, out, source = decide(plate_with_lever(0.0), plate_with_lever(angle, index=1))
+    assert out.decision == "AM", out.reason
+    base, part = out.motions[0], out.motions[1]
+    assert angle_deg(base.T_target_from_source[:3, :3]) < 1.0
+    assert angle_deg(part.T_target_from_source[:3, :3]) == pytest.approx(angle, abs=0.5)
+    # The pair's labels are the parts: lever pixels take the lever's motion.
+    on_lever = plate_with_lever(0.0).owner[source.pixels[:, 1], source.pixels[:, 0]] == 2
+    labels = out.labels[: len(source.points)]
+    seen = labels >= 0
+    assert seen.mean() > 0.8
+    assert ((labels == 1) == on_lever)[seen].mean() > 0.9
+
+
+def test_carried_plate_with_a_fixed_lever_is_one_motion():
+    """The same object carried (turned 3 degrees and moved 1 cm: 2 to 3 cm, 15 to 20 px, on the
+    object) with the lever still: rigid."""
+    carry = pose(cv2.Rodrigues(np.array([0.02, 0.03, 0.03]))[0], t=(0.01, -0.005, 0.005))
+    _, out, _ = decide(plate_with_lever(20.0), plate_with_lever(20.0, carry, index=1))
+    assert out.decision == "RM", out.reason
+    assert len(out.motions) == 1
+
+
+def test_flat_plate_sliding_in_its_own_plane_is_one_motion_not_a_static_scene():
+    """A texture-rich flat plate slides 1 cm along itself: depth alone cannot see it, flow does."""
+    slide = pose(t=(0.01, 0.0, 0.0))
+    a = frame([(BASE, pose(t=(0.0, 0.0, DEPTH_M)), 1), TABLE])
+    b = frame([(BASE, slide @ pose(t=(0.0, 0.0, DEPTH_M)), 1), TABLE], 1)
+    _, out, _ = decide(a, b)
+    assert out.decision == "RM", out.reason
+    np.testing.assert_allclose(out.motions[0].T_target_from_source[:3, 3], [0.01, 0.0, 0.0], atol=0.002)
+
+
+def test_nothing_moving_is_no_motion():
+    _, out, _ = decide(plate_with_lever(10.0), plate_with_lever(10.0, index=1))
+    assert out.decision == "NM", out.reason
+
+
+# -- model selection on drawn evidence -----------------------------------------------------------
+
+def drawn_evidence(second_explains: np.ndarray, *, shift_m: float = 0.02) -> MotionEvidence:
+    """A 40 x 40 grid of points; hypothesis 0 is the identity (it sends every point into free space),
+    hypothesis 1 explains the points outside ``second_explains`` (1 mm residual), hypothesis 2 those
+    inside; each misses the other's points by 3 cm."""
+    rows, cols = np.mgrid[0:40, 0:40]
+    pixels = np.column_stack([cols.ravel(), rows.ravel()])
+    points = np.column_stack([(pixels - 20) * 0.002, np.full(len(pixels), DEPTH_M)])
+    n = len(points)
+    rng = np.random.default_rng(1)
+    small = rng.uniform(-0.001, 0.001, n)
+    residual = np.stack([np.full(n, np.nan),
+                         np.where(second_explains, 0.03, small),
+                         np.where(second_explains, small, 0.03)]).astype(np.float32)
+    status = np.stack([np.full(n, FREE_SPACE), np.full(n, SURFACE), np.full(n, SURFACE)]).astype(np.int8)
+    motions = np.stack([np.eye(4), pose(t=(shift_m, 0, 0)), pose(t=(0, shift_m, 0))])
+    return MotionEvidence(motions, ["identity", "a", "b"], residual, status, np.full((3, n), np.nan, np.float32),
+                          0.001, points, pixels, DEPTH_M / 570, dict(stride_px=1))
+
+
+GRID = np.mgrid[0:40, 0:40]
+
+
+@pytest.mark.parametrize("region, decision", [
+    (GRID[1].ravel() >= 28, "AM"),                                 # a coherent 30 % region
+    (((GRID[0] + GRID[1]) % 2 == 0).ravel(), "RM"),                # a checkerboard: a scatter, not a part
+    ((GRID[1] >= 39).ravel() & (GRID[0] < 20).ravel(), "RM"),      # 20 points, 1 %: below min_part_share
+])
+def test_a_second_motion_must_explain_a_coherent_region(region, decision):
+    out = DenseRule().decide(drawn_evidence(region))
+    assert out.decision == decision, out.reason
+    if decision == "AM":
+        assert (out.labels == 1).sum() == region.sum() and (out.labels[region] == 1).all()
+
+
+def test_motions_closer_than_the_noise_are_one():
+    """Two hypotheses that each explain their own region, but move the points by less than the
+    threshold apart (3 sigma plus a pixel): the same motion, twice."""
+    out = DenseRule().decide(drawn_evidence(GRID[1].ravel() >= 28, shift_m=0.001))
+    assert out.decision in ("RM", "NM") and len(out.motions) == 1, out.reason
+
+
+def test_min_part_share_is_a_real_threshold():
+    region = GRID[1].ravel() >= 36                                  # a 10 % region
+    evidence = drawn_evidence(region)
+    assert DenseRule().decide(evidence).decision == "AM"
+    assert DenseRule(DenseRuleParams(min_part_share=0.2)).decide(evidence).decision == "RM"
