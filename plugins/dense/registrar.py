@@ -167,6 +167,13 @@ class DenseRegistrar(PairRegistrar):
             if len(own) >= self.params.min_seed_points:
                 members.append(own)
                 inits.append(ev.motions[h])
+        if len(chosen) > 1:
+            # The whole object from each selected motion: one rigid motion may explain what two
+            # poor fits split between them.
+            everything = np.flatnonzero(seen)
+            for h in chosen:
+                members.append(everything)
+                inits.append(ev.motions[h])
         for region in regions(seen & (best >= misfit), ev.pixels, int(ev.info["stride_px"]),
                                min_points=self.params.min_seed_points, most=3):
             for h in chosen:

@@ -11,9 +11,10 @@ put the point adds a cost of the same kind.
 Selection: motions are added one at a time, the one that lowers the total cost most first, while
 the saving pays for the motion's six parameters (BIC: ``6 ln N``), the points it explains better
 than the motions already chosen are at least ``min_part_share`` of the seen points, and those points
-form one region of the image rather than a scatter. Each point then takes the selected motion that
-explains it best: that labelling is the pair's part segmentation, and a part whose points are mixed
-with another's (two fits that each explain half of a rigid object) is not a part.
+form one region of the image rather than a scatter; then each selected motion in turn is swapped for
+the hypothesis that explains the points best with the others. Each point then takes the selected
+motion that explains it best: that labelling is the pair's part segmentation, and a part whose points
+are mixed with another's (two fits that each explain half of a rigid object) is not a part.
 
 Decision: two or more motions that really differ (their relative motion moves the median point of
 each side by more than ``noise_factor`` sigma plus one pixel, and each fails points that the other
@@ -128,6 +129,7 @@ def select(costs: np.ndarray, pixels: np.ndarray, *, penalty: float, misfit: flo
     saving exceeds ``penalty`` and the points it explains (cost below ``misfit / 2``) that the chosen
     ones do not (cost at least ``misfit``) number ``min_points`` and are a coherent image region. A
     motion that merely fits some points a little better (two fits of a symmetric object) adds nothing.
+    Finally each chosen motion is swapped for the best one given the others (:func:`_swapped`).
     """
     chosen = [int(np.argmin(costs.sum(axis=1)))]
     best = costs[chosen[0]].copy()
@@ -137,14 +139,30 @@ def select(costs: np.ndarray, pixels: np.ndarray, *, penalty: float, misfit: flo
         order = np.argsort(-saving, kind="stable")
         for h in order[:5]:
             if saving[h] <= penalty:
-                return chosen
+                return _swapped(costs, chosen)
             members = (costs[h] < misfit / 2) & (best >= misfit)
             if members.sum() >= min_points and _coherence(members, pixels, stride) >= min_coherence:
                 chosen.append(int(h))
                 best = np.minimum(best, costs[h])
                 break
         else:
-            return chosen
+            return _swapped(costs, chosen)
+
+
+def _swapped(costs: np.ndarray, chosen: list[int]) -> list[int]:
+    """``chosen`` with each motion in turn replaced by the hypothesis that, with the others, explains
+    the points at least cost. A motion chosen first, alone, may be a compromise between a part and its
+    base (a whole-object fit pulled by the part); once the part has its own motion, the base's own is
+    better."""
+    chosen = list(chosen)
+    if len(chosen) < 2:
+        return chosen
+    for i in range(len(chosen)):
+        others = np.min(costs[[h for j, h in enumerate(chosen) if j != i]], axis=0)
+        total = np.minimum(others[None], costs).sum(axis=1)
+        total[[h for j, h in enumerate(chosen) if j != i]] = np.inf
+        chosen[i] = int(np.argmin(total))
+    return chosen
 
 
 def _spread(values: np.ndarray, *, centred: bool = True) -> float:
