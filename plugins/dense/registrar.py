@@ -6,7 +6,7 @@
    identity, from the shift of the median point and from the flow's motion.
 3. Local motions, seeded from the paper's grid cells (edge x = diameter / ``cells_per_diameter``):
    each cell's flow motion (or the object's), refined by ICP on the cell's points; all cells at once.
-4. Every hypothesis is scored on every point (:func:`~.projective.look`, and the flow), and the
+4. Every hypothesis is scored on every point (:func:`~.projective.look_all`, and the flow), and the
    motions a default selection picks are refitted on the points they explain; a motion is also fitted
    to the points none of them explains (a part that spans several cells). Near-copies are dropped.
 5. The hypotheses are scored the other way round too: every target point, moved by each motion's
@@ -29,7 +29,7 @@ from artclass_core.types import SURFACE
 
 from .flow import flow_targets
 from .image import noise_m
-from .projective import Target, icp, look, robust_kabsch
+from .projective import Target, icp, look_all, robust_kabsch
 from .rule import DenseRuleParams, point_costs, regions, select
 
 _MIN_FLOW_MATCHES = 6
@@ -237,8 +237,7 @@ def _distinct(hyps: list, names: list, points: np.ndarray, tolerance_m: float) -
 
 
 def _look_all(hyps: list, points: np.ndarray, tgt: Target, reach: np.ndarray):
-    out = [look(transform(points, T), tgt, reach_m=reach, off_object_px=2.0) for T in hyps]
-    return np.stack([s for s, _ in out]), np.stack([r for _, r in out])
+    return look_all(np.stack(hyps), points, tgt, reach_m=reach, off_object_px=2.0)
 
 
 def _flow_errors(hyps: list, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray, tgt: Target) -> np.ndarray:
