@@ -15,7 +15,8 @@ from artclass_core import Frame, Intrinsics
 from artclass_core.geometry import transform
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
 from artclass_plugins.dense.image import ImagePreprocessor
-from artclass_plugins.dense.projective import Target, icp, look_all
+from artclass_plugins.dense.projective import NEAR_MASK_PX, Target, _outside, flow_misfit, icp, look_all
+from artclass_plugins.dense.registrar import _distinct
 
 INTR = Intrinsics(fx=300.0, fy=300.0, cx=159.5, cy=119.5, width=320, height=240)
 DEPTH_M = 0.7
@@ -213,3 +214,46 @@ def test_icp_recovers_a_known_motion(pair, use_flow):
     error = np.linalg.norm(transform(source.points, T[0]) - transform(source.points, T_true), axis=1)
     assert error.max() < 5e-4
     assert inliers[0] > 0.8 * len(source)
+
+
+def test_flow_misfit_equals_the_numpy_reference(pair):
+    source, _, T_true = pair
+    flow, across = _flow(source, T_true, np.random.default_rng(2))
+    motions = np.stack([np.eye(4), T_true, _motion(angle_deg=-4.0)])
+    misfit = flow_misfit(motions, source.points, flow, across, INTR)
+    edge = np.isfinite(across[:, 0])
+    for h, T in enumerate(motions):
+        moved = transform(source.points, T)
+        d = np.column_stack([INTR.fx * moved[:, 0] / moved[:, 2] + INTR.cx - flow[:, 0],
+                             INTR.fy * moved[:, 1] / moved[:, 2] + INTR.cy - flow[:, 1]])
+        ref = np.where(edge, np.abs(np.sum(d * np.nan_to_num(across), axis=1)), np.hypot(d[:, 0], d[:, 1]))
+        np.testing.assert_allclose(misfit[h], ref, rtol=1e-6, atol=1e-6)
+    assert np.nanmedian(misfit[1]) < 2.0 < np.nanmedian(misfit[0])   # the true motion matches the flow
+
+
+def test_distance_to_the_mask_is_exact_near_it():
+    rng = np.random.default_rng(3)
+    mask = np.zeros((120, 160), bool)
+    mask[30:70, 50:90] = rng.random((40, 40)) < 0.7
+    mask[0:5, 150:160] = True                        # touching the image border
+    full = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 3)
+    near = full <= NEAR_MASK_PX
+    np.testing.assert_allclose(_outside(mask)[near], full[near], atol=1e-5)
+    assert (_outside(mask)[~near] > NEAR_MASK_PX).all()
+    assert np.isinf(_outside(np.zeros((10, 10), bool))).all()
+
+
+def test_near_copies_are_dropped_as_by_their_point_distances():
+    rng = np.random.default_rng(4)
+    points = rng.normal([0, 0, 0.7], 0.05, (500, 3))
+    hyps = [np.eye(4)] + [_motion(angle_deg=a, shift_m=(s, 0, 0)) for a, s in
+                          [(0.05, 0.0), (1.0, 0.0), (0.0, 0.0005), (0.0, 0.003), (2.0, 0.01), (2.01, 0.01)]]
+    sample = points[:: max(1, len(points) // 200)]
+    moved = [transform(sample, T) for T in hyps]
+    keep: list[int] = []
+    for i in range(len(hyps)):
+        if not keep or min(np.sqrt(np.mean(np.sum((moved[i] - moved[j]) ** 2, axis=1))) for j in keep) > 0.001:
+            keep.append(i)
+    kept, names = _distinct(hyps, [str(i) for i in range(len(hyps))], points, 0.001)
+    assert names == [str(i) for i in keep]
+    assert 2 < len(keep) < len(hyps)

@@ -56,6 +56,17 @@ def noise_m(depth_m: np.ndarray | float, at_1m: float) -> np.ndarray | float:
     return at_1m * np.square(depth_m)
 
 
+def bounding_box(mask: np.ndarray, *, margin_px: int = 0) -> tuple[tuple[int, int], tuple[int, int]] | None:
+    """Rows (first, last + 1) and columns (first, last + 1) of a mask's pixels, widened by
+    ``margin_px`` on every side within the image; None for an empty mask."""
+    u, v, w, h = cv2.boundingRect(mask.view(np.uint8) if mask.dtype == bool else mask.astype(np.uint8))
+    if w == 0:
+        return None
+    rows, cols = mask.shape[:2]
+    return ((max(v - margin_px, 0), min(v + h + margin_px, rows)),
+            (max(u - margin_px, 0), min(u + w + margin_px, cols)))
+
+
 def vertex_map(depth_m: np.ndarray, intrinsics: Intrinsics, *, u0: int = 0, v0: int = 0) -> np.ndarray:
     """Back-projected points (H, W, 3) of a depth image whose top-left pixel is (``u0``, ``v0``)."""
     h, w = depth_m.shape
@@ -149,18 +160,16 @@ class ImagePreprocessor(Preprocessor):
         raw = np.where(np.isfinite(frame.depth_m), frame.depth_m, 0).astype(np.float32)
         mask = mask.astype(bool)
         px = p.edge_px if p.edge_px is not None else max(1, round(intrinsics.width / 160))
-        inner = peel(mask, px) if px else mask
-        valid = inner & (raw > 0)
-        gray = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
-        empty = Cloud(frame.index, np.zeros((0, 3)), np.zeros((0, 3)), dict(n_raw=int(valid.sum())),
-                      colors=np.zeros((0, 3)), pixels=np.zeros((0, 2), int))
-        if valid.sum() < MIN_POINTS:
-            return empty
-        rows, cols = np.nonzero(valid)
-        margin = 3 + p.smoothing_px
-        v0, v1 = max(rows.min() - margin, 0), min(rows.max() + margin + 1, raw.shape[0])
-        u0, u1 = max(cols.min() - margin, 0), min(cols.max() + margin + 1, raw.shape[1])
-        crop, inside = raw[v0:v1, u0:u1], valid[v0:v1, u0:u1]
+        # Everything below works on the mask's bounding box, with a margin wider than the filters reach.
+        box = bounding_box(mask, margin_px=4 + p.smoothing_px)
+        if box is None:
+            return _empty(frame.index, 0)
+        (v0, v1), (u0, u1) = box
+        crop, inner = raw[v0:v1, u0:u1], mask[v0:v1, u0:u1]
+        inside = (peel(inner, px) if px else inner) & (crop > 0)
+        n_raw = int(np.count_nonzero(inside))
+        if n_raw < MIN_POINTS:
+            return _empty(frame.index, n_raw)
         footprint = crop / intrinsics.fx
         sigma = max(measured_noise(crop, inside), float(noise_m(np.median(crop[inside]), p.depth_noise_m)))
         tolerance = p.outlier_sigmas * sigma + footprint
@@ -170,7 +179,7 @@ class ImagePreprocessor(Preprocessor):
         usable = (depth > 0) & normals.any(axis=-1)
         n_usable = int(usable.sum())
         if n_usable < MIN_POINTS:
-            return empty
+            return _empty(frame.index, n_raw)
         stride = max(1, int(np.ceil(np.sqrt(n_usable / p.max_points))))
         grid = np.zeros_like(usable)
         grid[(-v0) % stride::stride, (-u0) % stride::stride] = True
@@ -181,12 +190,19 @@ class ImagePreprocessor(Preprocessor):
         full_normals = np.zeros(raw.shape + (3,), np.float32)
         full_normals[v0:v1, u0:u1] = normals
         pixels = np.column_stack([cc + u0, rr + v0])
-        view = View(gray, full_depth, intrinsics, raw, mask=mask, normals=full_normals)
-        info = dict(n_raw=int(valid.sum()), n_inliers=n_usable, n_points=len(points), stride_px=stride,
+        view = View(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY), full_depth, intrinsics, raw, mask=mask,
+                    normals=full_normals)
+        info = dict(n_raw=n_raw, n_inliers=n_usable, n_points=len(points), stride_px=stride,
                     edge_px=px, diameter_m=_extent(points), depth_m=float(np.median(points[:, 2])),
                     noise_m=sigma, smoothed_noise_m=sigma / (2 * p.smoothing_px + 1))
         return Cloud(frame.index, points, normals[rr, cc].astype(np.float64), info,
                      colors=frame.rgb[rr + v0, cc + u0].astype(np.float64) / 255.0, view=view, pixels=pixels)
+
+
+def _empty(index: int, n_raw: int) -> Cloud:
+    """The cloud of a frame with too few usable pixels."""
+    return Cloud(index, np.zeros((0, 3)), np.zeros((0, 3)), dict(n_raw=n_raw), colors=np.zeros((0, 3)),
+                 pixels=np.zeros((0, 2), int))
 
 
 def _extent(points: np.ndarray) -> float:

@@ -18,10 +18,14 @@ from numba import njit
 from artclass_core import ArtclassError, Cloud, Intrinsics
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
 
+from .image import bounding_box
+
 # Gauss-Newton damping, relative to the trace of the normal equations: keeps the step of a group whose
 # points cannot fix all six degrees of freedom (a flat patch slides in its plane) small and unique.
 _DAMPING = 1e-6
 COARSE_THINNING = 4
+# How far from the object's mask the target's distance image is exact (pixels).
+NEAR_MASK_PX = 8
 
 
 @dataclass
@@ -32,7 +36,7 @@ class Target:
     scene_m: np.ndarray        # (H, W) the whole frame's depth, 0 = none
     object_m: np.ndarray       # (H, W) the object's filtered depth, 0 outside it
     normals: np.ndarray        # (H, W, 3) normals of object_m's pixels, 0 = none
-    outside_px: np.ndarray     # (H, W) distance to the object's mask, 0 inside
+    outside_px: np.ndarray     # (H, W) distance to the object's mask, 0 inside, inf far from it
 
     @classmethod
     def of(cls, cloud: Cloud) -> "Target":
@@ -40,8 +44,17 @@ class Target:
         if view is None or view.normals is None or view.mask is None:
             raise ArtclassError("the dense registrar needs clouds that keep their image (pixels, normals and mask), "
                                 "as the 'image' preprocessor gives; use it, or a per-cell registrar")
-        outside = cv2.distanceTransform((~view.mask).astype(np.uint8), cv2.DIST_L2, 3)
-        return cls(view.intrinsics, view.scene_depth_m, view.depth_m, view.normals, outside)
+        return cls(view.intrinsics, view.scene_depth_m, view.depth_m, view.normals, _outside(view.mask))
+
+
+def _outside(mask: np.ndarray) -> np.ndarray:
+    """Distance (pixels, float32) of each pixel to the mask: exact up to ``NEAR_MASK_PX``, inf beyond."""
+    out = np.full(mask.shape, np.inf, np.float32)
+    box = bounding_box(mask, margin_px=NEAR_MASK_PX)
+    if box is not None:
+        (v0, v1), (u0, u1) = box
+        out[v0:v1, u0:u1] = cv2.distanceTransform((~mask[v0:v1, u0:u1]).astype(np.uint8), cv2.DIST_L2, 3)
+    return out
 
 
 def look_all(motions: np.ndarray, points: np.ndarray, target: Target, *, reach_m: np.ndarray,
@@ -68,6 +81,30 @@ def look_all(motions: np.ndarray, points: np.ndarray, target: Target, *, reach_m
                  target.scene_m, target.object_m, target.normals, target.outside_px, _camera(target.intrinsics),
                  np.ascontiguousarray(reach_m, np.float64), float(off_object_px), status, residual)
     return status, residual
+
+
+def flow_misfit(motions: np.ndarray, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray,
+                intrinsics: Intrinsics) -> np.ndarray:
+    """How far (pixels) from where optical flow took each point each motion projects it.
+
+    Parameters
+    ----------
+    motions : (H, 4, 4) ``T_target_from_source`` of each hypothesis
+    points : (N, 3) source points, metres
+    flow_px, across : (N, 2) where the flow takes each point, and the direction across the edge at an
+        edge point; NaN where unknown (see :mod:`.flow`)
+    intrinsics : the target camera
+
+    Returns
+    -------
+    (H, N) float32: the distance, or at an edge point its component across the edge; NaN where the
+    flow is unknown
+    """
+    out = np.empty((len(motions), len(points)), np.float32)
+    _flow_kernel(np.ascontiguousarray(motions, np.float64), np.ascontiguousarray(points, np.float64),
+                 np.ascontiguousarray(flow_px, np.float64), np.ascontiguousarray(across, np.float64),
+                 _camera(intrinsics), out)
+    return out
 
 
 def icp(points: np.ndarray, groups: np.ndarray, T: np.ndarray, target: Target, *, reach_m: list[float],
@@ -186,6 +223,22 @@ def _look_kernel(motions, points, scene, depth, normals, outside, camera, reach,
                 status[k, i] = SURFACE
                 plane = _plane_residual(q0, q1, q2, u, v, depth, normals, camera)
                 residual[k, i] = -gap if np.isnan(plane) else plane
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _flow_kernel(motions, points, flow_px, across, camera, out):
+    for k in range(motions.shape[0]):
+        for i in range(points.shape[0]):
+            out[k, i] = np.nan
+            if not (np.isfinite(flow_px[i, 0]) and np.isfinite(flow_px[i, 1])):
+                continue
+            q0, q1, q2 = _moved(motions[k], points[i, 0], points[i, 1], points[i, 2])
+            du = camera[0] * q0 / q2 + camera[2] - flow_px[i, 0]
+            dv = camera[1] * q1 / q2 + camera[3] - flow_px[i, 1]
+            if np.isfinite(across[i, 0]):
+                out[k, i] = abs(du * across[i, 0] + dv * across[i, 1])
+            else:
+                out[k, i] = np.hypot(du, dv)
 
 
 @njit(cache=True, nogil=True)

@@ -29,7 +29,7 @@ from artclass_core.types import SURFACE
 
 from .flow import flow_targets
 from .image import noise_m
-from .projective import Target, icp, look_all, robust_kabsch
+from .projective import Target, flow_misfit, icp, look_all, robust_kabsch
 from .rule import DenseRuleParams, point_costs, regions, select
 
 _MIN_FLOW_MATCHES = 6
@@ -226,9 +226,12 @@ def _distinct(hyps: list, names: list, points: np.ndarray, tolerance_m: float) -
     """The hypotheses without near-copies: a motion that puts every point within ``tolerance_m`` (RMS)
     of where an earlier one does is dropped."""
     sample = points[:: max(1, len(points) // 200)]
-    T = np.stack(hyps)
-    moved = np.einsum("hij,nj->hni", T[:, :3, :3], sample) + T[:, None, :3, 3]           # (H, S, 3)
-    rms = np.sqrt(np.mean(np.sum(np.square(moved[:, None] - moved[None]), axis=-1), axis=-1))   # (H, H)
+    x = np.column_stack([sample, np.ones(len(sample))])
+    moment = x.T @ x / len(x)                                          # (4, 4) second moment
+    T = np.stack(hyps)[:, :3]
+    D = T[:, None] - T[None]                                           # (H, H, 3, 4)
+    # The mean of |(T_i - T_j) x|^2 over the sample, from its second moment.
+    rms = np.sqrt(np.maximum(np.einsum("ijak,kl,ijal->ij", D, moment, D), 0))
     keep: list[int] = []
     for i in range(len(hyps)):
         if not keep or rms[i, keep].min() > tolerance_m:
@@ -243,14 +246,4 @@ def _look_all(hyps: list, points: np.ndarray, tgt: Target, reach: np.ndarray):
 def _flow_errors(hyps: list, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray, tgt: Target) -> np.ndarray:
     """Distance (H, N) in pixels between where each motion and where the flow put each point (across
     the edge only, at an edge point)."""
-    K = tgt.intrinsics
-    out = np.full((len(hyps), len(points)), np.nan, np.float32)
-    known = np.isfinite(flow_px).all(axis=1)
-    if not known.any():
-        return out
-    edge = np.isfinite(across[known, 0])
-    for h, T in enumerate(hyps):
-        u, v = K.pixels(transform(points[known], T))
-        d = np.column_stack([u - flow_px[known, 0], v - flow_px[known, 1]])
-        out[h, known] = np.where(edge, np.abs(np.sum(d * np.nan_to_num(across[known]), axis=1)), np.hypot(d[:, 0], d[:, 1]))
-    return out
+    return flow_misfit(np.stack(hyps), points, flow_px, across, tgt.intrinsics)
