@@ -7,6 +7,8 @@ textured by its own coordinates (so optical flow can follow it), in front of a w
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -16,7 +18,7 @@ from artclass_core.geometry import transform
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
 from artclass_plugins.dense.image import ImagePreprocessor
 from artclass_plugins.dense.projective import NEAR_MASK_PX, Target, _outside, flow_misfit, icp, look_all
-from artclass_plugins.dense.registrar import _distinct
+from artclass_plugins.dense.registrar import DenseRegistrar, _distinct
 
 INTR = Intrinsics(fx=300.0, fy=300.0, cx=159.5, cy=119.5, width=320, height=240)
 DEPTH_M = 0.7
@@ -257,3 +259,17 @@ def test_near_copies_are_dropped_as_by_their_point_distances():
     kept, names = _distinct(hyps, [str(i) for i in range(len(hyps))], points, 0.001)
     assert names == [str(i) for i in keep]
     assert 2 < len(keep) < len(hyps)
+
+
+def test_the_sensor_noise_is_one_parameter_of_the_preprocessor():
+    """The registrar judges reach by the noise the preprocessor was given, not a second setting."""
+    assert "depth_noise_m" not in {f.name for f in dataclasses.fields(DenseRegistrar.Params)}
+    frames = [_frame(np.eye(4), 0), _frame(_motion(), 1)]
+    evidence = []
+    for at_1m in (0.0015, 0.015):
+        pre = ImagePreprocessor(ImagePreprocessor.Params(depth_noise_m=at_1m, max_points=1500))
+        a, b = (pre.process(f, f.mask, intrinsics=INTR) for f in frames)
+        assert a.info["depth_noise_m"] == at_1m
+        evidence.append(DenseRegistrar(DenseRegistrar.Params()).register_pair(a, b))
+    surface = [np.mean(ev.status[0] == SURFACE) for ev in evidence]    # the identity hypothesis
+    assert surface[1] > surface[0] + 0.05                           # a wider reach finds more surface

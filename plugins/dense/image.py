@@ -14,7 +14,9 @@ frame costs a few milliseconds at 640x480 and keeps, for every point, the pixel 
 
 The depth noise is measured on every frame (``info["noise_m"]``: the robust spread of the pixels
 about their neighbourhood's median, never below the sensor model), and so is what is left of it after
-smoothing (``info["smoothed_noise_m"]``: the smoothing averages about (2 r + 1)^2 pixels).
+smoothing (``info["smoothed_noise_m"]``: the smoothing averages about (2 r + 1)^2 pixels). The sensor
+model itself (``depth_noise_m``, the noise at 1 m) goes with the cloud (``info["depth_noise_m"]``) for
+the registration.
 
 The cloud's :class:`~artclass_core.types.View` keeps the full-resolution filtered depth, normals and
 mask, which is what a projective (KinectFusion-style) registration of the next frame looks up.
@@ -36,7 +38,9 @@ MIN_POINTS = 10
 class ImageParams(Params):
     depth_noise_m: float = param(0.0015, unit="m", bounds=(1e-5, 0.05),
                                  help="Depth noise (one standard deviation) of the sensor at 1 m; it grows with "
-                                      "the square of the depth (structured-light and stereo sensors).")
+                                      "the square of the depth (structured-light and stereo sensors). The floor of "
+                                      "the noise measured on each frame and pair, and the scale of the registration's "
+                                      "reach.")
     outlier_sigmas: float = param(3.0, symbol="s", unit="sigma", bounds=(0.5, 20.0),
                                   help="Drop a pixel whose depth is more than this many noise sigmas (plus one "
                                        "pixel's footprint) from the median of its 5x5 neighbourhood.")
@@ -194,7 +198,7 @@ class ImagePreprocessor(Preprocessor):
                     normals=full_normals)
         info = dict(n_raw=n_raw, n_inliers=n_usable, n_points=len(points), stride_px=stride,
                     edge_px=px, diameter_m=_extent(points), depth_m=float(np.median(points[:, 2])),
-                    noise_m=sigma, smoothed_noise_m=sigma / (2 * p.smoothing_px + 1))
+                    noise_m=sigma, smoothed_noise_m=sigma / (2 * p.smoothing_px + 1), depth_noise_m=p.depth_noise_m)
         return Cloud(frame.index, points, normals[rr, cc].astype(np.float64), info,
                      colors=frame.rgb[rr + v0, cc + u0].astype(np.float64) / 255.0, view=view, pixels=pixels)
 

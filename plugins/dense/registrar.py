@@ -28,7 +28,7 @@ from artclass_core.geometry import transform
 from artclass_core.types import SURFACE
 
 from .flow import flow_targets
-from .image import noise_m
+from .image import ImageParams, noise_m
 from .projective import Target, flow_misfit, icp, look_all, robust_kabsch
 from .rule import DenseRuleParams, point_costs, regions, select
 
@@ -37,11 +37,9 @@ _MIN_FLOW_MATCHES = 6
 
 @dataclass(frozen=True)
 class DenseParams(Params):
-    depth_noise_m: float = param(0.0015, unit="m", bounds=(1e-5, 0.05),
-                                 help="Depth noise (one sigma) of the sensor at 1 m, growing with the depth squared: "
-                                      "the floor of the noise measured on each pair, and the scale of ICP's reach.")
     reach_sigmas: float = param(10.0, unit="sigma", bounds=(1.0, 100.0),
-                                help="A moved point within this many noise sigmas (plus two pixels) of the observed "
+                                help="A moved point within this many sensor noise sigmas (the preprocessor's "
+                                     "depth_noise_m at its depth) plus two pixels of the observed "
                                      "depth is on that surface; farther in front, it is hidden; farther behind, "
                                      "the camera sees through where it should be.")
     cells_per_diameter: float = param(5.0, unit="1", bounds=(1.0, 50.0),
@@ -73,8 +71,8 @@ class DenseRegistrar(PairRegistrar):
         points = source.points
         depth = float(np.median(points[:, 2]))
         pixel_m = depth / tgt.intrinsics.fx
-        sigma0 = float(noise_m(depth, p.depth_noise_m))
-        reach = self._reach(points, tgt.intrinsics.fx)
+        sigma0 = float(noise_m(depth, _sensor_noise(source)))
+        reach = self._reach(source, tgt.intrinsics.fx)
         fine = 4 * sigma0 + 2 * pixel_m
         size = float(np.linalg.norm(np.ptp(points, axis=0)))
         coarse = [max(size / d, fine) for d in (4, 4, 8, 8, 16, 16, 32)] + [fine] * 3
@@ -130,7 +128,7 @@ class DenseRegistrar(PairRegistrar):
         # The other way round: each target point moved by each motion's inverse onto the source image.
         back = Target.of(source)
         inverse = [np.linalg.inv(T) for T in hyps]
-        status_back, residual_back = _look_all(inverse, target.points, back, self._reach(target.points, back.intrinsics.fx))
+        status_back, residual_back = _look_all(inverse, target.points, back, self._reach(target, back.intrinsics.fx))
         info = dict(stride_px=int(source.info.get("stride_px", 1)), n_flow=int(matched.sum()),
                     n_points=len(points), seconds=round(time.perf_counter() - t0, 4))
         return MotionEvidence(np.stack(hyps), names, np.hstack([residual, residual_back]),
@@ -139,10 +137,11 @@ class DenseRegistrar(PairRegistrar):
                               np.vstack([points, target.points]), np.vstack([source.pixels, target.pixels]),
                               pixel_m, info, n_source=len(points))
 
-    def _reach(self, points: np.ndarray, fx: float) -> np.ndarray:
-        """How far from the observed depth each moved point still counts as on that surface (metres):
-        ``reach_sigmas`` noise sigmas at its depth, plus two pixels."""
-        return self.params.reach_sigmas * noise_m(points[:, 2], self.params.depth_noise_m) + 2 * points[:, 2] / fx
+    def _reach(self, cloud: Cloud, fx: float) -> np.ndarray:
+        """How far from the observed depth each moved point of ``cloud`` still counts as on that surface
+        (metres): ``reach_sigmas`` sensor noise sigmas at its depth, plus two pixels."""
+        z = cloud.points[:, 2]
+        return self.params.reach_sigmas * noise_m(z, _sensor_noise(cloud)) + 2 * z / fx
 
     def _refits(self, ev: MotionEvidence, fit: "_Fit", rule: DenseRuleParams, round_: int,
                 reach: list[float]) -> tuple[list, list]:
@@ -178,6 +177,11 @@ class DenseRegistrar(PairRegistrar):
         groups = np.repeat(np.arange(len(members)), [len(m) for m in members])
         T = fit(ev.points, index, groups, np.stack(inits), reach)
         return list(T), [f"refit {round_}.{g}" for g in range(len(T))]
+
+
+def _sensor_noise(cloud: Cloud) -> float:
+    """The sensor's depth noise at 1 m (metres) that the preprocessor assumed for ``cloud``."""
+    return float(cloud.info.get("depth_noise_m", ImageParams.depth_noise_m))
 
 
 def _flow_points(flow_px: np.ndarray, tgt: Target) -> tuple[np.ndarray, np.ndarray]:
