@@ -127,7 +127,7 @@ class DenseRegistrar(PairRegistrar):
             flow_err = np.vstack([flow_err, _flow_errors(hyps[n_before:], points, flow_px, across, tgt)])
         # The other way round: each target point moved by each motion's inverse onto the source image.
         back = Target.of(source)
-        inverse = [np.linalg.inv(T) for T in hyps]
+        inverse = np.linalg.inv(np.stack(hyps))
         status_back, residual_back = _look_all(inverse, target.points, back, self._reach(target, back.intrinsics.fx))
         info = dict(stride_px=int(source.info.get("stride_px", 1)), n_flow=int(matched.sum()),
                     n_points=len(points), seconds=round(time.perf_counter() - t0, 4))
@@ -218,7 +218,10 @@ class _Fit:
 def _cells(points: np.ndarray, size_m: float, min_points: int) -> np.ndarray:
     """Cell number (0..C-1) of each point on a grid of ``size_m``, -1 in cells with too few points."""
     keys = np.floor((points - points.min(axis=0)) / max(size_m, 1e-6)).astype(np.int64)
-    _, cell, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    span = keys.max(axis=0) + 1
+    # One integer per cell, in the order of its (x, y, z) keys: np.unique of rows is much slower.
+    key = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    _, cell, counts = np.unique(key, return_inverse=True, return_counts=True)
     cell = cell.ravel()
     big = counts >= min_points
     number = np.full(len(counts), -1)
