@@ -17,13 +17,10 @@ import numpy as np
 
 from artclass_core import Cloud
 
+from .image import bounding_box
+
 FLOW_WIDTH_PX = 320
 _MARGIN_PX = 24
-
-
-def _box(mask: np.ndarray) -> tuple[int, int, int, int]:
-    rows, cols = np.nonzero(mask)
-    return rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
 
 
 def structure(gray: np.ndarray, *, window_px: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -51,10 +48,11 @@ def flow_targets(source: Cloud, target: Cloud, *, min_texture: float,
     a, b = source.view, target.view
     out = np.full((len(source), 2), np.nan)
     normal = np.full((len(source), 2), np.nan)
-    if a is None or b is None or a.mask is None or b.mask is None or not a.mask.any() or not b.mask.any():
+    boxes = [bounding_box(v.mask) for v in (a, b) if v is not None and v.mask is not None]
+    if len(boxes) < 2 or None in boxes:
         return out, normal
     h, w = a.gray.shape
-    (r0, r1, c0, c1), (s0, s1, d0, d1) = _box(a.mask), _box(b.mask)
+    ((r0, r1), (c0, c1)), ((s0, s1), (d0, d1)) = boxes
     r0, c0 = max(min(r0, s0) - _MARGIN_PX, 0), max(min(c0, d0) - _MARGIN_PX, 0)
     r1, c1 = min(max(r1, s1) + _MARGIN_PX, h), min(max(c1, d1) + _MARGIN_PX, w)
     scale = min(1.0, FLOW_WIDTH_PX / max(c1 - c0, 1))

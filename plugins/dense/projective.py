@@ -2,8 +2,8 @@
 
 This is the association of KinectFusion (Newcombe et al. 2011) and of Open3D's RGB-D odometry: no
 k-d tree, one image look-up per point. It gives both the point-to-plane ICP of any number of point
-groups at once (:func:`icp`) and, for a motion hypothesis, what each moved point finds in the
-target image (:func:`look`): the surface, something in front of it (occluded), nothing where it
+groups at once (:func:`icp`) and, for each motion hypothesis, what each moved point finds in the
+target image (:func:`look_all`): the surface, something in front of it (occluded), nothing where it
 should be (free space), or a surface that is not the object.
 """
 
@@ -13,16 +13,19 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.sparse import csr_matrix
+from numba import njit
 
 from artclass_core import ArtclassError, Cloud, Intrinsics
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
+
+from .image import bounding_box
 
 # Gauss-Newton damping, relative to the trace of the normal equations: keeps the step of a group whose
 # points cannot fix all six degrees of freedom (a flat patch slides in its plane) small and unique.
 _DAMPING = 1e-6
 COARSE_THINNING = 4
-_UPPER = np.triu_indices(6)
+# How far from the object's mask the target's distance image is exact (pixels).
+NEAR_MASK_PX = 8
 
 
 @dataclass
@@ -33,7 +36,7 @@ class Target:
     scene_m: np.ndarray        # (H, W) the whole frame's depth, 0 = none
     object_m: np.ndarray       # (H, W) the object's filtered depth, 0 outside it
     normals: np.ndarray        # (H, W, 3) normals of object_m's pixels, 0 = none
-    outside_px: np.ndarray     # (H, W) distance to the object's mask, 0 inside
+    outside_px: np.ndarray     # (H, W) distance to the object's mask, 0 inside, inf far from it
 
     @classmethod
     def of(cls, cloud: Cloud) -> "Target":
@@ -41,99 +44,67 @@ class Target:
         if view is None or view.normals is None or view.mask is None:
             raise ArtclassError("the dense registrar needs clouds that keep their image (pixels, normals and mask), "
                                 "as the 'image' preprocessor gives; use it, or a per-cell registrar")
-        outside = cv2.distanceTransform((~view.mask).astype(np.uint8), cv2.DIST_L2, 3)
-        return cls(view.intrinsics, view.scene_depth_m, view.depth_m, view.normals, outside)
+        return cls(view.intrinsics, view.scene_depth_m, view.depth_m, view.normals, _outside(view.mask))
 
 
-def _project(points: np.ndarray, intr: Intrinsics, shape: tuple[int, int]):
-    """Nearest pixel (column, row) of each point, and whether it falls in the image in front of the camera."""
-    z = points[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.rint(intr.fx * points[:, 0] / z + intr.cx)
-        v = np.rint(intr.fy * points[:, 1] / z + intr.cy)
-    inside = (z > 0) & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
-    return np.where(inside, u, 0).astype(np.intp), np.where(inside, v, 0).astype(np.intp), inside
+def _outside(mask: np.ndarray) -> np.ndarray:
+    """Distance (pixels, float32) of each pixel to the mask: exact up to ``NEAR_MASK_PX``, inf beyond."""
+    out = np.full(mask.shape, np.inf, np.float32)
+    box = bounding_box(mask, margin_px=NEAR_MASK_PX)
+    if box is not None:
+        (v0, v1), (u0, u1) = box
+        out[v0:v1, u0:u1] = cv2.distanceTransform((~mask[v0:v1, u0:u1]).astype(np.uint8), cv2.DIST_L2, 3)
+    return out
 
 
-def _surface_residual(moved: np.ndarray, target: Target, u: np.ndarray, v: np.ndarray):
-    """Signed point-to-plane distance of each moved point to the object surface at its pixel, and
-    whether the pixel has that surface (depth and normal)."""
-    z = target.object_m[v, u]
-    n = target.normals[v, u]
-    has = (z > 0) & n.any(axis=1)
-    K = target.intrinsics
-    y = np.column_stack([(u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z])
-    return np.einsum("ij,ij->i", moved - y, n), has
-
-
-def look(moved: np.ndarray, target: Target, *, reach_m: np.ndarray, off_object_px: float):
-    """What each moved point finds at its target pixel.
+def look_all(motions: np.ndarray, points: np.ndarray, target: Target, *, reach_m: np.ndarray,
+             off_object_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """What each source point, moved by each motion hypothesis, finds at its target pixel.
 
     Parameters
     ----------
-    moved : (N, 3) source points moved by a hypothesis, metres
+    motions : (H, 4, 4) ``T_target_from_source`` of each hypothesis
+    points : (N, 3) source points, metres
     target : the target frame
     reach_m : (N,) how far from the observed depth a point still counts as on a surface
     off_object_px : a point on a surface farther than this from the object's mask is off the object
 
     Returns
     -------
-    status : (N,) int8, one of SURFACE, OCCLUDED, FREE_SPACE, OFF_OBJECT, UNSEEN
-    residual_m : (N,) float32, the point-to-plane (or, without a normal, along-the-ray) distance of the
-        SURFACE points; NaN elsewhere
+    status : (H, N) int8, one of SURFACE, OCCLUDED, FREE_SPACE, OFF_OBJECT, UNSEEN
+    residual_m : (H, N) float32, the point-to-plane (or, without a normal, along-the-ray) distance of
+        the SURFACE points; NaN elsewhere
     """
-    u, v, inside = _project(moved, target.intrinsics, target.scene_m.shape)
-    scene = np.where(inside, target.scene_m[v, u], 0)
-    seen = inside & (scene > 0)
-    gap = scene - moved[:, 2]
-    status = np.full(len(moved), UNSEEN, np.int8)
-    status[seen & (gap < -reach_m)] = OCCLUDED
-    status[seen & (gap > reach_m)] = FREE_SPACE
-    near = seen & (np.abs(gap) <= reach_m)
-    off = near & (target.outside_px[v, u] > off_object_px)
-    status[off] = OFF_OBJECT
-    on = near & ~off
-    status[on] = SURFACE
-    plane, has = _surface_residual(moved, target, u, v)
-    residual = np.where(on, np.where(has, plane, -gap), np.nan).astype(np.float32)
+    status = np.empty((len(motions), len(points)), np.int8)
+    residual = np.empty((len(motions), len(points)), np.float32)
+    _look_kernel(np.ascontiguousarray(motions, np.float64), np.ascontiguousarray(points, np.float64),
+                 target.scene_m, target.object_m, target.normals, target.outside_px, _camera(target.intrinsics),
+                 np.ascontiguousarray(reach_m, np.float64), float(off_object_px), status, residual)
     return status, residual
 
 
-def _rotations(omega: np.ndarray) -> np.ndarray:
-    """Rotation matrices (G, 3, 3) of rotation vectors (G, 3) (Rodrigues)."""
-    out = np.empty((len(omega), 3, 3))
-    for g, w in enumerate(omega):
-        out[g] = cv2.Rodrigues(w)[0]
+def flow_misfit(motions: np.ndarray, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray,
+                intrinsics: Intrinsics) -> np.ndarray:
+    """How far (pixels) from where optical flow took each point each motion projects it.
+
+    Parameters
+    ----------
+    motions : (H, 4, 4) ``T_target_from_source`` of each hypothesis
+    points : (N, 3) source points, metres
+    flow_px, across : (N, 2) where the flow takes each point, and the direction across the edge at an
+        edge point; NaN where unknown (see :mod:`.flow`)
+    intrinsics : the target camera
+
+    Returns
+    -------
+    (H, N) float32: the distance, or at an edge point its component across the edge; NaN where the
+    flow is unknown
+    """
+    out = np.empty((len(motions), len(points)), np.float32)
+    _flow_kernel(np.ascontiguousarray(motions, np.float64), np.ascontiguousarray(points, np.float64),
+                 np.ascontiguousarray(flow_px, np.float64), np.ascontiguousarray(across, np.float64),
+                 _camera(intrinsics), out)
     return out
-
-
-def _moved(T: np.ndarray, groups: np.ndarray, points: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
-    """Each point moved by its group's motion (only the ``keep`` ones, if given)."""
-    if keep is not None:
-        groups, points = groups[keep], points[keep]
-    return np.einsum("nij,nj->ni", T[groups, :3, :3], points) + T[groups, :3, 3]
-
-
-def _flow_rows(moved: np.ndarray, groups: np.ndarray, flow_px: np.ndarray, across: np.ndarray,
-               intr: Intrinsics, metres_per_px: float):
-    """Optical-flow residuals of moved points as rows like point-to-plane ones: for each known flow,
-    the residual (metres-equivalent) and the gradient of the projected pixel (per metre of motion) of
-    the column and the row, or, at an edge point, of the component across the edge."""
-    known = np.isfinite(flow_px[:, 0]) & (moved[:, 2] > 0)
-    q, f, e, g = moved[known], flow_px[known], across[known], groups[known]
-    z = q[:, 2]
-    du = intr.fx * q[:, 0] / z + intr.cx - f[:, 0]
-    dv = intr.fy * q[:, 1] / z + intr.cy - f[:, 1]
-    zero = np.zeros_like(z)
-    gu = np.column_stack([intr.fx / z, zero, -intr.fx * q[:, 0] / z ** 2])
-    gv = np.column_stack([zero, intr.fy / z, -intr.fy * q[:, 1] / z ** 2])
-    edge = np.isfinite(e[:, 0])
-    full = ~edge
-    en = np.nan_to_num(e)
-    r = np.concatenate([du[full], dv[full], (du * en[:, 0] + dv * en[:, 1])[edge]])
-    grad = np.concatenate([gu[full], gv[full], (gu * en[:, :1] + gv * en[:, 1:])[edge]])
-    at = np.concatenate([q[full], q[full], q[edge]])
-    return r * metres_per_px, grad * metres_per_px, at, np.concatenate([g[full], g[full], g[edge]])
 
 
 def icp(points: np.ndarray, groups: np.ndarray, T: np.ndarray, target: Target, *, reach_m: list[float],
@@ -167,58 +138,224 @@ def icp(points: np.ndarray, groups: np.ndarray, T: np.ndarray, target: Target, *
     gets wrong. Residuals are weighted with Tukey's biweight at the iteration's reach. Depth alone
     cannot fix a motion that keeps a surface in place (a cylinder turning about its axis, a plane
     sliding in itself); the flow on its texture can, so both terms are solved together.
+
+    Coarse iterations (reach more than twice the last) use every ``COARSE_THINNING``-th point of a
+    group that has points to spare: the coarse motion needs few, as an image pyramid's coarse levels.
+    The loop over the points is compiled (Numba): one pass per iteration projects, looks up and sums
+    each group's normal equations, where numpy makes a dozen temporary arrays of the points.
     """
     T = np.array(T, dtype=np.float64, copy=True)
     G = len(T)
     count = np.bincount(groups, minlength=G)
     centre = np.stack([np.bincount(groups, points[:, d], minlength=G) for d in range(3)], 1) / np.maximum(count, 1)[:, None]
-    use_flow = flow_px is not None and metres_per_px > 0
-    # Coarse iterations (reach more than twice the last) use every COARSE_THINNING-th point of a group
-    # that has points to spare: the coarse motion needs few, as an image pyramid's coarse levels.
     order = np.argsort(groups, kind="stable")
     rank = np.empty(len(groups), int)
     rank[order] = np.arange(len(groups)) - np.repeat(np.cumsum(count) - count, count)
     thin = (rank % COARSE_THINNING == 0) | (count[groups] < 4 * COARSE_THINNING * min_points)
-    inliers = np.zeros(G, int)
-    for reach in reach_m:
-        if reach > 2 * reach_m[-1] and not thin.all():
-            moved, g_all, sub = _moved(T, groups, points, thin), groups[thin], thin
-        else:
-            moved, g_all, sub = _moved(T, groups, points), groups, slice(None)
-        u, v, inside = _project(moved, target.intrinsics, target.scene_m.shape)
-        r, has = _surface_residual(moved, target, u, v)
-        ok = inside & has & (np.abs(r) < reach)
-        r, grad, at, g = r[ok], target.normals[v[ok], u[ok]].astype(np.float64), moved[ok], g_all[ok]
-        inliers = np.bincount(g, minlength=G)
-        if use_flow:
-            fr, fgrad, fat, fg = _flow_rows(moved, g_all, flow_px[sub], across[sub], target.intrinsics, metres_per_px)
-            near = np.abs(fr) < reach
-            r, grad = np.concatenate([r, fr[near]]), np.concatenate([grad, fgrad[near]])
-            at, g = np.concatenate([at, fat[near]]), np.concatenate([g, fg[near]])
-        arm = at - (T[g, :3, :3] @ centre[g][..., None])[..., 0] - T[g, :3, 3]
-        J = np.concatenate([np.cross(arm, grad), grad], axis=1)          # (M, 6)
-        w = np.square(1 - np.square(r / reach))                           # Tukey biweight
-        # Per-group sums of w J^T J (its 21 distinct entries) and w J^T r: one sparse (G, M) by dense
-        # (M, 27) product.
-        terms = np.concatenate([J[:, _UPPER[0]] * J[:, _UPPER[1]], J * r[:, None]], axis=1)
-        sums = csr_matrix((w, (g, np.arange(len(g)))), shape=(G, len(g))) @ terms
-        A = np.zeros((G, 6, 6))
-        A[:, _UPPER[0], _UPPER[1]] = sums[:, :21]
-        A[:, _UPPER[1], _UPPER[0]] = sums[:, :21]
-        b = sums[:, 21:]
-        solvable = np.bincount(g, minlength=G) >= min_points
-        if not solvable.any():
-            break
-        A = A[solvable] + _DAMPING * np.einsum("gii->g", A[solvable])[:, None, None] * np.eye(6) + 1e-12 * np.eye(6)
-        x = -np.linalg.solve(A, b[solvable][..., None])[..., 0]
-        R = _rotations(x[:, :3])
-        step = np.tile(np.eye(4), (len(x), 1, 1))
-        step[:, :3, :3] = R
-        # A turn about the group's moved centroid c' followed by a shift: x -> R (x - c') + c' + t.
-        moved_centre = (T[solvable, :3, :3] @ centre[solvable][..., None])[..., 0] + T[solvable, :3, 3]
-        step[:, :3, 3] = moved_centre - (R @ moved_centre[..., None])[..., 0] + x[:, 3:]
-        T[solvable] = step @ T[solvable]
+    use_flow = flow_px is not None and metres_per_px > 0
+    unknown = np.full((len(points), 2), np.nan)
+    inliers = np.zeros(G, np.int64)
+    _icp_kernel(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(groups, np.int64), T, centre, thin,
+                np.asarray(reach_m, np.float64), target.object_m, target.normals, _camera(target.intrinsics),
+                np.ascontiguousarray(flow_px if use_flow else unknown, np.float64),
+                np.ascontiguousarray(across if use_flow else unknown, np.float64),
+                float(metres_per_px) if use_flow else 0.0, _DAMPING, int(min_points), inliers)
     return T, inliers
+
+
+def _camera(intr: Intrinsics) -> np.ndarray:
+    """fx, fy, cx, cy (pixels) as one array, for the compiled loops."""
+    return np.array([intr.fx, intr.fy, intr.cx, intr.cy], np.float64)
+
+
+@njit(cache=True, nogil=True)
+def _pixel(q0, q1, q2, camera, h, w):
+    """Nearest pixel (column, row) of a point, or (-1, -1) outside the image or behind the camera."""
+    if not q2 > 0:
+        return -1, -1
+    u = np.rint(camera[0] * q0 / q2 + camera[2])
+    v = np.rint(camera[1] * q1 / q2 + camera[3])
+    if u >= 0 and u < w and v >= 0 and v < h:
+        return int(u), int(v)
+    return -1, -1
+
+
+@njit(cache=True, nogil=True)
+def _plane_residual(q0, q1, q2, u, v, depth, normals, camera):
+    """Signed point-to-plane distance of a point to the object surface at pixel (u, v); NaN where the
+    pixel has no surface (depth and normal)."""
+    z = np.float64(depth[v, u])
+    n0, n1, n2 = np.float64(normals[v, u, 0]), np.float64(normals[v, u, 1]), np.float64(normals[v, u, 2])
+    if not (z > 0 and (n0 != 0 or n1 != 0 or n2 != 0)):
+        return np.nan
+    y0 = (u - camera[2]) / camera[0] * z
+    y1 = (v - camera[3]) / camera[1] * z
+    return (q0 - y0) * n0 + (q1 - y1) * n1 + (q2 - z) * n2
+
+
+@njit(cache=True, nogil=True)
+def _moved(T, p0, p1, p2):
+    """A point moved by the rigid motion T (4, 4)."""
+    return (T[0, 0] * p0 + T[0, 1] * p1 + T[0, 2] * p2 + T[0, 3],
+            T[1, 0] * p0 + T[1, 1] * p1 + T[1, 2] * p2 + T[1, 3],
+            T[2, 0] * p0 + T[2, 1] * p1 + T[2, 2] * p2 + T[2, 3])
+
+
+@njit(cache=True, nogil=True)
+def _look_kernel(motions, points, scene, depth, normals, outside, camera, reach, off_px, status, residual):
+    h, w = scene.shape
+    for k in range(motions.shape[0]):
+        for i in range(points.shape[0]):
+            q0, q1, q2 = _moved(motions[k], points[i, 0], points[i, 1], points[i, 2])
+            status[k, i] = UNSEEN
+            residual[k, i] = np.nan
+            u, v = _pixel(q0, q1, q2, camera, h, w)
+            if u < 0 or not scene[v, u] > 0:
+                continue
+            gap = np.float64(scene[v, u]) - q2
+            if gap < -reach[i]:
+                status[k, i] = OCCLUDED
+            elif gap > reach[i]:
+                status[k, i] = FREE_SPACE
+            elif outside[v, u] > off_px:
+                status[k, i] = OFF_OBJECT
+            else:
+                status[k, i] = SURFACE
+                plane = _plane_residual(q0, q1, q2, u, v, depth, normals, camera)
+                residual[k, i] = -gap if np.isnan(plane) else plane
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _flow_kernel(motions, points, flow_px, across, camera, out):
+    for k in range(motions.shape[0]):
+        for i in range(points.shape[0]):
+            out[k, i] = np.nan
+            if not (np.isfinite(flow_px[i, 0]) and np.isfinite(flow_px[i, 1])):
+                continue
+            q0, q1, q2 = _moved(motions[k], points[i, 0], points[i, 1], points[i, 2])
+            du = camera[0] * q0 / q2 + camera[2] - flow_px[i, 0]
+            dv = camera[1] * q1 / q2 + camera[3] - flow_px[i, 1]
+            if np.isfinite(across[i, 0]):
+                out[k, i] = abs(du * across[i, 0] + dv * across[i, 1])
+            else:
+                out[k, i] = np.hypot(du, dv)
+
+
+@njit(cache=True, nogil=True)
+def _add_row(A, b, g, a0, a1, a2, n0, n1, n2, r, reach):
+    """Add one residual row (point-to-plane or flow), Tukey-weighted at ``reach``, to group g's normal
+    equations: its gradient per metre of motion is n, its Jacobian [arm x n, n]."""
+    j = (a1 * n2 - a2 * n1, a2 * n0 - a0 * n2, a0 * n1 - a1 * n0, n0, n1, n2)
+    s = r / reach
+    weight = (1 - s * s) ** 2
+    for x in range(6):
+        wx = weight * j[x]
+        b[g, x] += wx * r
+        for y in range(x, 6):
+            A[g, x, y] += wx * j[y]
+
+
+@njit(cache=True, nogil=True)
+def _rotation(x0, x1, x2):
+    """Rotation matrix (3, 3) of a rotation vector (Rodrigues)."""
+    R = np.eye(3)
+    theta = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    if theta < 2.220446049250313e-16:
+        return R
+    k0, k1, k2 = x0 / theta, x1 / theta, x2 / theta
+    c, s = np.cos(theta), np.sin(theta)
+    C = 1 - c
+    R[0, 0], R[0, 1], R[0, 2] = c + C * k0 * k0, C * k0 * k1 - s * k2, C * k0 * k2 + s * k1
+    R[1, 0], R[1, 1], R[1, 2] = C * k1 * k0 + s * k2, c + C * k1 * k1, C * k1 * k2 - s * k0
+    R[2, 0], R[2, 1], R[2, 2] = C * k2 * k0 - s * k1, C * k2 * k1 + s * k0, c + C * k2 * k2
+    return R
+
+
+@njit(cache=True, nogil=True)
+def _normal_equations(points, groups, T, centre, use, reach, depth, normals, camera, flow_px, across,
+                      metres_per_px, A, b, rows, inliers):
+    """One pass over the points: each group's Gauss-Newton normal equations (the upper triangle of
+    the sum of w J^T J in A, the sum of w J^T r in b), its number of rows and of depth matches."""
+    h, w = depth.shape
+    fx, fy, cx, cy = camera[0], camera[1], camera[2], camera[3]
+    A[:] = 0
+    b[:] = 0
+    rows[:] = 0
+    inliers[:] = 0
+    for i in range(points.shape[0]):
+        if not use[i]:
+            continue
+        g = groups[i]
+        q0, q1, q2 = _moved(T[g], points[i, 0], points[i, 1], points[i, 2])
+        m0, m1, m2 = _moved(T[g], centre[g, 0], centre[g, 1], centre[g, 2])
+        a0, a1, a2 = q0 - m0, q1 - m1, q2 - m2              # lever arm about the moved centroid
+        u, v = _pixel(q0, q1, q2, camera, h, w)
+        if u >= 0:
+            r = _plane_residual(q0, q1, q2, u, v, depth, normals, camera)
+            if abs(r) < reach:
+                _add_row(A, b, g, a0, a1, a2, np.float64(normals[v, u, 0]), np.float64(normals[v, u, 1]),
+                         np.float64(normals[v, u, 2]), r, reach)
+                rows[g] += 1
+                inliers[g] += 1
+        if metres_per_px > 0 and q2 > 0 and np.isfinite(flow_px[i, 0]):
+            # Where the point projects against where the flow took it (metres-equivalent), and the
+            # gradients of the projected column (gu) and row (gv) per metre of motion.
+            du = (fx * q0 / q2 + cx - flow_px[i, 0]) * metres_per_px
+            dv = (fy * q1 / q2 + cy - flow_px[i, 1]) * metres_per_px
+            gu0, gu2 = fx / q2 * metres_per_px, -fx * q0 / q2 ** 2 * metres_per_px
+            gv1, gv2 = fy / q2 * metres_per_px, -fy * q1 / q2 ** 2 * metres_per_px
+            e0, e1 = across[i, 0], across[i, 1]
+            if np.isfinite(e0):           # an edge point: across the edge only
+                r = du * e0 + dv * e1
+                if abs(r) < reach:
+                    _add_row(A, b, g, a0, a1, a2, gu0 * e0, gv1 * e1, gu2 * e0 + gv2 * e1, r, reach)
+                    rows[g] += 1
+            else:
+                if abs(du) < reach:
+                    _add_row(A, b, g, a0, a1, a2, gu0, 0.0, gu2, du, reach)
+                    rows[g] += 1
+                if abs(dv) < reach:
+                    _add_row(A, b, g, a0, a1, a2, 0.0, gv1, gv2, dv, reach)
+                    rows[g] += 1
+
+
+@njit(cache=True, nogil=True)
+def _icp_kernel(points, groups, T, centre, thin, reaches, depth, normals, camera, flow_px, across,
+                metres_per_px, damping, min_points, inliers):
+    """The iterations of :func:`icp`; T (G, 4, 4) and inliers (G,) are updated in place."""
+    G = T.shape[0]
+    A = np.zeros((G, 6, 6))
+    b = np.zeros((G, 6))
+    rows = np.zeros(G, np.int64)
+    everything = np.ones(points.shape[0], np.bool_)
+    can_thin = not thin.all()
+    for reach in reaches:
+        use = thin if (reach > 2 * reaches[-1] and can_thin) else everything
+        _normal_equations(points, groups, T, centre, use, reach, depth, normals, camera, flow_px, across,
+                          metres_per_px, A, b, rows, inliers)
+        if (rows < min_points).all():
+            break
+        for g in range(G):
+            if rows[g] < min_points:
+                continue
+            M = A[g].copy()
+            trace = 0.0
+            for x in range(6):
+                trace += M[x, x]
+                for y in range(x):
+                    M[x, y] = M[y, x]
+            for x in range(6):
+                M[x, x] += damping * trace + 1e-12
+            step = -np.linalg.solve(M, b[g].copy())
+            R = _rotation(step[0], step[1], step[2])
+            # A turn about the group's moved centroid c' followed by a shift: x -> R (x - c') + c' + t.
+            c0, c1, c2 = _moved(T[g], centre[g, 0], centre[g, 1], centre[g, 2])
+            S = np.eye(4)
+            S[:3, :3] = R
+            S[0, 3] = c0 - (R[0, 0] * c0 + R[0, 1] * c1 + R[0, 2] * c2) + step[3]
+            S[1, 3] = c1 - (R[1, 0] * c0 + R[1, 1] * c1 + R[1, 2] * c2) + step[4]
+            S[2, 3] = c2 - (R[2, 0] * c0 + R[2, 1] * c1 + R[2, 2] * c2) + step[5]
+            T[g] = S @ T[g]
 
 
 def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:

@@ -6,7 +6,7 @@
    identity, from the shift of the median point and from the flow's motion.
 3. Local motions, seeded from the paper's grid cells (edge x = diameter / ``cells_per_diameter``):
    each cell's flow motion (or the object's), refined by ICP on the cell's points; all cells at once.
-4. Every hypothesis is scored on every point (:func:`~.projective.look`, and the flow), and the
+4. Every hypothesis is scored on every point (:func:`~.projective.look_all`, and the flow), and the
    motions a default selection picks are refitted on the points they explain; a motion is also fitted
    to the points none of them explains (a part that spans several cells). Near-copies are dropped.
 5. The hypotheses are scored the other way round too: every target point, moved by each motion's
@@ -28,8 +28,8 @@ from artclass_core.geometry import transform
 from artclass_core.types import SURFACE
 
 from .flow import flow_targets
-from .image import noise_m
-from .projective import Target, icp, look, robust_kabsch
+from .image import ImageParams, noise_m
+from .projective import Target, flow_misfit, icp, look_all, robust_kabsch
 from .rule import DenseRuleParams, point_costs, regions, select
 
 _MIN_FLOW_MATCHES = 6
@@ -37,11 +37,9 @@ _MIN_FLOW_MATCHES = 6
 
 @dataclass(frozen=True)
 class DenseParams(Params):
-    depth_noise_m: float = param(0.0015, unit="m", bounds=(1e-5, 0.05),
-                                 help="Depth noise (one sigma) of the sensor at 1 m, growing with the depth squared: "
-                                      "the floor of the noise measured on each pair, and the scale of ICP's reach.")
     reach_sigmas: float = param(10.0, unit="sigma", bounds=(1.0, 100.0),
-                                help="A moved point within this many noise sigmas (plus two pixels) of the observed "
+                                help="A moved point within this many sensor noise sigmas (the preprocessor's "
+                                     "depth_noise_m at its depth) plus two pixels of the observed "
                                      "depth is on that surface; farther in front, it is hidden; farther behind, "
                                      "the camera sees through where it should be.")
     cells_per_diameter: float = param(5.0, unit="1", bounds=(1.0, 50.0),
@@ -73,8 +71,8 @@ class DenseRegistrar(PairRegistrar):
         points = source.points
         depth = float(np.median(points[:, 2]))
         pixel_m = depth / tgt.intrinsics.fx
-        sigma0 = float(noise_m(depth, p.depth_noise_m))
-        reach = self._reach(points, tgt.intrinsics.fx)
+        sigma0 = float(noise_m(depth, _sensor_noise(source)))
+        reach = self._reach(source, tgt.intrinsics.fx)
         fine = 4 * sigma0 + 2 * pixel_m
         size = float(np.linalg.norm(np.ptp(points, axis=0)))
         coarse = [max(size / d, fine) for d in (4, 4, 8, 8, 16, 16, 32)] + [fine] * 3
@@ -129,8 +127,8 @@ class DenseRegistrar(PairRegistrar):
             flow_err = np.vstack([flow_err, _flow_errors(hyps[n_before:], points, flow_px, across, tgt)])
         # The other way round: each target point moved by each motion's inverse onto the source image.
         back = Target.of(source)
-        inverse = [np.linalg.inv(T) for T in hyps]
-        status_back, residual_back = _look_all(inverse, target.points, back, self._reach(target.points, back.intrinsics.fx))
+        inverse = np.linalg.inv(np.stack(hyps))
+        status_back, residual_back = _look_all(inverse, target.points, back, self._reach(target, back.intrinsics.fx))
         info = dict(stride_px=int(source.info.get("stride_px", 1)), n_flow=int(matched.sum()),
                     n_points=len(points), seconds=round(time.perf_counter() - t0, 4))
         return MotionEvidence(np.stack(hyps), names, np.hstack([residual, residual_back]),
@@ -139,10 +137,11 @@ class DenseRegistrar(PairRegistrar):
                               np.vstack([points, target.points]), np.vstack([source.pixels, target.pixels]),
                               pixel_m, info, n_source=len(points))
 
-    def _reach(self, points: np.ndarray, fx: float) -> np.ndarray:
-        """How far from the observed depth each moved point still counts as on that surface (metres):
-        ``reach_sigmas`` noise sigmas at its depth, plus two pixels."""
-        return self.params.reach_sigmas * noise_m(points[:, 2], self.params.depth_noise_m) + 2 * points[:, 2] / fx
+    def _reach(self, cloud: Cloud, fx: float) -> np.ndarray:
+        """How far from the observed depth each moved point of ``cloud`` still counts as on that surface
+        (metres): ``reach_sigmas`` sensor noise sigmas at its depth, plus two pixels."""
+        z = cloud.points[:, 2]
+        return self.params.reach_sigmas * noise_m(z, _sensor_noise(cloud)) + 2 * z / fx
 
     def _refits(self, ev: MotionEvidence, fit: "_Fit", rule: DenseRuleParams, round_: int,
                 reach: list[float]) -> tuple[list, list]:
@@ -187,6 +186,11 @@ class DenseRegistrar(PairRegistrar):
         return list(T), [f"refit {round_}.{g}" for g in range(len(T))]
 
 
+def _sensor_noise(cloud: Cloud) -> float:
+    """The sensor's depth noise at 1 m (metres) that the preprocessor assumed for ``cloud``."""
+    return float(cloud.info.get("depth_noise_m", ImageParams.depth_noise_m))
+
+
 def _flow_points(flow_px: np.ndarray, tgt: Target) -> tuple[np.ndarray, np.ndarray]:
     """Which points have a flow target on the target object, and the 3D point there."""
     h, w = tgt.object_m.shape
@@ -221,7 +225,10 @@ class _Fit:
 def _cells(points: np.ndarray, size_m: float, min_points: int) -> np.ndarray:
     """Cell number (0..C-1) of each point on a grid of ``size_m``, -1 in cells with too few points."""
     keys = np.floor((points - points.min(axis=0)) / max(size_m, 1e-6)).astype(np.int64)
-    _, cell, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    span = keys.max(axis=0) + 1
+    # One integer per cell, in the order of its (x, y, z) keys: np.unique of rows is much slower.
+    key = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    _, cell, counts = np.unique(key, return_inverse=True, return_counts=True)
     cell = cell.ravel()
     big = counts >= min_points
     number = np.full(len(counts), -1)
@@ -233,9 +240,12 @@ def _distinct(hyps: list, names: list, points: np.ndarray, tolerance_m: float) -
     """The hypotheses without near-copies: a motion that puts every point within ``tolerance_m`` (RMS)
     of where an earlier one does is dropped."""
     sample = points[:: max(1, len(points) // 200)]
-    T = np.stack(hyps)
-    moved = np.einsum("hij,nj->hni", T[:, :3, :3], sample) + T[:, None, :3, 3]           # (H, S, 3)
-    rms = np.sqrt(np.mean(np.sum(np.square(moved[:, None] - moved[None]), axis=-1), axis=-1))   # (H, H)
+    x = np.column_stack([sample, np.ones(len(sample))])
+    moment = x.T @ x / len(x)                                          # (4, 4) second moment
+    T = np.stack(hyps)[:, :3]
+    D = T[:, None] - T[None]                                           # (H, H, 3, 4)
+    # The mean of |(T_i - T_j) x|^2 over the sample, from its second moment.
+    rms = np.sqrt(np.maximum(np.einsum("ijak,kl,ijal->ij", D, moment, D), 0))
     keep: list[int] = []
     for i in range(len(hyps)):
         if not keep or rms[i, keep].min() > tolerance_m:
@@ -244,21 +254,10 @@ def _distinct(hyps: list, names: list, points: np.ndarray, tolerance_m: float) -
 
 
 def _look_all(hyps: list, points: np.ndarray, tgt: Target, reach: np.ndarray):
-    out = [look(transform(points, T), tgt, reach_m=reach, off_object_px=2.0) for T in hyps]
-    return np.stack([s for s, _ in out]), np.stack([r for _, r in out])
+    return look_all(np.stack(hyps), points, tgt, reach_m=reach, off_object_px=2.0)
 
 
 def _flow_errors(hyps: list, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray, tgt: Target) -> np.ndarray:
     """Distance (H, N) in pixels between where each motion and where the flow put each point (across
     the edge only, at an edge point)."""
-    K = tgt.intrinsics
-    out = np.full((len(hyps), len(points)), np.nan, np.float32)
-    known = np.isfinite(flow_px).all(axis=1)
-    if not known.any():
-        return out
-    edge = np.isfinite(across[known, 0])
-    for h, T in enumerate(hyps):
-        u, v = K.pixels(transform(points[known], T))
-        d = np.column_stack([u - flow_px[known, 0], v - flow_px[known, 1]])
-        out[h, known] = np.where(edge, np.abs(np.sum(d * np.nan_to_num(across[known]), axis=1)), np.hypot(d[:, 0], d[:, 1]))
-    return out
+    return flow_misfit(np.stack(hyps), points, flow_px, across, tgt.intrinsics)

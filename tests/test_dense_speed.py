@@ -1,0 +1,275 @@
+"""The dense registrar's fast paths against the plain numpy math they replace, and its registration
+on a synthetic surface moved by a known motion.
+
+The scene: an egg-crate surface (12 x 12 cm, 1 cm bumps) 0.7 m in front of a 320 x 240 camera,
+textured by its own coordinates (so optical flow can follow it), in front of a wall.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+
+from artclass_core import Frame, Intrinsics
+from artclass_core.geometry import transform
+from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
+from artclass_plugins.dense.image import ImagePreprocessor
+from artclass_plugins.dense.projective import NEAR_MASK_PX, Target, _outside, flow_misfit, icp, look_all
+from artclass_plugins.dense.registrar import DenseRegistrar, _distinct
+
+INTR = Intrinsics(fx=300.0, fy=300.0, cx=159.5, cy=119.5, width=320, height=240)
+DEPTH_M = 0.7
+
+
+def _rotation(axis, angle_rad: float) -> np.ndarray:
+    return cv2.Rodrigues(np.asarray(axis, float) / np.linalg.norm(axis) * angle_rad)[0]
+
+
+def _motion(axis=(0.3, 1.0, 0.2), angle_deg: float = 3.0, shift_m=(0.008, -0.004, 0.006)) -> np.ndarray:
+    """A rigid motion about the surface's centre, ``T_target_from_source``."""
+    T = np.eye(4)
+    R = _rotation(axis, np.radians(angle_deg))
+    centre = np.array([0.0, 0.0, DEPTH_M])
+    T[:3, :3], T[:3, 3] = R, centre - R @ centre + np.asarray(shift_m)
+    return T
+
+
+def _frame(T: np.ndarray, index: int = 0) -> Frame:
+    """The scene with the surface moved by ``T``: z-buffered points, their texture and the mask."""
+    s = np.arange(-0.06, 0.06, 0.0004)
+    gx, gy = np.meshgrid(s, s)
+    bumps = 0.01 * np.sin(gx / 0.012) * np.cos(gy / 0.015)
+    surface = transform(np.column_stack([gx.ravel(), gy.ravel(), DEPTH_M + bumps.ravel()]), T)
+    wy, wx = np.meshgrid(np.arange(-0.4, 0.4, 0.003), np.arange(-0.5, 0.5, 0.003))
+    wall = np.column_stack([wx.ravel(), wy.ravel(), np.full(wx.size, 1.0)])
+    shade = 128 + 60 * np.sin(gx.ravel() / 0.004) * np.sin(gy.ravel() / 0.006) + 50 * np.cos((gx.ravel() + gy.ravel()) / 0.01)
+    points = np.vstack([surface, wall])
+    grey = np.concatenate([shade, np.full(len(wall), 90.0)])
+    on_object = np.arange(len(points)) < len(surface)
+    u = np.rint(INTR.fx * points[:, 0] / points[:, 2] + INTR.cx).astype(int)
+    v = np.rint(INTR.fy * points[:, 1] / points[:, 2] + INTR.cy).astype(int)
+    ok = (u >= 0) & (u < INTR.width) & (v >= 0) & (v < INTR.height)
+    pix = (v * INTR.width + u)[ok]
+    order = np.lexsort((points[ok, 2], pix))
+    first = order[np.unique(pix[order], return_index=True)[1]]
+    depth = np.zeros(INTR.width * INTR.height, np.float32)
+    shade_img = np.zeros(INTR.width * INTR.height)
+    mask = np.zeros(INTR.width * INTR.height, bool)
+    depth[pix[first]] = points[ok][first, 2]
+    shade_img[pix[first]] = grey[ok][first]
+    mask[pix[first]] = on_object[ok][first]
+    shape = (INTR.height, INTR.width)
+    rgb = np.repeat(np.clip(shade_img, 0, 255).astype(np.uint8).reshape(shape)[..., None], 3, axis=2)
+    return Frame(index, f"{index:06d}", rgb, depth.reshape(shape), mask.reshape(shape))
+
+
+@pytest.fixture(scope="module")
+def pair():
+    """Source and target clouds of the surface moved by :func:`_motion`, and that motion."""
+    pre = ImagePreprocessor(ImagePreprocessor.Params(max_points=2500))
+    T = _motion()
+    a, b = _frame(np.eye(4), 0), _frame(T, 1)
+    return pre.process(a, a.mask, intrinsics=INTR), pre.process(b, b.mask, intrinsics=INTR), T
+
+
+# -- the numpy reference: the same math, one array operation at a time ------------------------------
+
+def _ref_project(points, shape):
+    z = points[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.rint(INTR.fx * points[:, 0] / z + INTR.cx)
+        v = np.rint(INTR.fy * points[:, 1] / z + INTR.cy)
+    inside = (z > 0) & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
+    return np.where(inside, u, 0).astype(np.intp), np.where(inside, v, 0).astype(np.intp), inside
+
+
+def _ref_plane(moved, target, u, v):
+    z = target.object_m[v, u]
+    n = target.normals[v, u]
+    y = np.column_stack([(u - INTR.cx) / INTR.fx * z, (v - INTR.cy) / INTR.fy * z, z])
+    return np.einsum("ij,ij->i", moved - y, n), (z > 0) & n.any(axis=1)
+
+
+def _ref_look(moved, target, reach, off_px):
+    u, v, inside = _ref_project(moved, target.scene_m.shape)
+    scene = np.where(inside, target.scene_m[v, u], 0)
+    seen = inside & (scene > 0)
+    gap = scene - moved[:, 2]
+    status = np.full(len(moved), UNSEEN, np.int8)
+    status[seen & (gap < -reach)] = OCCLUDED
+    status[seen & (gap > reach)] = FREE_SPACE
+    near = seen & (np.abs(gap) <= reach)
+    off = near & (target.outside_px[v, u] > off_px)
+    status[off] = OFF_OBJECT
+    status[near & ~off] = SURFACE
+    plane, has = _ref_plane(moved, target, u, v)
+    return status, np.where(near & ~off, np.where(has, plane, -gap), np.nan).astype(np.float32)
+
+
+def _ref_icp(points, groups, T, target, reaches, flow_px, across, metres_per_px, min_points=6, thinning=4):
+    """Gauss-Newton point-to-plane ICP with a flow term, each group linearised about its centroid."""
+    T = np.array(T, float)
+    G = len(T)
+    count = np.bincount(groups, minlength=G)
+    centre = np.stack([np.bincount(groups, points[:, d], minlength=G) for d in range(3)], 1) / count[:, None]
+    rank = np.zeros(len(groups), int)
+    for g in range(G):
+        rank[groups == g] = np.arange(count[g])
+    thin = (rank % thinning == 0) | (count[groups] < 4 * thinning * min_points)
+    for reach in reaches:
+        use = thin if reach > 2 * reaches[-1] and not thin.all() else np.ones(len(points), bool)
+        p, g_all = points[use], groups[use]
+        moved = np.einsum("nij,nj->ni", T[g_all, :3, :3], p) + T[g_all, :3, 3]
+        u, v, inside = _ref_project(moved, target.scene_m.shape)
+        r, has = _ref_plane(moved, target, u, v)
+        ok = inside & has & (np.abs(r) < reach)
+        rows = [(r[ok], target.normals[v[ok], u[ok]].astype(float), moved[ok], g_all[ok])]
+        f, e = flow_px[use], across[use]
+        known = np.isfinite(f[:, 0]) & (moved[:, 2] > 0)
+        q, f, e, gk = moved[known], f[known], e[known], g_all[known]
+        z = q[:, 2]
+        du = INTR.fx * q[:, 0] / z + INTR.cx - f[:, 0]
+        dv = INTR.fy * q[:, 1] / z + INTR.cy - f[:, 1]
+        gu = np.column_stack([INTR.fx / z, 0 * z, -INTR.fx * q[:, 0] / z ** 2])
+        gv = np.column_stack([0 * z, INTR.fy / z, -INTR.fy * q[:, 1] / z ** 2])
+        edge = np.isfinite(e[:, 0])
+        en = np.nan_to_num(e)
+        for res, grad, sel in ((du, gu, ~edge), (dv, gv, ~edge),
+                               (du * en[:, 0] + dv * en[:, 1], gu * en[:, :1] + gv * en[:, 1:], edge)):
+            near = sel & (np.abs(res * metres_per_px) < reach)
+            rows.append((res[near] * metres_per_px, grad[near] * metres_per_px, q[near], gk[near]))
+        r, grad, at, g = (np.concatenate(x) for x in zip(*rows))
+        arm = at - np.einsum("nij,nj->ni", T[g, :3, :3], centre[g]) - T[g, :3, 3]
+        J = np.concatenate([np.cross(arm, grad), grad], axis=1)
+        w = np.square(1 - np.square(r / reach))
+        for k in range(G):
+            sel = g == k
+            if sel.sum() < min_points:
+                continue
+            A = (J[sel] * w[sel, None]).T @ J[sel]
+            A += 1e-6 * np.trace(A) * np.eye(6) + 1e-12 * np.eye(6)
+            x = -np.linalg.solve(A, (J[sel] * w[sel, None]).T @ r[sel])
+            R = cv2.Rodrigues(x[:3])[0]
+            c = T[k, :3, :3] @ centre[k] + T[k, :3, 3]
+            step = np.eye(4)
+            step[:3, :3], step[:3, 3] = R, c - R @ c + x[3:]
+            T[k] = step @ T[k]
+    return T
+
+
+def _flow(source, T, rng):
+    """Flow targets of the source points under ``T``, 1 px of noise, a third unknown, a third edges."""
+    moved = transform(source.points, T)
+    flow = np.column_stack([INTR.fx * moved[:, 0] / moved[:, 2] + INTR.cx,
+                            INTR.fy * moved[:, 1] / moved[:, 2] + INTR.cy]) + rng.normal(0, 1.0, (len(moved), 2))
+    kind = rng.integers(0, 3, len(moved))
+    flow[kind == 0] = np.nan
+    angle = rng.uniform(0, np.pi, len(moved))
+    across = np.where((kind == 1)[:, None], np.column_stack([np.cos(angle), np.sin(angle)]), np.nan)
+    return flow, across
+
+
+def test_compiled_icp_equals_the_numpy_reference(pair):
+    source, target, T_true = pair
+    rng = np.random.default_rng(0)
+    tgt = Target.of(target)
+    flow, across = _flow(source, T_true, rng)
+    n = len(source)
+    # Three groups: all points from the identity, all from a perturbed truth, and the left half.
+    points = np.vstack([source.points] * 2 + [source.points[source.points[:, 0] < 0]])
+    groups = np.repeat([0, 1, 2], [n, n, len(points) - 2 * n])
+    index = np.concatenate([np.arange(n), np.arange(n), np.flatnonzero(source.points[:, 0] < 0)])
+    inits = np.stack([np.eye(4), _motion(angle_deg=2.0, shift_m=(0.005, 0.0, 0.004)), np.eye(4)])
+    reaches = [0.03, 0.03, 0.015, 0.008, 0.004, 0.004]
+    fast, _ = icp(points, groups, inits, tgt, reach_m=reaches, flow_px=flow[index], across=across[index],
+                  metres_per_px=0.0005)
+    slow = _ref_icp(points, groups, inits, tgt, reaches, flow[index], across[index], 0.0005)
+    assert np.abs(fast - slow).max() < 1e-9
+    assert np.abs(fast - inits).max() > 1e-3          # the motions did move
+
+
+def test_look_all_equals_the_numpy_reference(pair):
+    source, target, T_true = pair
+    tgt = Target.of(target)
+    reach = np.full(len(source), 0.004)
+    motions = np.stack([np.eye(4), T_true, _motion(angle_deg=8.0), _motion(shift_m=(0.0, 0.0, -0.05))])
+    status, residual = look_all(motions, source.points, tgt, reach_m=reach, off_object_px=2.0)
+    for h, T in enumerate(motions):
+        ref_status, ref_residual = _ref_look(transform(source.points, T), tgt, reach, 2.0)
+        np.testing.assert_array_equal(status[h], ref_status)
+        np.testing.assert_allclose(residual[h], ref_residual, atol=1e-7, equal_nan=True)
+    assert {SURFACE, FREE_SPACE, OCCLUDED} <= set(np.unique(status).tolist())
+
+
+@pytest.mark.parametrize("use_flow", [False, True])
+def test_icp_recovers_a_known_motion(pair, use_flow):
+    """3 degrees and 1 cm, from the identity: within 0.5 mm at the surface."""
+    source, target, T_true = pair
+    flow, across = _flow(source, T_true, np.random.default_rng(1))
+    reaches = [0.03, 0.03, 0.015, 0.015, 0.008, 0.004, 0.004, 0.004]
+    T, inliers = icp(source.points, np.zeros(len(source), int), np.eye(4)[None], Target.of(target), reach_m=reaches,
+                     flow_px=flow if use_flow else None, across=across if use_flow else None,
+                     metres_per_px=0.0005 if use_flow else 0.0)
+    error = np.linalg.norm(transform(source.points, T[0]) - transform(source.points, T_true), axis=1)
+    assert error.max() < 5e-4
+    assert inliers[0] > 0.8 * len(source)
+
+
+def test_flow_misfit_equals_the_numpy_reference(pair):
+    source, _, T_true = pair
+    flow, across = _flow(source, T_true, np.random.default_rng(2))
+    motions = np.stack([np.eye(4), T_true, _motion(angle_deg=-4.0)])
+    misfit = flow_misfit(motions, source.points, flow, across, INTR)
+    edge = np.isfinite(across[:, 0])
+    for h, T in enumerate(motions):
+        moved = transform(source.points, T)
+        d = np.column_stack([INTR.fx * moved[:, 0] / moved[:, 2] + INTR.cx - flow[:, 0],
+                             INTR.fy * moved[:, 1] / moved[:, 2] + INTR.cy - flow[:, 1]])
+        ref = np.where(edge, np.abs(np.sum(d * np.nan_to_num(across), axis=1)), np.hypot(d[:, 0], d[:, 1]))
+        np.testing.assert_allclose(misfit[h], ref, rtol=1e-6, atol=1e-6)
+    assert np.nanmedian(misfit[1]) < 2.0 < np.nanmedian(misfit[0])   # the true motion matches the flow
+
+
+def test_distance_to_the_mask_is_exact_near_it():
+    rng = np.random.default_rng(3)
+    mask = np.zeros((120, 160), bool)
+    mask[30:70, 50:90] = rng.random((40, 40)) < 0.7
+    mask[0:5, 150:160] = True                        # touching the image border
+    full = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 3)
+    near = full <= NEAR_MASK_PX
+    np.testing.assert_allclose(_outside(mask)[near], full[near], atol=1e-5)
+    assert (_outside(mask)[~near] > NEAR_MASK_PX).all()
+    assert np.isinf(_outside(np.zeros((10, 10), bool))).all()
+
+
+def test_near_copies_are_dropped_as_by_their_point_distances():
+    rng = np.random.default_rng(4)
+    points = rng.normal([0, 0, 0.7], 0.05, (500, 3))
+    hyps = [np.eye(4)] + [_motion(angle_deg=a, shift_m=(s, 0, 0)) for a, s in
+                          [(0.05, 0.0), (1.0, 0.0), (0.0, 0.0005), (0.0, 0.003), (2.0, 0.01), (2.01, 0.01)]]
+    sample = points[:: max(1, len(points) // 200)]
+    moved = [transform(sample, T) for T in hyps]
+    keep: list[int] = []
+    for i in range(len(hyps)):
+        if not keep or min(np.sqrt(np.mean(np.sum((moved[i] - moved[j]) ** 2, axis=1))) for j in keep) > 0.001:
+            keep.append(i)
+    kept, names = _distinct(hyps, [str(i) for i in range(len(hyps))], points, 0.001)
+    assert names == [str(i) for i in keep]
+    assert 2 < len(keep) < len(hyps)
+
+
+def test_the_sensor_noise_is_one_parameter_of_the_preprocessor():
+    """The registrar judges reach by the noise the preprocessor was given, not a second setting."""
+    assert "depth_noise_m" not in {f.name for f in dataclasses.fields(DenseRegistrar.Params)}
+    frames = [_frame(np.eye(4), 0), _frame(_motion(), 1)]
+    evidence = []
+    for at_1m in (0.0015, 0.015):
+        pre = ImagePreprocessor(ImagePreprocessor.Params(depth_noise_m=at_1m, max_points=1500))
+        a, b = (pre.process(f, f.mask, intrinsics=INTR) for f in frames)
+        assert a.info["depth_noise_m"] == at_1m
+        evidence.append(DenseRegistrar(DenseRegistrar.Params()).register_pair(a, b))
+    surface = [np.mean(ev.status[0] == SURFACE) for ev in evidence]    # the identity hypothesis
+    assert surface[1] > surface[0] + 0.05                           # a wider reach finds more surface
