@@ -14,7 +14,7 @@ import pytest
 from artclass_core import Frame, Intrinsics, MotionEvidence
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
 from artclass_plugins.dense.image import ImagePreprocessor
-from artclass_plugins.dense.projective import Target, kabsch, look, robust_kabsch
+from artclass_plugins.dense.projective import Target, kabsch, look_all, robust_kabsch
 from artclass_plugins.dense.registrar import DenseRegistrar
 from artclass_plugins.dense.rule import DenseRule, DenseRuleParams
 
@@ -103,10 +103,10 @@ def test_look_tells_surface_occluded_free_space_off_object_and_unseen():
                        [0.0, 0.0, DEPTH_M - 0.02],      # in front of the plate: the camera sees past it
                        [0.2, 0.0, DEPTH_M + 0.03],      # on the table, far from the object
                        [5.0, 0.0, DEPTH_M]])            # outside the image
-    status, residual = look(points, target, reach_m=np.full(5, 0.005), off_object_px=3.0)
-    assert status.tolist() == [SURFACE, OCCLUDED, FREE_SPACE, OFF_OBJECT, UNSEEN]
-    assert abs(residual[0]) == pytest.approx(0.001, abs=2e-4)
-    assert np.isnan(residual[1:]).all()
+    status, residual = look_all(np.eye(4)[None], points, target, reach_m=np.full(5, 0.005), off_object_px=3.0)
+    assert status[0].tolist() == [SURFACE, OCCLUDED, FREE_SPACE, OFF_OBJECT, UNSEEN]
+    assert abs(residual[0, 0]) == pytest.approx(0.001, abs=2e-4)
+    assert np.isnan(residual[0, 1:]).all()
 
 
 def test_robust_kabsch_recovers_a_motion_despite_wrong_matches():

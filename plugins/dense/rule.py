@@ -261,8 +261,9 @@ class DenseRule(DecisionRule):
         labels = np.where(seen, np.asarray(kept)[np.argmin(costs[kept], axis=0)], -1)
         motions = [Motion(ev.motions[h], ev.names[h], int((forward & (labels == h)).sum()),
                           _displacement(ev.points[forward & (labels == h)], ev.motions[h], np.eye(4))) for h in kept]
-        index = {h: i for i, h in enumerate(kept)}
-        labels = np.array([index.get(int(h), -1) for h in labels]) if len(labels) else labels
+        index = np.full(len(ev.motions), -1)
+        index[kept] = np.arange(len(kept))
+        labels = np.where(labels >= 0, index[labels], -1)
         info = dict(noise_m=round(noise, 6), frame_noise_m=round(ev.noise_m, 6), flow_noise_px=round(flow_noise, 3), threshold_m=round(threshold, 6), seen_share=round(share, 4),
                     n_hypotheses=len(ev.motions), selected=[ev.names[h] for h in chosen],
                     part_shares=[round(m.n_points / max(int((seen & forward).sum()), 1), 4) for m in motions])
