@@ -25,7 +25,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from app import controls, figures, runner, uploads  # noqa: E402
+from app import controls, runner, uploads  # noqa: E402
+from artclass_core import figures  # noqa: E402
 from artclass_core import (Config, InputError, Pipeline, PipelineParams, describe, load_registry,  # noqa: E402
                            open_sequences)
 from artclass_core.evaluate import evaluate  # noqa: E402

@@ -9,7 +9,8 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
-from app import figures, state, uploads
+from app import state, uploads
+from artclass_core import figures
 from artclass_core import ArtclassError, InputError, Sequence
 
 log = logging.getLogger("artclass.app")

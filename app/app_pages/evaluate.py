@@ -8,7 +8,8 @@ import logging
 import pandas as pd
 import streamlit as st
 
-from app import figures, state, uploads
+from app import state, uploads
+from artclass_core import figures
 from artclass_core import ArtclassError, Config, InputError, Sequence
 from artclass_core.evaluate import Evaluation, evaluate, markdown
 from artclass_core.sweep import figure as sweep_figure, read_table, summary
