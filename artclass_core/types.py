@@ -301,6 +301,8 @@ class PairResult:
     motions: list[Motion] = field(default_factory=list)   # the selected motions (rules that decide from motions)
     labels: np.ndarray | None = None   # (N,) int: each evidence point's motion (index into motions), -1 = none
     evidence: MotionEvidence | None = field(default=None, repr=False)   # what the motions were selected from
+    # the rule's scratch space for this pair (DecisionRule.uses_scratch); not part of the result's JSON
+    scratch: dict[Any, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def to_dict(self, *, cells: bool = True) -> dict[str, Any]:
         d = dict(i=self.i, j=self.j, decision=self.decision, reason=self.reason, truth=self.truth,

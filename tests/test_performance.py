@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from artclass_core import ArtclassError, Config, Pipeline, PipelineParams
 from artclass_core.geometry import (diameter_of_vertices, grid_cells, hull_vertices, largest_distance,
                                     quaternion_wxyz)
-from artclass_core.pipeline import StageCache, cloud_hull
+from artclass_core.pipeline import StageCache
 
 from conftest import make_sequence
 
@@ -388,14 +388,11 @@ def test_pair_diameter_from_hull_vertices_is_exact(registry, seed):
     assert both == largest_distance(np.concatenate([a, b]))      # bit for bit
 
 
-def test_cell_size_uses_the_remembered_hull(registry, hinge):
+def test_cell_size_is_a_fifth_of_the_pair_diameter(registry, hinge):
     pipe = Pipeline(registry, config())
     a, b = pipe.frame(hinge, 0).cloud, pipe.frame(hinge, 2).cloud
     assert pipe.cell_size(a, b) == max(largest_distance(np.concatenate([a.points, b.points])) / 5, 1e-4)
-    assert cloud_hull(a) is cloud_hull(a), "computed once per cloud"
-    moved = a.points + [0.5, 0.0, 0.0]
-    a.points = moved                                             # a new array: the hull is redone
-    assert np.allclose(cloud_hull(a).min(0), moved.min(0))
+    a.points = a.points + [0.5, 0.0, 0.0]                        # moved: the hull follows the points
     assert pipe.cell_size(a, b) == max(largest_distance(np.concatenate([a.points, b.points])) / 5, 1e-4)
 
 
@@ -476,39 +473,35 @@ def test_bench_command_reports_every_stage(sample_dir, tmp_path, capsys):
     assert data["long"]["n_pairs"] == 40 - 5
 
 
-# -- the pair memo (a rule's threshold-independent evidence) ------------------------------------------
+# -- the pair's scratch space (a rule's threshold-independent evidence) ----------------------------------
 
-def test_pair_memo_lives_as_long_as_both_clouds():
-    from artclass_core import Cloud
-    from artclass_core.pipeline import _PAIR_MEMOS, pair_memo
-
-    a, b = Cloud(0, np.zeros((3, 3))), Cloud(1, np.ones((3, 3)))
-    memo = pair_memo(a, b)
-    memo["evidence"] = 42
-    assert pair_memo(a, b) is memo
-    assert pair_memo(b, a) is not memo, "the pair is ordered"
-    assert pair_memo(a, Cloud(1, np.ones((3, 3)))) is not memo, "equal contents, another object"
-    n = len(_PAIR_MEMOS)
-    del b
-    gc.collect()
-    assert len(_PAIR_MEMOS) < n, "dropped with the target"
-    b2 = Cloud(1, np.ones((3, 3)))
-    assert "evidence" not in pair_memo(a, b2), "a new cloud never sees an old memo, even at a reused id"
+def test_pair_scratch_lives_with_the_cached_registration(registry, hinge):
+    cache = StageCache(max_frames=64, max_pairs=1)
+    pipe = Pipeline(registry, config())
+    one = pipe.run(hinge, cache=cache)
+    key = pipe.pair_key(hinge, one.pairs[-1].i, one.pairs[-1].j, cache)
+    scratch = cache.scratch(key)
+    scratch["evidence"] = 42
+    assert cache.scratch(key) is scratch
+    assert cache.scratch(pipe.pair_key(hinge, 0, pipe.params.k, cache)) is not scratch, "another pair"
+    cache.put("register", pipe.pair_key(hinge, 0, pipe.params.k, cache), ((), 0.01))   # drops the first entry
+    assert "evidence" not in cache.scratch(key), "dropped with its registration"
 
 
 def test_rule_evidence_in_the_memo_is_reused_when_redeciding(registry, hinge):
-    """A rule that keeps its costly part in pair_memo does it once per pair, however often it re-decides."""
+    """A rule that keeps its costly part in the pair's scratch does it once per pair, however often it
+    re-decides, from a kept result or from the stage cache."""
     from artclass_core import DecisionRule, RuleDecision
-    from artclass_core.pipeline import pair_memo
 
     calls = []
 
     class Memoising(DecisionRule):
         name, description = "memo_test", "test rule"
         Params = registry.get("rule", "paper").Params
+        uses_scratch = True
 
-        def decide(self, cells, *, source, target):
-            memo = pair_memo(source, target)
+        def decide(self, cells, *, source, target, scratch):
+            memo = scratch
             key = tuple((c.cell, id(c.registration)) for c in cells if c.matched)
             if key not in memo:
                 calls.append(1)
@@ -526,3 +519,9 @@ def test_rule_evidence_in_the_memo_is_reused_when_redeciding(registry, hinge):
     two = pipe.redecide(first)
     assert len(calls) == n_calls, "the evidence was found again"
     assert [p.decision for p in one.pairs] != [p.decision for p in two.pairs]
+    cache = StageCache()
+    streamed = Pipeline(registry, config()).run(hinge, cache=cache)          # no clouds kept in the result
+    pipe.redecide(streamed, sequence=hinge, cache=cache)
+    n_calls = len(calls)
+    assert fingerprint(pipe.redecide(streamed, sequence=hinge, cache=cache)) == fingerprint(two)
+    assert len(calls) == n_calls, "the evidence was found again in the cache"
