@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import dataclasses
 import gc
+import os
 import re
+import subprocess
+import sys
 import weakref
 
 import numpy as np
@@ -71,14 +74,27 @@ def test_identical_results_with_the_default_config(registry, hinge):
 
 def test_repeated_runs_are_identical(registry, hinge):
     """Open3D's multi-threaded point-to-plane ICP differed in the 14th digit between runs, which now
-    and then changed a cluster of the robust rule; the registrars keep Open3D to one thread."""
+    and then changed a cluster of the robust rule; the pipeline keeps Open3D to one thread."""
     import open3d as o3d
 
-    assert o3d.utility.get_max_threads() == 1
     cfg = dataclasses.replace(Config(), pipeline=PipelineParams(k=2))
     first = fingerprint(Pipeline(registry, cfg).run(hinge))
+    assert o3d.utility.get_max_threads() == 1
     for _ in range(4):
         assert fingerprint(Pipeline(registry, cfg).run(hinge)) == first
+
+
+def test_importing_the_plugins_leaves_open3d_alone_and_the_pipeline_sets_one_thread():
+    code = ("import open3d as o3d\n"
+            "from artclass_core import Pipeline, load_registry\n"
+            "before = o3d.utility.get_max_threads()\n"
+            "registry = load_registry()\n"
+            "assert before > 1 and o3d.utility.get_max_threads() == before, 'an import changed the threads'\n"
+            "Pipeline(registry)\n"
+            "assert o3d.utility.get_max_threads() == 1\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "OMP_NUM_THREADS": "2"})
+    assert done.returncode == 0, done.stderr[-2000:]
 
 
 def test_point_to_plane_icp_is_reproducible(registry, hinge):

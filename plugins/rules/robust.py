@@ -91,9 +91,8 @@ MIN_CELL_POINTS = 8       # a cell with fewer source points says nothing of its 
 JOINT_MIN_TURN_RAD, JOINT_MAX_SLIDE = np.radians(3.0), 0.1
 
 reg = o3d.pipelines.registration
-# One Open3D thread: multi-threaded point-to-plane ICP sums its normal equations in a varying order,
-# and the last-digit differences flip close decisions between runs (see plugins/registrars.py).
-o3d.utility.set_max_threads(1)
+# Reproducible only with Open3D on one thread of its own, which the pipeline sets before it runs
+# (artclass_core.scheduler.single_threaded_open3d).
 
 
 @dataclass(frozen=True)
