@@ -7,6 +7,7 @@ artclass (:mod:`artclass_core.figures`), so a notebook imports them directly::
     from artclass_core.figures import decision_timeline, motion_arrows
 
 Modules without Streamlit (usable anywhere): :mod:`app.uploads` (zip uploads and data-root
-confinement), :mod:`app.runner` (the stage-by-stage run the app caches). With Streamlit: :mod:`app.state` (caches, session state), :mod:`app.controls`
-(sidebar widgets built from the parameter metadata), and the pages in ``app/app_pages/``.
+confinement). With Streamlit: :mod:`app.state` (the stage cache, pipelines, session state; a run is
+:meth:`artclass_core.Pipeline.run`), :mod:`app.controls` (sidebar widgets built from the parameter
+metadata), and the pages in ``app/app_pages/``.
 """

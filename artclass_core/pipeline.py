@@ -60,7 +60,8 @@ class _RawFrame:
 class Pipeline:
     """The configured plugins, ready to run step by step or on a whole sequence."""
 
-    def __init__(self, registry: Registry, config: Config | None = None):
+    def __init__(self, registry: Registry, config: Config | None = None, *, segmenters: dict | None = None):
+        """``segmenters``: segmenters by name, shared with pipelines of the same segmentation settings."""
         single_threaded_open3d()
         self.registry = registry
         self.config = _fitting(registry, config or Config())
@@ -72,7 +73,7 @@ class Pipeline:
             raise ParamError(f"rule {self.rule.name!r} decides from {self.rule.needs}, but registrar "
                              f"{self.registrar.name!r} gives {self.registrar.gives}: choose a matching pair "
                              f"(artclass plugins lists them)")
-        self._segmenters: dict[str, object] = {}
+        self._segmenters: dict[str, object] = {} if segmenters is None else segmenters
         self._lock = threading.Lock()
 
     # -- the whole sequence ---------------------------------------------------------------------

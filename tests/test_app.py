@@ -1,5 +1,5 @@
 """The Streamlit app: every page through ``streamlit.testing.v1.AppTest``, and its pure modules
-(zip uploads and path confinement, the stage-by-stage runner, the slider options, the figures).
+(zip uploads and path confinement, the slider options, the figures).
 
 The app folder is not installed; like a notebook, the tests import it from the project root.
 Sequences come from the synthetic generator (seeded, so every run sees the same data).
@@ -25,10 +25,11 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from app import controls, runner, uploads  # noqa: E402
+from app import controls, uploads  # noqa: E402
 from artclass_core import figures  # noqa: E402
-from artclass_core import (Config, InputError, Pipeline, PipelineParams, describe, load_registry,  # noqa: E402
-                           open_sequences)
+from artclass_core import (Config, InputError, Pipeline, PipelineParams, StageCache, describe,  # noqa: E402
+                           load_registry, open_sequences)
+from artclass_core.config import stage_config  # noqa: E402
 from artclass_core.evaluate import evaluate  # noqa: E402
 from artclass_plugins.synth import generate_sequence  # noqa: E402
 
@@ -140,17 +141,25 @@ def open_folder(at: AppTest, path: str | Path) -> AppTest:
 
 
 class CallCounter:
-    """Counts calls of Pipeline stage methods (the real methods still run)."""
+    """Counts what the app computes rather than takes from its stage cache: frames and registrations
+    stored in the cache, and decisions (the real methods still run)."""
 
     def __init__(self, monkeypatch, *names):
         self.calls = {n: 0 for n in names}
-        for name in names:
-            original = getattr(Pipeline, name)
+        put, decide = StageCache.put, Pipeline.decide
 
-            def counted(self_, *args, _name=name, _original=original, **kwargs):
-                self.calls[_name] += 1
-                return _original(self_, *args, **kwargs)
-            monkeypatch.setattr(Pipeline, name, counted)
+        def counted_put(cache, stage, key, value):
+            if stage in self.calls:
+                self.calls[stage] += 1
+            return put(cache, stage, key, value)
+
+        def counted_decide(pipeline, *args, **kwargs):
+            if "decide" in self.calls:
+                self.calls["decide"] += 1
+            return decide(pipeline, *args, **kwargs)
+
+        monkeypatch.setattr(StageCache, "put", counted_put)
+        monkeypatch.setattr(Pipeline, "decide", counted_decide)
 
 
 # -- the analyse page ------------------------------------------------------------------------------------
@@ -523,7 +532,6 @@ def test_data_roots(tmp_path):
     assert uploads.data_roots(["--data-root", str(a)], {"ARTCLASS_DATA_ROOTS": str(b)}) == [a, b]
 
 
-# -- runner.py: the staged run is Pipeline.run -------------------------------------------------------------
 @pytest.fixture(scope="module")
 def laptop(registry, data_root):
     return open_sequences(registry, data_root / "laptop_articulate")[0]
@@ -534,55 +542,27 @@ def laptop_run(registry, laptop):
     return Pipeline(registry, Config()).run(laptop, keep_clouds=True)
 
 
-@pytest.mark.parametrize("rule, min_fitness, workers", [("paper", 0.3, 1), ("paper", 0.95, 2), (None, 0.3, 2),
-                                                        (None, 0.95, 1)])
-def test_run_staged_equals_pipeline_run(registry, laptop, rule, min_fitness, workers):
-    """Through the stage pipelines and the fitness check at decision time, as the app runs, on one
-    thread or two. A tight ICP correspondence distance spreads the cells' fitness below 1, so
-    min_fitness rejects some."""
-    icp = registry.get("registrar", "icp_point_to_point").Params(max_correspondence_cells=0.1)
-    config = Config(rule=rule or Config().rule, registrar="icp_point_to_point", registrar_params=icp,
-                    pipeline=PipelineParams(k=3, w=1, min_fitness=min_fitness))
-    expected = Pipeline(registry, config).run(laptop)
-    stage = {s: Pipeline(registry, runner.stage_config(config, s)) for s in ("frame", "register", "decide")}
-    seen = []
-    result = runner.run_staged(
-        laptop, config, Pipeline(registry, config), frame=lambda i: stage["frame"].frame(laptop, i),
-        register=lambda a, b: stage["register"].register(a.cloud, b.cloud),
-        decide=lambda a, b, cells, x, between: runner.decide_registered(
-            stage["decide"], a.index, b.index, cells, a.cloud, b.cloud, x, tuple(f.cloud for f in between)),
-        progress=lambda stage_, done, total: seen.append((stage_, done, total)), workers=workers)
-    assert result.label == expected.label and result.filtered == expected.filtered
-    assert [p.decision for p in result.pairs] == [p.decision for p in expected.pairs]
-    assert [[c.skipped for c in p.cells] for p in result.pairs] == [[c.skipped for c in p.cells] for p in expected.pairs]
-    assert [[c.cluster for c in p.cells] for p in result.pairs] == [[c.cluster for c in p.cells] for p in expected.pairs]
-    assert [p.truth for p in result.pairs] == [p.truth for p in expected.pairs]
-    assert result.fractions == expected.fractions
-    if min_fitness == 0.95:   # the check at decision time did reject cells
-        assert any(str(c.skipped).startswith("low fitness") for p in result.pairs for c in p.cells)
-    assert ("frames", N_FRAMES, N_FRAMES) in seen and ("decision", N_FRAMES - 3, N_FRAMES - 3) in seen
-    with pytest.raises(InputError, match="needs at least"):
-        runner.run_staged(laptop, Config(pipeline=PipelineParams(k=N_FRAMES)), stage["decide"], frame=None,
-                          register=None, decide=None)
-
-
-def test_stage_keys_depend_on_what_the_stage_uses():
+# -- the stage table the app's cache keys come from ---------------------------------------------------------
+def test_stage_configs_depend_on_what_the_stage_uses():
+    stages = ("segment", "preprocess", "register", "decide")
     base = Config(rule="paper")
-    keys = {s: runner.stage_key(base, s) for s in ("frame", "register", "decide")}
+    keys = {s: stage_config(base, s) for s in stages}
 
     def changed(config):
-        return {s for s in keys if runner.stage_key(config, s) != keys[s]}
+        return {s for s in stages if stage_config(config, s) != keys[s]}
 
     from artclass_plugins.rules.paper import PaperRuleParams
+    later = {"register", "decide"}
     assert changed(Config(rule="paper", rule_params=PaperRuleParams(q_bar=0.5))) == {"decide"}
     assert changed(Config(rule="paper", pipeline=PipelineParams(alpha=0.9))) == {"decide"}
     assert changed(Config(rule="paper", pipeline=PipelineParams(min_fitness=0.9))) == {"decide"}
     assert changed(Config(rule="paper", pipeline=PipelineParams(w=7))) == set()
     assert changed(Config(rule="paper", pipeline=PipelineParams(k=2))) == set()
-    assert changed(Config(rule="paper", pipeline=PipelineParams(cell_size_m=0.02))) == {"register", "decide"}
-    assert changed(Config(rule="paper", registrar="icp_point_to_plane")) == {"register", "decide"}
-    assert changed(Config(rule="paper", pipeline=PipelineParams(min_cell_points=20))) == {"frame", "register", "decide"}
-    assert changed(Config(rule="paper", segmenter="mask")) == {"frame", "register", "decide"}
+    assert changed(Config(rule="paper", pipeline=PipelineParams(cell_size_m=0.02))) == later
+    assert changed(Config(rule="paper", registrar="icp_point_to_plane")) == later
+    assert changed(Config(rule="paper", pipeline=PipelineParams(min_cell_points=20))) == later
+    assert changed(Config(rule="paper", preprocessor="paper")) == {"preprocess", *later}
+    assert changed(Config(rule="paper", segmenter="mask")) == set(stages)
 
 
 # -- controls.py: sliders from the metadata ----------------------------------------------------------------

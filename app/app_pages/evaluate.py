@@ -9,8 +9,7 @@ import pandas as pd
 import streamlit as st
 
 from app import state, uploads
-from artclass_core import figures
-from artclass_core import ArtclassError, Config, InputError, Sequence
+from artclass_core import ArtclassError, Config, InputError, Sequence, figures
 from artclass_core.evaluate import Evaluation, evaluate, markdown
 from artclass_core.sweep import figure as sweep_figure, read_table, summary
 
