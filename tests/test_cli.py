@@ -154,12 +154,10 @@ def test_evaluate_synthetic_smoke_set(capsys, tmp_path):
         assert f"| {p.name} |" in out
 
 
-def test_evaluate_on_a_local_dask_cluster_is_the_serial_evaluation(capsys, tmp_path):
+def test_evaluate_on_a_local_dask_cluster_is_the_serial_evaluation(capsys, tmp_path, rendered_root):
     pytest.importorskip("distributed", reason="Dask is in the test extra: pip install -e '.[test]'")
-    from artclass_plugins.synth import generate_sequence
-    for n, (obj, motion) in enumerate((("laptop", "articulate"), ("mug", "carry"))):
-        generate_sequence(tmp_path / obj, object_name=obj, motion=motion, noise="low", n_frames=8, seed=n,
-                          width=160, height=120)
+    rendered_root(tmp_path, {"laptop": ("laptop", "articulate"), "mug": ("mug", "carry")}, n_frames=8, width=160,
+                  height=120)
     runs = []
     for extra in ([], ["--scheduler", "local"]):
         status, out, err = run_cli(capsys, "evaluate", tmp_path, "--json", "--param", "k=3", "--compare-rule", "paper",

@@ -10,7 +10,6 @@
 from __future__ import annotations
 
 import dataclasses
-
 import importlib.util
 import json
 import re
@@ -46,11 +45,9 @@ def builtin():
 
 
 @pytest.fixture(scope="module")
-def small_sequence(tmp_path_factory) -> Path:
+def small_sequence(rendered) -> Path:
     """A small labelled sequence with masks and per-frame truth, rendered by the generator."""
-    from artclass_plugins.synth import generate_sequence
-    return generate_sequence(tmp_path_factory.mktemp("docs") / "laptop", object_name="laptop", motion="articulate",
-                             noise="low", n_frames=8, seed=3, width=160, height=120)
+    return rendered("laptop", "articulate", n_frames=8, seed=3, width=160, height=120)
 
 
 # -- parameters.md ----------------------------------------------------------------------------------

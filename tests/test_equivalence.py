@@ -21,9 +21,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from artclass_core import ArtclassError, Config, Pipeline, PipelineParams
-from artclass_core.geometry import (diameter_of_vertices, grid_cells, hull_vertices, largest_distance,
-                                    quaternion_wxyz)
-from artclass_core.pipeline import StageCache
+from artclass_core.geometry import (
+    diameter_of_vertices,
+    grid_cells,
+    hull_vertices,
+    largest_distance,
+    quaternion_wxyz,
+)
+from artclass_core.pipeline import StageCache, stage_config
 
 from conftest import make_sequence
 
@@ -541,3 +546,25 @@ def test_rule_evidence_in_the_memo_is_reused_when_redeciding(registry, hinge):
     n_calls = len(calls)
     assert fingerprint(pipe.redecide(streamed, sequence=hinge, cache=cache)) == fingerprint(two)
     assert len(calls) == n_calls, "the evidence was found again in the cache"
+
+
+def test_stage_configs_depend_on_what_the_stage_uses():
+    stages = ("segment", "preprocess", "register", "decide")
+    base = Config(rule="paper")
+    keys = {s: stage_config(base, s) for s in stages}
+
+    def changed(config):
+        return {s for s in stages if stage_config(config, s) != keys[s]}
+
+    from artclass_plugins.rules.paper import PaperRuleParams
+    later = {"register", "decide"}
+    assert changed(Config(rule="paper", rule_params=PaperRuleParams(q_bar=0.5))) == {"decide"}
+    assert changed(Config(rule="paper", pipeline=PipelineParams(alpha=0.9))) == {"decide"}
+    assert changed(Config(rule="paper", pipeline=PipelineParams(min_fitness=0.9))) == {"decide"}
+    assert changed(Config(rule="paper", pipeline=PipelineParams(w=7))) == set()
+    assert changed(Config(rule="paper", pipeline=PipelineParams(k=2))) == set()
+    assert changed(Config(rule="paper", pipeline=PipelineParams(cell_size_m=0.02))) == later
+    assert changed(Config(rule="paper", registrar="icp_point_to_plane")) == later
+    assert changed(Config(rule="paper", pipeline=PipelineParams(min_cell_points=20))) == later
+    assert changed(Config(rule="paper", preprocessor="paper")) == {"preprocess", *later}
+    assert changed(Config(rule="paper", segmenter="mask")) == set(stages)
