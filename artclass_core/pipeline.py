@@ -33,8 +33,7 @@ import numpy as np
 
 from . import cells as _cells
 from .cache import StageCache
-from .config import (AUTO_SEGMENTER, CELL_REGISTRAR, CELL_RULE, PLUGIN_KINDS, STAGE_DEPENDENCIES, STAGES, Config,
-                     _fitting, depends_on, stage_config, stage_dependencies)
+from .config import AUTO_SEGMENTER, PLUGIN_KINDS, STAGES, Config, _fitting, stage_config, stage_dependencies
 from .errors import ArtclassError, InputError, ParamError
 from .labels import SEVERITY, fractions, labelled_result, max_count_filter, sequence_label
 from .params import as_dict
@@ -42,9 +41,8 @@ from .plugins import Registry
 from .scheduler import Progress, add_time, merge_timing, single_threaded_open3d, stream_pairs
 from .types import CellMotion, Cloud, FrameResult, MotionEvidence, PairResult, RunResult, Sequence
 
-__all__ = ["AUTO_SEGMENTER", "CELL_REGISTRAR", "CELL_RULE", "PLUGIN_KINDS", "SEVERITY", "STAGES", "STAGE_DEPENDENCIES",
-           "Config", "Pipeline", "Progress", "StageCache", "depends_on", "fractions", "max_count_filter",
-           "sequence_label", "stage_config", "stage_dependencies"]
+__all__ = ["AUTO_SEGMENTER", "PLUGIN_KINDS", "SEVERITY", "STAGES", "Config", "Pipeline", "Progress", "StageCache",
+           "fractions", "max_count_filter", "sequence_label", "stage_config"]
 
 
 @dataclass(frozen=True)

@@ -130,7 +130,7 @@ class SequenceSource:
     reader: str | None = None
 
     @classmethod
-    def of(cls, sequence: Sequence, *, reader: str | None = None) -> "SequenceSource":
+    def of(cls, sequence: Sequence, *, reader: str | None = None) -> SequenceSource:
         return cls(*_where(sequence), reader)
 
     def open(self, registry: Registry) -> Sequence:
@@ -177,12 +177,10 @@ def _plan(registry: Registry, sequence: Sequence, configs: list[Config]) -> list
     for n in order:
         p = pipelines[n]
         key = p.pair_key(sequence, 0, p.params.k, probe)
-        for seen, cache in caches:
-            if seen.setdefault(key, registrations[n]) == registrations[n]:
-                break
-        else:
-            seen, cache = {key: registrations[n]}, StageCache(max_frames=size, max_pairs=size)
-            caches.append((seen, cache))
+        cache = next((c for seen, c in caches if seen.setdefault(key, registrations[n]) == registrations[n]), None)
+        if cache is None:
+            cache = StageCache(max_frames=size, max_pairs=size)
+            caches.append(({key: registrations[n]}, cache))
         plan.append((n, p, cache))
     return plan
 

@@ -189,7 +189,7 @@ class CellMotion:
         return self.registration is not None and self.skipped is None
 
     def to_dict(self) -> dict[str, Any]:
-        from .geometry import rotation_angle_rad, quaternion_wxyz
+        from .geometry import quaternion_wxyz, rotation_angle_rad
         d: dict[str, Any] = dict(cell=list(self.cell), centre_m=_floats(self.centre_m),
                                  n_source=int(len(self.source_idx)), n_target=int(len(self.target_idx)),
                                  skipped=self.skipped, cluster=self.cluster, key=self.key)

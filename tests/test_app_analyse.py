@@ -8,6 +8,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pytest
 from streamlit.testing.v1 import AppTest
 
 from app import controls
@@ -32,6 +33,8 @@ from app_helpers import (
     use_paper_rule,
     zip_folder,
 )
+
+pytestmark = pytest.mark.slow      # the app's page runs (AppTest), each a whole sequence
 
 
 # -- the analyse page ------------------------------------------------------------------------------------

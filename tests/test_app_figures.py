@@ -10,6 +10,8 @@ import pytest
 from artclass_core import Config, figures
 from artclass_core.evaluate import evaluate
 
+pytestmark = pytest.mark.slow      # renders the app's sequences and runs the pipeline on them
+
 
 # -- figures.py ----------------------------------------------------------------------------------------------
 def test_decision_timeline(laptop_run):

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from artclass_core import Config, open_sequences
 from artclass_core.evaluate import evaluate
 
 from app_helpers import N_FRAMES, SEQUENCES, array, errors, metric, ok, timeline_decisions
+
+pytestmark = pytest.mark.slow      # the app's page runs (AppTest)
 
 
 # -- the other pages -------------------------------------------------------------------------------------

@@ -70,6 +70,7 @@ def test_identical_results_whatever_the_number_of_workers(registry, hinge, regis
     assert fingerprint(runs[2]) == fingerprint(runs[0])
 
 
+@pytest.mark.slow
 def test_identical_results_with_the_default_config(registry, hinge):
     cfg = dataclasses.replace(Config(), pipeline=PipelineParams(k=2))
     one, two = (Pipeline(registry, cfg).run(hinge, workers=w) for w in (1, 2))
@@ -77,6 +78,7 @@ def test_identical_results_with_the_default_config(registry, hinge):
     assert [p.info for p in two.pairs] == [p.info for p in one.pairs]
 
 
+@pytest.mark.slow
 def test_repeated_runs_are_identical(registry, hinge):
     """Open3D's multi-threaded point-to-plane ICP differed in the 14th digit between runs, which now
     and then changed a cluster of the robust rule; the pipeline keeps Open3D to one thread."""
@@ -89,6 +91,7 @@ def test_repeated_runs_are_identical(registry, hinge):
         assert fingerprint(Pipeline(registry, cfg).run(hinge)) == first
 
 
+@pytest.mark.slow
 def test_importing_the_plugins_leaves_open3d_alone_and_the_pipeline_sets_one_thread():
     code = ("import open3d as o3d\n"
             "from artclass_core import Pipeline, load_registry\n"
@@ -173,6 +176,7 @@ def _max_alive_clouds(registry, n_frames: int, workers: int, k: int = 2) -> tupl
     return max(most), tracker.alive()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("workers", [1, 2])
 def test_streaming_holds_a_bounded_number_of_clouds(registry, workers):
     k = 2
@@ -296,6 +300,7 @@ def test_redecide_equals_a_fresh_run_and_leaves_the_first_result_alone(registry,
     assert redecided.params["rule"]["q_bar"] == 0.5 and redecided.params["pipeline"]["alpha"] == 0.6
 
 
+@pytest.mark.slow
 def test_redecide_is_the_same_whatever_the_number_of_workers(registry, hinge):
     cfg = dataclasses.replace(Config(), pipeline=PipelineParams(k=2))
     changed = cfg.with_overrides(registry, {"noise_factor": "2.5"})    # moves every cost and threshold

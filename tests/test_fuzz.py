@@ -27,7 +27,7 @@ from fixtures_layouts import write_folder, write_rbo, write_tum, write_ycbv
 
 N_FRAMES = 3
 RUN = ["--param", "k=1", "--workers", "1"]          # two pairs: every frame is read
-FUZZ = settings(max_examples=20, deadline=timedelta(seconds=30), derandomize=True, database=None,
+FUZZ = settings(max_examples=15, deadline=timedelta(seconds=30), derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -34,6 +34,8 @@ from artclass_core.sweep import (
 
 from conftest import ROOT
 
+pytestmark = pytest.mark.slow      # whole sweeps, two of them on a local Dask cluster
+
 OBJECTS = {"laptop_articulate": ("laptop", "articulate"), "mug_carry": ("mug", "carry"),
            "cereal_box_static": ("cereal_box", "static")}
 TIMING = ("seconds", "time_read_s", "time_segment_s", "time_preprocess_s", "time_register_s", "time_decide_s",

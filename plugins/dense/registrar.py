@@ -144,7 +144,7 @@ class DenseRegistrar(PairRegistrar):
         ``reach_sigmas`` noise sigmas at its depth, plus two pixels."""
         return self.params.reach_sigmas * noise_m(points[:, 2], self.params.depth_noise_m) + 2 * points[:, 2] / fx
 
-    def _refits(self, ev: MotionEvidence, fit: "_Fit", rule: DenseRuleParams, round_: int,
+    def _refits(self, ev: MotionEvidence, fit: _Fit, rule: DenseRuleParams, round_: int,
                 reach: list[float]) -> tuple[list, list]:
         """The motions a default selection picks, refitted on the points they explain; and, for each
         of the largest image regions of points that none of them explains, motions fitted to that

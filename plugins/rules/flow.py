@@ -58,7 +58,7 @@ class FlowEvidence:
     intrinsics: Intrinsics | None = None
 
     @classmethod
-    def none(cls, n: int) -> "FlowEvidence":
+    def none(cls, n: int) -> FlowEvidence:
         return cls(np.full((n, 3), np.nan), np.full((n, 2), np.nan), np.full((n, 2), np.nan), np.zeros(n))
 
     @property
@@ -179,7 +179,7 @@ def offset_px(du: np.ndarray, dv: np.ndarray, normal: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(normal[:, 0]), across, np.hypot(du, dv))
 
 
-def _link(a: Cloud, b: Cloud, scratch: dict) -> "_Flow":
+def _link(a: Cloud, b: Cloud, scratch: dict) -> _Flow:
     """The flow between two consecutive clouds' images, kept in the pair's ``scratch`` (re-deciding the
     pair under other thresholds finds it again)."""
     key = ("flow", a.frame_index, b.frame_index)
