@@ -102,7 +102,7 @@ bench: setup
 	else echo "bench: no 'artclass bench' command yet" >&2; exit 1; fi
 
 clean:
-	rm -rf .pytest_cache build dist *.egg-info $(INSTALLED) $(TEST_INSTALLED) $(MODELS)
+	rm -rf .pytest_cache .hypothesis .ruff_cache build dist *.egg-info $(INSTALLED) $(TEST_INSTALLED) $(MODELS)
 	find . -path ./$(VENV) -prune -o -name __pycache__ -type d -prune -exec rm -rf {} +
 
 distclean: clean
