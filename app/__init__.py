@@ -1,13 +1,13 @@
 """The artclass Streamlit app (``streamlit run app/streamlit_app.py``).
 
 This folder is not installed. The app puts the project root on ``sys.path`` and imports its modules
-as ``app.figures``, ``app.uploads`` ...; a notebook or a test does the same::
+as ``app.state``, ``app.uploads`` ...; the Plotly figure builders it draws with are installed with
+artclass (:mod:`artclass_core.figures`), so a notebook imports them directly::
 
-    import sys; sys.path.insert(0, "/path/to/artclass")   # the project root
-    from app.figures import decision_timeline, motion_arrows
+    from artclass_core.figures import decision_timeline, motion_arrows
 
-Modules without Streamlit (usable anywhere): :mod:`app.figures` (Plotly figure builders),
-:mod:`app.uploads` (zip uploads and data-root confinement), :mod:`app.runner` (the stage-by-stage
-run the app caches). With Streamlit: :mod:`app.state` (caches, session state), :mod:`app.controls`
-(sidebar widgets built from the parameter metadata), and the pages in ``app/app_pages/``.
+Modules without Streamlit (usable anywhere): :mod:`app.uploads` (zip uploads and data-root
+confinement). With Streamlit: :mod:`app.state` (the stage cache, pipelines, session state; a run is
+:meth:`artclass_core.Pipeline.run`), :mod:`app.controls` (sidebar widgets built from the parameter
+metadata), and the pages in ``app/app_pages/``.
 """

@@ -1,22 +1,13 @@
-"""The app's caches and shared sidebar: plugin registry, sequences, stage results, configuration.
+"""The app's caches and shared sidebar: plugin registry, sequences, the stage cache, configuration.
 
-Caching follows the pipeline's stages, so that a slider only re-runs what depends on it:
-
-=================  ==========================================  ===========================================
-cache              key                                         recomputed when
-=================  ==========================================  ===========================================
-``frame_result``   sequence, frame, segmenter + preprocessor   a segmentation or preprocessing parameter
-``registered``     ... + registrar, x, min_cell_points         x or a registrar parameter (no re-segmenting)
-``decided``        ... + rule, alpha, min_fitness              q̄, t̄, α, min_fitness (no ICP)
-(not cached)       summarise                                   w, k (k only pairs other, cached frames)
-=================  ==========================================  ===========================================
-
-The frame and register stages are ``st.cache_resource``: every re-run gets the very same cloud and
-registration objects (nothing is copied, and a decision rule's :func:`artclass_core.pipeline.pair_memo`
-evidence survives a slider move). Nothing in the app modifies them: :meth:`Pipeline.decide` and
-:meth:`Pipeline.checked_cells` work on copies. The register stage runs without the fitness check
-(``min_fitness`` = 0); it is applied when deciding (:func:`app.runner.decide_registered`). The
-decisions are ``st.cache_data`` (a copy per call; the app sets each pair's ground truth on it).
+The app runs a sequence exactly as the command line does, with :meth:`artclass_core.Pipeline.run`, through
+one :class:`artclass_core.StageCache` held for the server's lifetime (``st.cache_resource``). The cache
+keeps every frame's cloud and every pair's registrations keyed on what they depend on
+(:data:`artclass_core.config.STAGE_DEPENDENCIES`), so a slider only re-runs what depends on it:
+a decision parameter (q̄, t̄, α, min_fitness, the rule's own) re-decides without registering; x or a
+registrar parameter re-registers without re-segmenting; k re-uses every frame; w only re-filters.
+Pipelines are cached per configuration, and share their segmenters (e.g. ONNX sessions, and the hand
+masks the page shows) per segmentation setting.
 """
 
 from __future__ import annotations
@@ -24,21 +15,30 @@ from __future__ import annotations
 import os
 import statistics
 import sys
-import threading
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import streamlit as st
-from streamlit.runtime.scriptrunner import add_script_run_ctx, get_script_run_ctx
 
-from artclass_core import (ArtclassError, CellMotion, Config, FrameResult, InputError, MotionEvidence, PairResult,
-                           Pipeline, PipelineParams, Registry, RunResult, Sequence, describe, find_sequences, load_registry,
-                           open_sequences)
-from artclass_core.pipeline import AUTO_SEGMENTER, CELL_REGISTRAR
+from artclass_core import (
+    ArtclassError,
+    Config,
+    InputError,
+    Pipeline,
+    PipelineParams,
+    Registry,
+    RunResult,
+    Sequence,
+    StageCache,
+    describe,
+    find_sequences,
+    load_registry,
+    open_sequences,
+)
+from artclass_core.config import AUTO_SEGMENTER, CELL_REGISTRAR, stage_config
 
 from . import controls, uploads
-from .runner import decide_registered, run_staged, stage_config, stage_key
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV_SAMPLES = "ARTCLASS_SAMPLE_DATA"
@@ -73,18 +73,6 @@ def registry() -> Registry:
     return load_registry()
 
 
-@st.cache_resource(max_entries=32, show_spinner=False)
-def _pipeline(key: str, _config: Config) -> Pipeline:
-    return Pipeline(registry(), _config)
-
-
-def stage_pipeline(config: Config, stage: str) -> Pipeline:
-    """A cached :class:`Pipeline` holding only what ``stage`` depends on (segmenters, e.g. ONNX
-    sessions, are created once per segmentation setting, not once per slider move)."""
-    sc = stage_config(config, stage)
-    return _pipeline(repr(sc), sc)
-
-
 @st.cache_resource(max_entries=64, ttl=3600, show_spinner=False)
 def _open(path: str, stamp: int) -> list[Sequence]:
     return open_sequences(registry(), path)
@@ -109,66 +97,45 @@ def sequence_key(seq: Sequence) -> str:
     return f"{seq.path}#{seq.name}@{_stamp(seq.path)}"
 
 
-# -- cached stages -------------------------------------------------------------------------------------
-@st.cache_resource(max_entries=2000, show_spinner=False)
-def frame_result(seq_key: str, i: int, key: str, _sequence: Sequence, _config: Config) -> FrameResult:
-    """Segment and preprocess frame ``i`` (``Pipeline.frame``); keeps the cloud. Shared: read only."""
-    return stage_pipeline(_config, "frame").frame(_sequence, i)
+# -- the stage cache and the pipelines ----------------------------------------------------------------
+@st.cache_resource(show_spinner=False)
+def stage_cache() -> StageCache:
+    """Clouds and registrations shared by every run of the app (a sequence's entries go with it)."""
+    return StageCache(max_frames=2000, max_pairs=2000)
 
 
-@st.cache_resource(max_entries=2000, show_spinner=False)
-def registered(seq_key: str, i: int, j: int, key: str, _config: Config, _source: FrameResult,
-               _target: FrameResult) -> tuple[tuple[CellMotion, ...] | MotionEvidence, float | None]:
-    """Registration of the pair (i, j) (``Pipeline.register`` without the fitness check): the cells
-    and the cell size x, or a pair registrar's motion evidence. Shared: read only."""
-    cells, x = stage_pipeline(_config, "register").register(_source.cloud, _target.cloud)
-    return (cells if isinstance(cells, MotionEvidence) else tuple(cells)), x
+@st.cache_resource(max_entries=16, show_spinner=False)
+def _segmenters(key: str) -> dict:
+    return {}
 
 
-@st.cache_data(max_entries=4000, show_spinner=False)
-def decided(seq_key: str, i: int, j: int, key: str, _config: Config, _source: FrameResult, _target: FrameResult,
-            _cells: tuple[CellMotion, ...] | MotionEvidence, x: float | None,
-            _between: tuple[FrameResult, ...]) -> PairResult:
-    """Fitness and alpha checks and the decision rule of the pair (:func:`app.runner.decide_registered`)."""
-    cells = _cells if isinstance(_cells, MotionEvidence) else list(_cells)
-    return decide_registered(stage_pipeline(_config, "decide"), i, j, cells, _source.cloud, _target.cloud, x,
-                             tuple(f.cloud for f in _between))
+@st.cache_resource(max_entries=32, show_spinner=False)
+def _pipeline(key: str, _config: Config) -> Pipeline:
+    return Pipeline(registry(), _config, segmenters=_segmenters(repr(stage_config(_config, "segment"))))
 
 
-@st.cache_data(max_entries=64, show_spinner=False)
-def frame_mask(seq_key: str, i: int, key: str, _sequence: Sequence, _config: Config) -> np.ndarray | None:
-    """The segmenter's mask of frame ``i`` (for display; the frame stage does not return it)."""
-    pipeline = stage_pipeline(_config, "frame")
-    return pipeline.segmenter(_sequence).segment(_sequence[i], sequence=_sequence)
+def pipeline(config: Config) -> Pipeline:
+    """The :class:`Pipeline` of ``config`` (cached); pipelines with the same segmentation settings
+    share their segmenter objects."""
+    return _pipeline(repr(config), config)
 
 
 def run_sequence(seq: Sequence, config: Config, *, progress: Callable[[str, int, int], None] | None = None) -> RunResult:
-    """Classify ``seq`` through the stage caches (see :func:`app.runner.run_staged`), on every CPU.
-    The worker threads share the script run's context, as Streamlit's caches expect of their callers
-    (https://docs.streamlit.io/develop/concepts/design/multithreading); they call nothing else of
-    Streamlit's."""
-    skey = sequence_key(seq)
-    fkey, rkey, dkey = (stage_key(config, s) for s in ("frame", "register", "decide"))
-    ctx = get_script_run_ctx()
+    """Classify ``seq`` (:meth:`Pipeline.run` through the app's :func:`stage_cache`, on every CPU),
+    keeping the clouds for display. ``progress`` is called in the script's thread."""
+    return pipeline(config).run(seq, cache=stage_cache(), keep_clouds=True, progress=progress,
+                                workers=os.cpu_count() or 1)
 
-    def in_ctx(fn: Callable) -> Callable:
-        def run(*args):
-            if ctx is not None and get_script_run_ctx(suppress_warning=True) is None:
-                add_script_run_ctx(threading.current_thread(), ctx)
-            return fn(*args)
-        return run
 
-    return run_staged(
-        seq, config, Pipeline(registry(), config),
-        frame=in_ctx(lambda i: frame_result(skey, i, fkey, seq, config)),
-        register=in_ctx(lambda a, b: registered(skey, a.index, b.index, rkey, config, a, b)),
-        decide=in_ctx(lambda a, b, cells, x, between: decided(skey, a.index, b.index, dkey, config, a, b, cells, x,
-                                                              between)),
-        progress=progress, workers=os.cpu_count() or 1)
+@st.cache_data(max_entries=64, show_spinner=False)
+def _mask(seq_key: str, i: int, key: str, _sequence: Sequence, _config: Config) -> np.ndarray | None:
+    return pipeline(_config).segmenter(_sequence).segment(_sequence[i], sequence=_sequence)
 
 
 def mask_of(seq: Sequence, i: int, config: Config) -> np.ndarray | None:
-    return frame_mask(sequence_key(seq), i, stage_key(config, "frame"), seq, config)
+    """The segmenter's mask of frame ``i`` (for display; the run keeps only the cloud)."""
+    segment = stage_config(config, "segment")
+    return _mask(sequence_key(seq), i, repr(segment), seq, segment)
 
 
 # -- the configuration sidebar (shared by the pages) ------------------------------------------------------

@@ -14,12 +14,22 @@ from tqdm import tqdm
 
 from .errors import ArtclassError
 from .evaluate import evaluation, markdown
+from .interfaces import KINDS
 from .params import PipelineParams, describe
 from .pipeline import PLUGIN_KINDS, Config, Pipeline
 from .plugins import Registry, load_registry
 from .sequences import find_sequences, open_sequences
-from .interfaces import KINDS
-from .sweep import DASK_HINT, grid_settings, parse_grid, plan_tasks, run_tasks, summary, sweep, swept_names, write_figure
+from .sweep import (
+    DASK_HINT,
+    grid_settings,
+    parse_grid,
+    plan_tasks,
+    run_tasks,
+    summary,
+    sweep,
+    swept_names,
+    write_figure,
+)
 from .types import DECISIONS
 
 

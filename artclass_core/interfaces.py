@@ -13,7 +13,17 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .params import Params
-from .types import CellMotion, Cloud, Decision, Frame, Intrinsics, Motion, MotionEvidence, Registration, Sequence
+from .types import (
+    CellMotion,
+    Cloud,
+    Decision,
+    Frame,
+    Intrinsics,
+    Motion,
+    MotionEvidence,
+    Registration,
+    Sequence,
+)
 
 
 class Plugin:
@@ -96,8 +106,15 @@ class DecisionRule(Plugin):
     #: images from frame to frame): the pipeline then passes them as ``between``, in frame order.
     uses_frames_between: bool = False
 
+    #: True for a rule that keeps work its parameters do not change (motion hypotheses, residuals ...)
+    #: between calls: the pipeline then passes ``scratch``, a dict that belongs to the pair and lives as
+    #: long as its registration is kept (in a :class:`~artclass_core.cache.StageCache`, or in a
+    #: result's :attr:`PairResult.scratch`), so re-deciding under other thresholds finds it again. Key
+    #: the entries on what they depend on besides the pair, e.g. ``("my_rule", params.max_points)``.
+    uses_scratch: bool = False
+
     def decide(self, cells: list[CellMotion], *, source: Cloud, target: Cloud,
-               between: tuple[Cloud, ...] = ()) -> RuleDecision:
+               between: tuple[Cloud, ...] = (), scratch: dict | None = None) -> RuleDecision:
         """Decide AM / RM / NM (or skipped) for a pair from its registered cells."""
         raise NotImplementedError
 

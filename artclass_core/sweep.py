@@ -21,7 +21,6 @@ cluster), so the table is identical but for the timing columns.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import json
 import logging
@@ -37,14 +36,12 @@ import pandas as pd
 
 from .errors import ArtclassError, InputError, ParamError
 from .evaluate import SequenceOutcome, one_line, run_outcome
-from .pipeline import PLUGIN_KINDS, STAGES, Config, Pipeline, Progress, StageCache
+from .pipeline import PLUGIN_KINDS, STAGES, Config, Pipeline, Progress, StageCache, stage_config
 from .plugins import Registry, load_registry
 from .sequences import open_sequences
 from .types import DECISIONS, Sequence
 
 DASK_HINT = "pip install 'artclass[dask]'"
-#: Settings that change only the decision stage, re-decided from cached registrations.
-DECISION_PIPELINE_PARAMS = ("alpha", "min_fitness", "w")
 KEY_COLUMNS = ("path", "sequence", "recipe")
 TABLE_SUFFIXES = (".parquet", ".csv")
 DECISION_LETTERS = {"AM": "A", "RM": "R", "NM": "N", "skipped": "-"}      # the ``decisions`` column
@@ -133,7 +130,7 @@ class SequenceSource:
     reader: str | None = None
 
     @classmethod
-    def of(cls, sequence: Sequence, *, reader: str | None = None) -> "SequenceSource":
+    def of(cls, sequence: Sequence, *, reader: str | None = None) -> SequenceSource:
         return cls(*_where(sequence), reader)
 
     def open(self, registry: Registry) -> Sequence:
@@ -171,7 +168,7 @@ def _plan(registry: Registry, sequence: Sequence, configs: list[Config]) -> list
     probe = StageCache()
     pipelines = [Pipeline(registry, c) for c in configs]
     frame_keys = [p.frame_key(sequence, 0, probe)[2:] for p in pipelines]
-    registrations = [_registration_settings(c) for c in configs]
+    registrations = [stage_config(p.config, "register") for p in pipelines]   # what the registrations depend on
     order = sorted(range(len(configs)), key=lambda n: (frame_keys.index(frame_keys[n]),
                                                        registrations.index(registrations[n])))
     size = len(sequence) + 1
@@ -180,21 +177,12 @@ def _plan(registry: Registry, sequence: Sequence, configs: list[Config]) -> list
     for n in order:
         p = pipelines[n]
         key = p.pair_key(sequence, 0, p.params.k, probe)
-        for seen, cache in caches:
-            if seen.setdefault(key, registrations[n]) == registrations[n]:
-                break
-        else:
-            seen, cache = {key: registrations[n]}, StageCache(max_frames=size, max_pairs=size)
-            caches.append((seen, cache))
+        cache = next((c for seen, c in caches if seen.setdefault(key, registrations[n]) == registrations[n]), None)
+        if cache is None:
+            cache = StageCache(max_frames=size, max_pairs=size)
+            caches.append(({key: registrations[n]}, cache))
         plan.append((n, p, cache))
     return plan
-
-
-def _registration_settings(config: Config) -> Config:
-    """``config`` with its decision settings at their defaults: what its registrations depend on."""
-    default = Config()
-    pipeline = dataclasses.replace(config.pipeline, **{f: getattr(default.pipeline, f) for f in DECISION_PIPELINE_PARAMS})
-    return dataclasses.replace(config, rule=default.rule, rule_params=None, pipeline=pipeline)
 
 
 def _row(source: SequenceSource, setting: Setting, o: SequenceOutcome, result) -> dict[str, Any]:

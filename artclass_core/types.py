@@ -189,7 +189,7 @@ class CellMotion:
         return self.registration is not None and self.skipped is None
 
     def to_dict(self) -> dict[str, Any]:
-        from .geometry import rotation_angle_rad, quaternion_wxyz
+        from .geometry import quaternion_wxyz, rotation_angle_rad
         d: dict[str, Any] = dict(cell=list(self.cell), centre_m=_floats(self.centre_m),
                                  n_source=int(len(self.source_idx)), n_target=int(len(self.target_idx)),
                                  skipped=self.skipped, cluster=self.cluster, key=self.key)
@@ -301,6 +301,8 @@ class PairResult:
     motions: list[Motion] = field(default_factory=list)   # the selected motions (rules that decide from motions)
     labels: np.ndarray | None = None   # (N,) int: each evidence point's motion (index into motions), -1 = none
     evidence: MotionEvidence | None = field(default=None, repr=False)   # what the motions were selected from
+    # the rule's scratch space for this pair (DecisionRule.uses_scratch); not part of the result's JSON
+    scratch: dict[Any, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def to_dict(self, *, cells: bool = True) -> dict[str, Any]:
         d = dict(i=self.i, j=self.j, decision=self.decision, reason=self.reason, truth=self.truth,

@@ -31,9 +31,8 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 import cv2
+import numpy as np
 
 from artclass_core import ArtclassError, Frame, Sequence, load_registry, open_sequences
 from artclass_plugins.segmenters.depth_threshold import DepthThresholdParams, DepthThresholdSegmenter

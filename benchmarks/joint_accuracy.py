@@ -52,7 +52,8 @@ def main() -> None:
                     position.append(1000 * axis_position_error_m(truth.point_m, truth.direction, est.axis_point_m,
                                                                  est.axis_direction, at_m=truth.poses[0, :3, 3]))
             unit = {"revolute": "deg", "prismatic": "mm"}.get(kind, "")
-            cell = lambda v, u="": f"{np.median(v):.2f}{' ' + u if u else ''}" if v else "-"
+            def cell(v, u=""):
+                return f"{np.median(v):.2f}{' ' + u if u else ''}" if v else "-"
             print(f"| {1000 * noise_m:g} / {noise_deg:g} | {kind} | {np.mean(right):.0%} | {cell(direction)} | "
                   f"{cell(position)} | {cell(state, unit)} | {np.median(cpu):.0f} |")
 

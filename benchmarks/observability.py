@@ -25,7 +25,6 @@ import argparse
 import numpy as np
 
 from artclass_core import Config, Pipeline, find_sequences, load_registry
-from artclass_core.pipeline import pair_memo
 from artclass_plugins.rules import robust as R
 
 
@@ -69,8 +68,7 @@ def main(argv=None) -> None:
                 n_right += pair.decision == pair.truth
             if not scored or pair.truth != "AM" or "tau_m" not in pair.info:
                 continue
-            src, tgt = run.frames[pair.i].cloud, run.frames[pair.j].cloud
-            ev = next(v for k, v in pair_memo(src, tgt).items() if k[0] == "robust")
+            ev = next(v for k, v in pair.scratch.items() if k[0] == "robust")
             seen = observable(ev, truth, pair.i, pair.j, pair.info["tau_m"], pipe.rule.params)
             hit = pair.decision == "AM"
             counts += (1, hit, seen, seen and not hit)

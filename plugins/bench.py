@@ -390,7 +390,7 @@ def run_bench(args) -> int:
     segmenters = [s for s in _csv(args.segmenters) if s in registry.names("segmenter")]
     missing = [s for s in _csv(args.segmenters) if s not in registry.names("segmenter")]
     workers = [int(w) for w in _csv(args.workers)]
-    rev = os.popen("git -C {} rev-parse --short HEAD 2>/dev/null".format(Path(__file__).resolve().parent)).read().strip()
+    rev = os.popen(f"git -C {Path(__file__).resolve().parent} rev-parse --short HEAD 2>/dev/null").read().strip()
     import artclass_core
     out.write(f"artclass bench: commit {rev or 'unknown'} (core from {Path(artclass_core.__file__).parent}), "
               f"{os.cpu_count()} CPUs, Python {sys.version.split()[0]}, load average {os.getloadavg()[0]:.1f}\n\n")

@@ -14,12 +14,8 @@ from .preprocessors import camera_facing_normals, to_o3d
 
 reg = o3d.pipelines.registration
 
-# Open3D's own threads add up point-to-plane ICP's normal equations in a varying order: the same
-# registration differs in the 14th digit from run to run, enough to flip a decision threshold now
-# and then. artclass runs frames and pairs in parallel itself (``Pipeline.run(workers=N)``), so
-# Open3D is kept to one thread and every result is reproducible. Set once, for the whole process,
-# when the registrars load (the plugin registry loads them with every built-in plugin).
-o3d.utility.set_max_threads(1)
+# Reproducible only with Open3D on one thread of its own: the pipeline sets that before it runs
+# (artclass_core.scheduler.single_threaded_open3d); importing this module changes nothing.
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,5 @@
-"""Shared fixtures: the plugin registry, the data folders and a small in-memory RGB-D sequence.
+"""Shared fixtures: the plugin registry, the data folders, synthetic sequences rendered once per test
+run, and a small in-memory RGB-D sequence.
 
 The in-memory sequences are rendered here, without the synthetic-data plugin, so the core tests do
 not depend on it: flat panels facing the camera, densely sampled and z-buffered into a depth image,
@@ -7,6 +8,8 @@ with a known motion per frame (none, a translation, or one panel turning about a
 
 from __future__ import annotations
 
+import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +18,8 @@ import pytest
 from artclass_core import Frame, Intrinsics, Sequence, load_registry
 
 ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:    # the app folder is not installed: it imports as app.*, from the project root
+    sys.path.insert(0, str(ROOT))
 SHARED_DATA = (Path(__file__).parents[1] / ".." / "shared" / "data").resolve()
 SAMPLE_DATA = ROOT / "sample_data"
 
@@ -44,6 +49,41 @@ def shared_data() -> Path:
 def sample_dir() -> Path:
     """The bundled ``sample_data/`` folder (committed to the repository)."""
     return SAMPLE_DATA
+
+
+@pytest.fixture(scope="session")
+def rendered(tmp_path_factory):
+    """``rendered(object_name, motion, n_frames=..., seed=..., width=..., height=...)``: the folder of a
+    synthetic sequence (low noise), rendered once per test run and shared; tests must not write into it."""
+    from artclass_plugins.synth import generate_sequence
+
+    root = tmp_path_factory.mktemp("rendered")
+    done: dict[tuple, Path] = {}
+
+    def render_once(object_name: str, motion: str, *, n_frames: int = 8, seed: int = 0, width: int = 320,
+                    height: int = 240) -> Path:
+        key = (object_name, motion, n_frames, seed, width, height)
+        if key not in done:
+            folder = root / "_".join(map(str, key))
+            generate_sequence(folder, object_name=object_name, motion=motion, noise="low", n_frames=n_frames,
+                              seed=seed, width=width, height=height)
+            done[key] = folder
+        return done[key]
+
+    return render_once
+
+
+@pytest.fixture(scope="session")
+def rendered_root(rendered):
+    """``rendered_root(dest, {name: (object, motion)}, n_frames=..., width=..., height=...)``: a folder
+    ``dest`` holding a copy of each rendered sequence (the n-th with seed n) under its name."""
+
+    def make(dest: Path, sequences: dict[str, tuple[str, str]], **kwargs) -> Path:
+        for n, (name, (obj, motion)) in enumerate(sequences.items()):
+            shutil.copytree(rendered(obj, motion, seed=n, **kwargs), Path(dest) / name)
+        return Path(dest)
+
+    return make
 
 
 def sample_sequences() -> list[Path]:
@@ -168,3 +208,41 @@ def make_sequence(motion: str = "static", *, n_frames: int = 6, step: float | No
 def sequence_factory():
     """:func:`make_sequence`: ``sequence_factory("hinge", n_frames=5)`` renders a small sequence."""
     return make_sequence
+
+
+# -- the app --------------------------------------------------------------------------------------------
+@pytest.fixture(scope="session")
+def data_root(tmp_path_factory, rendered_root) -> Path:
+    """A data root holding a few small synthetic sequences (what the app opens in its tests)."""
+    from app_helpers import N_FRAMES, SEQUENCES
+
+    return rendered_root(tmp_path_factory.mktemp("app_data"), SEQUENCES, n_frames=N_FRAMES)
+
+
+@pytest.fixture
+def app(data_root, tmp_path, monkeypatch):
+    """The app, with ``data_root`` as its bundled samples and its only data root."""
+    from streamlit.testing.v1 import AppTest
+
+    from app_helpers import APP, TIMEOUT
+
+    monkeypatch.setenv("ARTCLASS_SAMPLE_DATA", str(data_root))
+    monkeypatch.delenv("ARTCLASS_DATA_ROOTS", raising=False)
+    monkeypatch.setenv("ARTCLASS_UPLOAD_DIR", str(tmp_path / "uploads"))
+    return AppTest.from_file(APP, default_timeout=TIMEOUT)
+
+
+@pytest.fixture(scope="session")
+def laptop(registry, data_root):
+    """The app's articulated laptop sequence."""
+    from artclass_core import open_sequences
+
+    return open_sequences(registry, data_root / "laptop_articulate")[0]
+
+
+@pytest.fixture(scope="session")
+def laptop_run(registry, laptop):
+    """The default pipeline's run of :func:`laptop`, with its clouds."""
+    from artclass_core import Config, Pipeline
+
+    return Pipeline(registry, Config()).run(laptop, keep_clouds=True)

@@ -56,7 +56,7 @@ def first_articulated_sample() -> tuple[str, int]:
 def server(tmp_path_factory):
     """``streamlit run app/streamlit_app.py`` on a free port, as a user starts it (no configuration:
     it opens on the bundled samples); always stopped at the end."""
-    assert Path(CHROMIUM).exists(), f"{CHROMIUM} is missing: install the Debian package chromium (make setup)"
+    assert Path(CHROMIUM).exists(), f"{CHROMIUM} is missing: install the Debian package chromium (make test does)"
     port = _free_port()
     log = tmp_path_factory.mktemp("streamlit") / "server.log"
     env = dict(os.environ, ARTCLASS_UPLOAD_DIR=str(log.parent / "uploads"))

@@ -19,7 +19,16 @@ import pytest
 import scipy.io
 
 from artclass_core.cli import main
-from fixtures_layouts import snapshot, write_camera_info, write_folder, write_png, write_rbo, write_tum, write_ycbv
+
+from fixtures_layouts import (
+    snapshot,
+    write_camera_info,
+    write_folder,
+    write_png,
+    write_rbo,
+    write_tum,
+    write_ycbv,
+)
 
 
 def run(capfd, argv: list[str], *, watch: Path) -> tuple[int, str, str]:

@@ -59,6 +59,7 @@ def test_sample_data_is_bundled():
     assert labels == LABELS, "the samples cover the three classes"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seq", SAMPLES, ids=lambda p: p.name)
 def test_classify_json(capsys, seq):
     status, out, err = run_cli(capsys, "classify", seq, "--json")
@@ -67,6 +68,7 @@ def test_classify_json(capsys, seq):
     check_result(json.loads(out), name=seq.name)
 
 
+@pytest.mark.slow
 def test_classify_workers_give_the_same_result(capsys):
     runs = []
     for workers in ("1", "2"):
@@ -79,6 +81,7 @@ def test_classify_workers_give_the_same_result(capsys):
     assert status != 0 and "workers = 0 must be a positive integer" in err and "Traceback" not in err
 
 
+@pytest.mark.slow
 def test_classify_summary(capsys):
     seq = SAMPLES[0]
     status, out, err = run_cli(capsys, "classify", seq)
@@ -92,6 +95,7 @@ def test_classify_summary(capsys):
         assert any(text in line for line in lines), f"{text!r} missing from:\n{out}"
 
 
+@pytest.mark.slow
 def test_param_by_symbol_is_recorded(capsys):
     seq = SAMPLES[0]
     status, out, err = run_cli(capsys, "classify", seq, "--json", "--no-cells", "--rule", "paper",
@@ -120,6 +124,7 @@ def test_bad_options_give_one_line(capsys, argv, message):
     assert err.startswith("artclass: error: ") and message in err and err.count("\n") == 1, err
 
 
+@pytest.mark.slow
 def test_evaluate_real_ycbv(capsys, shared_data):
     root = shared_data / "ycbv"
     status, out, err = run_cli(capsys, "evaluate", root, "--param", "k=2")
@@ -134,6 +139,7 @@ def test_evaluate_real_ycbv(capsys, shared_data):
         assert obj in out
 
 
+@pytest.mark.slow
 def test_evaluate_synthetic_smoke_set(capsys, tmp_path):
     from artclass_plugins.synth import generate_set
     paths = generate_set(tmp_path / "smoke", preset="smoke", seed=0)
@@ -154,12 +160,11 @@ def test_evaluate_synthetic_smoke_set(capsys, tmp_path):
         assert f"| {p.name} |" in out
 
 
-def test_evaluate_on_a_local_dask_cluster_is_the_serial_evaluation(capsys, tmp_path):
+@pytest.mark.slow
+def test_evaluate_on_a_local_dask_cluster_is_the_serial_evaluation(capsys, tmp_path, rendered_root):
     pytest.importorskip("distributed", reason="Dask is in the test extra: pip install -e '.[test]'")
-    from artclass_plugins.synth import generate_sequence
-    for n, (obj, motion) in enumerate((("laptop", "articulate"), ("mug", "carry"))):
-        generate_sequence(tmp_path / obj, object_name=obj, motion=motion, noise="low", n_frames=8, seed=n,
-                          width=160, height=120)
+    rendered_root(tmp_path, {"laptop": ("laptop", "articulate"), "mug": ("mug", "carry")}, n_frames=8, width=160,
+                  height=120)
     runs = []
     for extra in ([], ["--scheduler", "local"]):
         status, out, err = run_cli(capsys, "evaluate", tmp_path, "--json", "--param", "k=3", "--compare-rule", "paper",
@@ -204,6 +209,7 @@ def test_plugins_lists_the_registry(capsys, registry):
             assert f"  {name} " in out
 
 
+@pytest.mark.slow
 def test_installed_console_script():
     """The real ``artclass`` script of this environment, in a fresh process."""
     script = Path(sys.executable).with_name("artclass")

@@ -9,15 +9,28 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from artclass_core import (ArtclassError, CellMotion, Cloud, Config, Frame, InputError, Params, Pipeline,
-                           PluginError, RuleDecision, Sequence, describe, hookimpl, load_registry)
+from artclass_core import (
+    ArtclassError,
+    CellMotion,
+    Cloud,
+    Config,
+    Frame,
+    InputError,
+    Params,
+    Pipeline,
+    PluginError,
+    RuleDecision,
+    Sequence,
+    describe,
+    hookimpl,
+    load_registry,
+)
 from artclass_core.geometry import transform
 from artclass_core.interfaces import KINDS
 
@@ -29,6 +42,14 @@ ALL = [(kind, name) for kind in KINDS for name in REGISTRY.names(kind)]
 
 def ids(kind: str) -> list[str]:
     return REGISTRY.names(kind)
+
+
+NEURAL = {"u2net"}      # segmenters that run a neural network on the CPU: slow
+
+
+def marked(names: list[str]) -> list:
+    """``names`` for parametrize, those of :data:`NEURAL` marked slow."""
+    return [pytest.param(n, marks=pytest.mark.slow) if n in NEURAL else n for n in names]
 
 
 def cell_registrars() -> list[str]:
@@ -137,7 +158,7 @@ def segment(name: str, frame: Frame, seq: Sequence):
         return err
 
 
-@pytest.mark.parametrize("name", ids("segmenter"))
+@pytest.mark.parametrize("name", marked(ids("segmenter")))
 def test_segmenter_returns_a_mask_of_the_frame(name):
     out = segment(name, SEGMENT_SEQ[2], SEGMENT_SEQ)
     if isinstance(out, ArtclassError):
@@ -148,7 +169,7 @@ def test_segmenter_returns_a_mask_of_the_frame(name):
     assert (out is None and again is None) or np.array_equal(out, again), "segmentation is deterministic"
 
 
-@pytest.mark.parametrize("name", ids("segmenter"))
+@pytest.mark.parametrize("name", marked(ids("segmenter")))
 def test_segmenter_on_a_frame_without_depth(name):
     """No depth reading at all: no mask (None or empty), or the documented error; never a crash."""
     blank = [Frame(i, f"{i:06d}", np.zeros((INTRINSICS.height, INTRINSICS.width, 3), np.uint8),

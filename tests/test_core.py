@@ -5,19 +5,38 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass
-from itertools import combinations
 
 import numpy as np
 import pytest
 from scipy.spatial.distance import pdist
 from scipy.spatial.transform import Rotation
 
-from artclass_core import (CellMotion, Cloud, Config, Frame, InputError, Intrinsics, ParamError, Params, Pipeline,
-                           PipelineParams, Registration, fractions, max_count_filter, param, sequence_label)
-from artclass_core.geometry import (grid_cells, largest_distance, quaternion_wxyz, rotation_angle_rad,
-                                    transform)
+from artclass_core import (
+    CellMotion,
+    Cloud,
+    Config,
+    Frame,
+    InputError,
+    Intrinsics,
+    ParamError,
+    Params,
+    Pipeline,
+    PipelineParams,
+    Registration,
+    fractions,
+    max_count_filter,
+    param,
+    sequence_label,
+)
+from artclass_core.geometry import (
+    grid_cells,
+    largest_distance,
+    quaternion_wxyz,
+    rotation_angle_rad,
+    transform,
+)
 
-from conftest import INTRINSICS, PANEL_SIZE_M, make_sequence
+from conftest import INTRINSICS, make_sequence
 
 
 def rigid(R: np.ndarray, t) -> np.ndarray:
@@ -500,6 +519,7 @@ class TestPipelineRun:
         cell = next(c for c in d["pairs"][0]["cells"] if c["skipped"] is None)
         assert len(cell["quaternion_wxyz"]) == 4 and len(cell["translation_m"]) == 3
 
+    @pytest.mark.slow
     def test_deterministic(self, registry):
         """Two runs give the same decisions and clusters; numbers agree to the last few bits (Open3D's
         parallel reductions may sum in a different order)."""

@@ -10,7 +10,6 @@
 from __future__ import annotations
 
 import dataclasses
-
 import importlib.util
 import json
 import re
@@ -46,11 +45,9 @@ def builtin():
 
 
 @pytest.fixture(scope="module")
-def small_sequence(tmp_path_factory) -> Path:
+def small_sequence(rendered) -> Path:
     """A small labelled sequence with masks and per-frame truth, rendered by the generator."""
-    from artclass_plugins.synth import generate_sequence
-    return generate_sequence(tmp_path_factory.mktemp("docs") / "laptop", object_name="laptop", motion="articulate",
-                             noise="low", n_frames=8, seed=3, width=160, height=120)
+    return rendered("laptop", "articulate", n_frames=8, seed=3, width=160, height=120)
 
 
 # -- parameters.md ----------------------------------------------------------------------------------
@@ -97,6 +94,7 @@ def test_generator_leaves_third_party_plugins_out(builtin):
     assert "outsider_rule" not in gen_docs.render(builtin)
 
 
+@pytest.mark.slow
 def test_gen_docs_check_command(tmp_path):
     ok = subprocess.run([sys.executable, str(GEN_DOCS), "--check"], capture_output=True, text=True)
     assert ok.returncode == 0, ok.stderr
@@ -112,6 +110,7 @@ def test_gen_docs_check_command(tmp_path):
 
 # -- plugin-guide.md --------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_plugin_guide_examples_run(capsys, monkeypatch):
     text = (DOCS / "plugin-guide.md").read_text()
     blocks = re.findall(r"^```python\n(.*?)^```", text, flags=re.M | re.S)
@@ -132,6 +131,7 @@ def _documented(key: str, text: str) -> bool:
     return f"`{key}`" in text
 
 
+@pytest.mark.slow
 def test_results_md_names_every_key(small_sequence):
     registry = load_registry()
     text = (DOCS / "results.md").read_text()
@@ -151,6 +151,7 @@ def test_results_md_names_every_key(small_sequence):
     assert not any(missing.values()), f"docs/results.md does not name these keys: {missing}"
 
 
+@pytest.mark.slow
 def test_results_md_names_every_evaluation_key(small_sequence):
     registry = load_registry()
     text = (DOCS / "results.md").read_text()

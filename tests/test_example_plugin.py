@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import shutil
@@ -25,11 +24,33 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from artclass_core import (CellMotion, Cloud, Config, DecisionRule, Frame, InputError, Intrinsics, Params,
-                           Pipeline, PipelineParams, PluginError, Preprocessor, Reader, Registrar, Registration,
-                           RuleDecision, Segmenter, Sequence, hookimpl, load_registry, open_sequences, param)
+from artclass_core import (
+    CellMotion,
+    Cloud,
+    Config,
+    DecisionRule,
+    Frame,
+    InputError,
+    Intrinsics,
+    Params,
+    Pipeline,
+    PipelineParams,
+    PluginError,
+    Preprocessor,
+    Reader,
+    Registrar,
+    Registration,
+    RuleDecision,
+    Segmenter,
+    Sequence,
+    hookimpl,
+    load_registry,
+    open_sequences,
+    param,
+)
 from artclass_core.cli import build_parser
-from artclass_core.types import LABELS
+
+pytestmark = pytest.mark.slow      # builds and installs the example package, in subprocesses
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "artclass-example-plugin"

@@ -15,15 +15,22 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from test_onnx_segmenters import u2netp_path  # noqa: F401 (the real u2netp weights, a fixture)
 
 from artclass_core import Config, Frame, InputError, Intrinsics, ParamError, Pipeline, Sequence, load_registry
 from artclass_plugins.segmenters.depth_threshold import DepthThresholdParams, DepthThresholdSegmenter
-from artclass_plugins.segmenters.hands import (HandParams, find_hands, hand_regions, held, hsv_mask, parse_hsv,
-                                               skin_mask)
+from artclass_plugins.segmenters.hands import (
+    HandParams,
+    find_hands,
+    hand_regions,
+    held,
+    hsv_mask,
+    parse_hsv,
+    skin_mask,
+)
 from artclass_plugins.segmenters.selection import mask_iou
-from artclass_plugins.segmenters.support import fit_planes, background_mask
+from artclass_plugins.segmenters.support import background_mask, fit_planes
 from artclass_plugins.segmenters.u2net import U2netParams, U2netSegmenter
-from test_onnx_segmenters import u2netp_path  # noqa: F401 (the real u2netp weights, a fixture)
 
 W, H = 320, 240
 INTR = Intrinsics(fx=300.0, fy=300.0, cx=159.5, cy=119.5, width=W, height=H)
@@ -231,6 +238,7 @@ def test_the_held_box_is_chosen_without_the_hand_that_carries_it():
         assert choice.held and choice.held[choice.index], i
 
 
+@pytest.mark.slow
 def test_u2net_leaves_the_hand_out_too(u2netp_path):  # noqa: F811
     """u2net on the waving scene (real u2netp weights): the box is chosen in all 6 frames (measured
     IoU 0.98-1.0, bound 0.9); without the hand step the hand is chosen in 2 of them."""
@@ -288,6 +296,7 @@ def test_hands_off_gives_no_hand_mask():
     assert not find_hands(scene[0], background, INTR, params=off, sequence_path=scene.path).any()
 
 
+@pytest.mark.slow
 def test_a_still_scene_with_a_waving_hand_is_classified_static():
     """The whole pipeline (default rule, depth_threshold): the box never moves and the label is
     static; without the hand step the hand is taken for the object in some frames."""

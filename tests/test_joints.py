@@ -12,8 +12,13 @@ from scipy.spatial.transform import Rotation
 from artclass_core import InputError, Params, hookimpl, load_registry
 from artclass_core.interfaces import JointEstimate, JointEstimator
 from artclass_plugins.joints import BICJointParams, chain_pair_motions, fit_joint
-from artclass_plugins.joints.metrics import (axis_direction_error_rad, axis_position_error_m, joint_type_accuracy,
-                                             part_iou, state_error)
+from artclass_plugins.joints.metrics import (
+    axis_direction_error_rad,
+    axis_position_error_m,
+    joint_type_accuracy,
+    part_iou,
+    state_error,
+)
 from artclass_plugins.joints.synthetic import synthetic_joint
 
 NOISE_M, NOISE_RAD = 0.001, np.radians(0.5)      # 1 mm and 0.5 degree per axis
@@ -32,6 +37,7 @@ def aligned(truth, estimate) -> bool:
 
 # -- model choice and accuracy -------------------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
 def test_revolute_is_recovered_and_chosen_over_prismatic(seed):
     truth = noisy("revolute", seed=seed)
@@ -58,6 +64,7 @@ def test_prismatic_is_recovered_and_chosen_over_revolute(seed):
     assert est.state_unit == "m"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_fixed_part_gets_a_fixed_joint(seed):
     est = fit_joint(noisy("fixed", seed=seed).poses)
@@ -65,6 +72,7 @@ def test_a_fixed_part_gets_a_fixed_joint(seed):
     assert est.summary(up=UP) == "fixed joint: the part does not move relative to its parent"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["revolute", "prismatic", "fixed"])
 def test_outlier_poses_do_not_flip_the_choice(kind):
     truth = noisy(kind, n_outliers=5, seed=4)
@@ -76,6 +84,7 @@ def test_outlier_poses_do_not_flip_the_choice(kind):
         assert np.degrees(axis_direction_error_rad(truth.direction, est.axis_direction)) < 1.0
 
 
+@pytest.mark.slow
 def test_a_small_turn_is_still_a_turn_but_noise_alone_is_not():
     """3 degrees at 20 cm from the axis is 1 cm of travel, ten times the noise: revolute. Without
     motion the same noise gives no joint (the states are counted as parameters in the BIC)."""
@@ -83,6 +92,7 @@ def test_a_small_turn_is_still_a_turn_but_noise_alone_is_not():
     assert fit_joint(noisy("revolute", travel=0.0).poses).type == "fixed"
 
 
+@pytest.mark.slow
 def test_uncertainties_are_the_size_of_the_errors():
     """Over seeds, the errors are within three reported standard deviations, and not far below one."""
     ratios = []
@@ -97,12 +107,14 @@ def test_uncertainties_are_the_size_of_the_errors():
     assert max(ratios) < 3.0 and np.median(ratios) > 0.2, ratios
 
 
+@pytest.mark.slow
 def test_noise_levels_are_estimated_from_the_data():
     est = fit_joint(noisy("revolute", noise_m=0.003, noise_rad=np.radians(1.0)).poses)
     assert est.info["sigma_position_m"] == pytest.approx(0.003, rel=0.25)
     assert est.info["sigma_orientation_rad"] == pytest.approx(np.radians(1.0), rel=0.25)
 
 
+@pytest.mark.slow
 def test_unknown_frames_stay_unknown():
     truth = noisy("revolute")
     poses = truth.poses.copy()
@@ -112,6 +124,7 @@ def test_unknown_frames_stay_unknown():
     assert est.states[1] == 0.0, "states count from the first known frame"
 
 
+@pytest.mark.slow
 def test_summary_reads_like_a_sentence():
     est = fit_joint(noisy("revolute").poses)
     tilt = np.degrees(np.arccos(noisy("revolute").direction @ UP))
@@ -122,6 +135,7 @@ def test_summary_reads_like_a_sentence():
     assert "0-30" in fit_joint(noisy("prismatic").poses).summary(up=UP)   # 0-300 mm (0-299 with noise)
 
 
+@pytest.mark.slow
 def test_same_input_same_result():
     poses = noisy("revolute", n_outliers=3).poses
     a, b = fit_joint(poses), fit_joint(poses)
@@ -139,6 +153,7 @@ def test_bad_poses_raise_one_line(poses, problem):
     assert "\n" not in str(err.value)
 
 
+@pytest.mark.slow
 def test_given_noise_levels_are_used():
     est = fit_joint(noisy("revolute").poses, params=BICJointParams(sigma_position_m=0.002, sigma_orientation_rad=0.01))
     assert est.info["sigma_position_m"] == 0.002 and est.info["sigma_orientation_rad"] == 0.01
@@ -205,6 +220,7 @@ def test_part_iou_matches_parts_whatever_their_numbers():
 
 # -- the plugin kind -------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_hook_register_joint_estimators():
     """The built-in estimator comes from the entry points; a plugin adds its own through the hook."""
     class AlwaysFixed(JointEstimator):

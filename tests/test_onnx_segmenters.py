@@ -20,10 +20,18 @@ from onnx import TensorProto, helper, numpy_helper
 from artclass_core import Frame, Intrinsics, ParamError, PluginError, Sequence, load_registry, open_sequences
 from artclass_core.cli import build_parser, main
 from artclass_plugins.segmenters import onnx_models
-from artclass_plugins.segmenters.maskrcnn import (COCO_CLASSES, MaskrcnnParams, MaskrcnnSegmenter, parse_classes,
-                                                  postprocess, preprocess)
+from artclass_plugins.segmenters.maskrcnn import (
+    COCO_CLASSES,
+    MaskrcnnParams,
+    MaskrcnnSegmenter,
+    parse_classes,
+    postprocess,
+    preprocess,
+)
 from artclass_plugins.segmenters.selection import mask_iou
 from artclass_plugins.segmenters.u2net import U2netParams, U2netSegmenter, load_u2net, saliency
+
+pytestmark = pytest.mark.slow      # U²-Net on the CPU, frame after frame
 
 ROOT = Path(__file__).resolve().parents[1]
 YCBV = (ROOT / ".." / "shared" / "data" / "ycbv").resolve()
@@ -311,7 +319,10 @@ def test_maskrcnn_filters_scores_and_classes(tmp_path):
                       [box_in_resized(10, 10, 109, 109), box_in_resized(200, 100, 299, 179), box_in_resized(400, 50, 499, 149)],
                       [1, 64, 42], [0.99, 0.95, 0.5], [ones, ones, ones])
     seq = StillSequence()
-    labels = lambda **kw: [lab for _, lab, _ in MaskrcnnSegmenter(MaskrcnnParams(model_path=str(model), **kw)).detections(seq[0])]
+
+    def labels(**kw):
+        return [lab for _, lab, _ in MaskrcnnSegmenter(MaskrcnnParams(model_path=str(model), **kw)).detections(seq[0])]
+
     assert labels() == [64]                                      # person excluded, cup below 0.7
     assert labels(exclude_classes="") == [1, 64]
     assert labels(score_threshold=0.4) == [64, 42]

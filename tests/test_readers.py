@@ -18,9 +18,27 @@ from artclass_plugins.readers import rbo as rbo_mod
 from artclass_plugins.readers import tum as tum_mod
 from artclass_plugins.readers import ycbv as ycbv_mod
 from artclass_plugins.readers.tum import associate
-from fixtures_layouts import (CAMERA_STEP_M, CX, CY, FX, FY, HEIGHT, RBO_RATE_HZ, WIDTH, YCBV_IDS, angles,
-                              layout_root, render, snapshot, write_camera_info, write_folder, write_rbo,
-                              write_tum, write_ycbv)
+
+from fixtures_layouts import (
+    CAMERA_STEP_M,
+    CX,
+    CY,
+    FX,
+    FY,
+    HEIGHT,
+    RBO_RATE_HZ,
+    WIDTH,
+    YCBV_IDS,
+    angles,
+    layout_root,
+    render,
+    snapshot,
+    write_camera_info,
+    write_folder,
+    write_rbo,
+    write_tum,
+    write_ycbv,
+)
 
 REGISTRY = load_registry()
 READERS = REGISTRY.names("reader")
@@ -446,6 +464,7 @@ def test_ycbv_real_pair_truth_follows_the_camera():
     assert truths[(0, 9)] == "RM"                 # the camera moved about 5 mm over the ten frames
 
 
+@pytest.mark.slow
 @needs_ycbv
 def test_cli_classifies_a_real_ycbv_object(capsys):
     assert main(["classify", f"{YCBV / '0000'}#025_mug", "--json", "--no-cells"]) == 0

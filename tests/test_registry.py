@@ -9,8 +9,18 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from artclass_core import (Config, DecisionRule, Params, Pipeline, PluginError, RuleDecision, Segmenter, hookimpl,
-                           load_registry, param)
+from artclass_core import (
+    Config,
+    DecisionRule,
+    Params,
+    Pipeline,
+    PluginError,
+    RuleDecision,
+    Segmenter,
+    hookimpl,
+    load_registry,
+    param,
+)
 from artclass_core import plugins as plugins_module
 from artclass_core.cli import build_parser
 from artclass_core.plugins import ENTRY_POINT_GROUP

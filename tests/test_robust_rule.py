@@ -26,6 +26,8 @@ from artclass_plugins.synth.generate import plan_sequence
 from artclass_plugins.synth.presets import preset_plans
 from artclass_plugins.synth.write import prepare_sequence_dir, write_frame, write_json
 
+pytestmark = pytest.mark.slow      # full runs of rendered scenes
+
 SPACING_M = 0.005
 
 

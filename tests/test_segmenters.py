@@ -18,12 +18,33 @@ import cv2
 import numpy as np
 import pytest
 
-from artclass_core import Frame, InputError, Intrinsics, ParamError, Pipeline, Config, Sequence, load_registry, open_sequences
+from artclass_core import (
+    Config,
+    Frame,
+    InputError,
+    Intrinsics,
+    ParamError,
+    Pipeline,
+    Sequence,
+    load_registry,
+    open_sequences,
+)
 from artclass_plugins.segmenters.cache import PackedMask, params_hash
-from artclass_plugins.segmenters.depth_threshold import (DepthThresholdParams, DepthThresholdSegmenter, components,
-                                                        fill_dropouts, fill_floors, join_touching)
-from artclass_plugins.segmenters.selection import (choose_instance, change_scores, fallback_index, mask_iou,
-                                                  match_instances)
+from artclass_plugins.segmenters.depth_threshold import (
+    DepthThresholdParams,
+    DepthThresholdSegmenter,
+    components,
+    fill_dropouts,
+    fill_floors,
+    join_touching,
+)
+from artclass_plugins.segmenters.selection import (
+    change_scores,
+    choose_instance,
+    fallback_index,
+    mask_iou,
+    match_instances,
+)
 from artclass_plugins.segmenters.support import BackgroundParams, background_mask, fit_planes
 
 YCBV = (Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "ycbv").resolve()
@@ -355,6 +376,7 @@ def test_depth_threshold_chooses_the_moving_box_in_every_frame():
     assert len(seg.calls) == len(seq)
 
 
+@pytest.mark.slow
 def test_depth_threshold_masks_do_not_depend_on_the_order_frames_are_asked_in():
     seq, _ = box_sequence(8, moving="b", step_px=3)
     forward = [DepthThresholdSegmenter().segment(seq[i], sequence=seq) for i in range(8)]
@@ -443,6 +465,7 @@ def ycbv_scenes():
     return {scene: open_sequences(registry, YCBV / scene, reader="ycbv") for scene in ("0000", "0001")}
 
 
+@pytest.mark.slow
 def test_depth_threshold_on_ycbv_selects_the_labelled_objects(ycbv_scenes):
     """Measured (defaults): mean IoU with the union of the labelled objects 0.59 (0000) and 0.58
     (0001), every frame >= 0.40; with the best single object 0.45 and 0.66. The scenes are static,

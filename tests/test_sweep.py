@@ -18,12 +18,23 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from artclass_core import ArtclassError, Config, ParamError, Pipeline, load_registry, open_sequences
+from artclass_core import ArtclassError, ParamError, Pipeline, load_registry, open_sequences
 from artclass_core.cli import main
-from artclass_core.sweep import (figure, grid_settings, parse_grid, plan_tasks, read_table, summary, sweep,
-                                 swept_names, write_table)
+from artclass_core.sweep import (
+    figure,
+    grid_settings,
+    parse_grid,
+    plan_tasks,
+    read_table,
+    summary,
+    sweep,
+    swept_names,
+    write_table,
+)
 
 from conftest import ROOT
+
+pytestmark = pytest.mark.slow      # whole sweeps, two of them on a local Dask cluster
 
 OBJECTS = {"laptop_articulate": ("laptop", "articulate"), "mug_carry": ("mug", "carry"),
            "cereal_box_static": ("cereal_box", "static")}
@@ -37,13 +48,8 @@ def registry():
 
 
 @pytest.fixture(scope="module")
-def root(tmp_path_factory) -> Path:
-    from artclass_plugins.synth import generate_sequence
-    root = tmp_path_factory.mktemp("sweep_data")
-    for n, (name, (obj, motion)) in enumerate(OBJECTS.items()):
-        generate_sequence(root / name, object_name=obj, motion=motion, noise="low", n_frames=8, seed=n,
-                          width=160, height=120)
-    return root
+def root(tmp_path_factory, rendered_root) -> Path:
+    return rendered_root(tmp_path_factory.mktemp("sweep_data"), OBJECTS, n_frames=8, width=160, height=120)
 
 
 @pytest.fixture(scope="module")

@@ -386,6 +386,7 @@ def test_truth_carries_visible_points_per_part(tmp_path):
 # ---------------------------------------------------------------- motion and truth (continued)
 
 
+@pytest.mark.slow
 def test_articulate_moves_the_joint_and_keeps_the_base(tmp_path):
     for name in ("laptop", "drawer"):
         spec = OBJECTS[name]
@@ -538,6 +539,7 @@ def test_writer_refuses_to_overwrite(tmp_path):
 # ---------------------------------------------------------------- presets
 
 
+@pytest.mark.slow
 def test_smoke_preset(tmp_path):
     paths = generate_set(tmp_path / "set", preset="smoke", seed=1)
     assert 3 <= len(paths) <= 4
@@ -607,6 +609,7 @@ def test_sample_data_matches_the_sample_preset():
 # ---------------------------------------------------------------- command line
 
 
+@pytest.mark.slow
 def test_hook_register_commands_sample(tmp_path, capsys):
     """``artclass sample OUT --preset smoke`` through the real command line (plugin registry)."""
     from artclass_core.cli import main

@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
-from app import figures, state, uploads
-from artclass_core import ArtclassError, InputError, Sequence
+from app import state, uploads
+from artclass_core import ArtclassError, InputError, Sequence, figures
 
 log = logging.getLogger("artclass.app")
 SOURCES = ("Bundled samples", "Folder on the server", "Upload a zip")
@@ -76,8 +76,7 @@ def choose_sequence(reg) -> Sequence | None:
 class StageProgress:
     """One progress bar per stage, removed when the run is done."""
 
-    TITLES = {"frames": "Segmenting and preprocessing frames", "registration": "Registering cells (ICP)",
-              "decision": "Deciding pairs"}
+    TITLES = {"pairs": "Reading frames, registering and deciding pairs"}
 
     def __init__(self):
         self.box = st.empty()
@@ -187,7 +186,7 @@ def show_result(seq: Sequence, config, result) -> None:
 def hand_of(seq: Sequence, i: int, config) -> np.ndarray | None:
     """The hand or gripper mask the segmenter left out of frame ``i`` (None when it looks for none);
     the segmenter keeps it from the run, so this costs no new segmentation."""
-    segmenter = state.stage_pipeline(config, "frame").segmenter(seq)
+    segmenter = state.pipeline(config).segmenter(seq)
     finder = getattr(segmenter, "hand_mask", None)
     return None if finder is None else finder(seq[i], sequence=seq)
 

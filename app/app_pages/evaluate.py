@@ -8,10 +8,11 @@ import logging
 import pandas as pd
 import streamlit as st
 
-from app import figures, state, uploads
-from artclass_core import ArtclassError, Config, InputError, Sequence
+from app import state, uploads
+from artclass_core import ArtclassError, Config, InputError, Sequence, figures
 from artclass_core.evaluate import Evaluation, evaluate, markdown
-from artclass_core.sweep import figure as sweep_figure, read_table, summary
+from artclass_core.sweep import figure as sweep_figure
+from artclass_core.sweep import read_table, summary
 
 log = logging.getLogger("artclass.app")
 NO_COMPARE = "(none)"

@@ -39,7 +39,7 @@ class Target:
     outside_px: np.ndarray     # (H, W) distance to the object's mask, 0 inside, inf far from it
 
     @classmethod
-    def of(cls, cloud: Cloud) -> "Target":
+    def of(cls, cloud: Cloud) -> Target:
         view = cloud.view
         if view is None or view.normals is None or view.mask is None:
             raise ArtclassError("the dense registrar needs clouds that keep their image (pixels, normals and mask), "

@@ -143,7 +143,7 @@ class DenseRegistrar(PairRegistrar):
         z = cloud.points[:, 2]
         return self.params.reach_sigmas * noise_m(z, _sensor_noise(cloud)) + 2 * z / fx
 
-    def _refits(self, ev: MotionEvidence, fit: "_Fit", rule: DenseRuleParams, round_: int,
+    def _refits(self, ev: MotionEvidence, fit: _Fit, rule: DenseRuleParams, round_: int,
                 reach: list[float]) -> tuple[list, list]:
         """The motions a default selection picks, refitted on the points they explain; and, for each
         of the largest image regions of points that none of them explains, motions fitted to that

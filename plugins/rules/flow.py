@@ -21,7 +21,6 @@ import cv2
 import numpy as np
 
 from artclass_core import Cloud, Intrinsics, View
-from artclass_core.pipeline import pair_memo
 
 # Pixels of context kept around the two objects' boxes, so that flow has room to match.
 _MARGIN_PX = 24
@@ -59,7 +58,7 @@ class FlowEvidence:
     intrinsics: Intrinsics | None = None
 
     @classmethod
-    def none(cls, n: int) -> "FlowEvidence":
+    def none(cls, n: int) -> FlowEvidence:
         return cls(np.full((n, 3), np.nan), np.full((n, 2), np.nan), np.full((n, 2), np.nan), np.zeros(n))
 
     @property
@@ -124,7 +123,7 @@ class FlowEvidence:
 
 
 def flow_targets(source: Cloud, target: Cloud, points: np.ndarray, *, between: Sequence[Cloud] = (),
-                 min_gradient: float = 1.0) -> FlowEvidence:
+                 min_gradient: float = 1.0, scratch: dict | None = None) -> FlowEvidence:
     """Where the optical flow says source ``points`` (P, 3) went (see :class:`FlowEvidence`), and how
     far from there (m) each may truly have gone: FLOW_ERROR_PX pixels of the flow's image per flow step
     plus FLOW_ERROR_SHARE of the displacement. Measured on the rigid carries of the 640x480 benchmark
@@ -138,7 +137,8 @@ def flow_targets(source: Cloud, target: Cloud, points: np.ndarray, *, between: S
     times that, the smaller below it). The flow is read from the source image straight to the
     target's. Where that fails (a globe spun by 50 degrees between frames i and i + k no longer looks
     the same), and the clouds of the frames ``between`` are given, it is followed from frame to frame
-    instead, each step checked forwards and backwards; a point lost on the way has no flow.
+    instead, each step checked forwards and backwards; a point lost on the way has no flow. The flows of
+    those steps are kept in ``scratch`` (the pair's scratch dict), when given.
     """
     out = FlowEvidence.none(len(points))
     views = [c.view for c in (source, *between, target)]
@@ -155,7 +155,7 @@ def flow_targets(source: Cloud, target: Cloud, points: np.ndarray, *, between: S
         clouds = (source, *between, target)
         uc, vc, oc = u0, v0, use & ~ok
         for a, b in zip(clouds[:-1], clouds[1:]):
-            uc, vc, oc = _link(a, b).follow(uc, vc, oc, normal)
+            uc, vc, oc = _link(a, b, {} if scratch is None else scratch).follow(uc, vc, oc, normal)
         u, v, ok = np.where(oc, uc, u), np.where(oc, vc, v), ok | oc
         steps[oc] = len(clouds) - 1
     full = ok & corner
@@ -179,13 +179,13 @@ def offset_px(du: np.ndarray, dv: np.ndarray, normal: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(normal[:, 0]), across, np.hypot(du, dv))
 
 
-def _link(a: Cloud, b: Cloud) -> "_Flow":
-    """The flow between two consecutive clouds' images, kept while both clouds live: the pairs
-    (i, i + k) that span the step share it."""
-    memo = pair_memo(a, b)
-    if "flow" not in memo:
-        memo["flow"] = _Flow(a.view, b.view)
-    return memo["flow"]
+def _link(a: Cloud, b: Cloud, scratch: dict) -> _Flow:
+    """The flow between two consecutive clouds' images, kept in the pair's ``scratch`` (re-deciding the
+    pair under other thresholds finds it again)."""
+    key = ("flow", a.frame_index, b.frame_index)
+    if key not in scratch:
+        scratch[key] = _Flow(a.view, b.view)
+    return scratch[key]
 
 
 class _Flow:

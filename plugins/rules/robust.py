@@ -82,7 +82,6 @@ from scipy.spatial.transform import Rotation
 
 from artclass_core import CellMotion, Cloud, DecisionRule, Params, RuleDecision, param
 from artclass_core.geometry import rotation_angle_rad, transform
-from artclass_core.pipeline import pair_memo
 
 from ..preprocessors import to_o3d
 from .flow import FlowEvidence, flow_targets, kabsch
@@ -92,9 +91,8 @@ MIN_CELL_POINTS = 8       # a cell with fewer source points says nothing of its 
 JOINT_MIN_TURN_RAD, JOINT_MAX_SLIDE = np.radians(3.0), 0.1
 
 reg = o3d.pipelines.registration
-# One Open3D thread: multi-threaded point-to-plane ICP sums its normal equations in a varying order,
-# and the last-digit differences flip close decisions between runs (see plugins/registrars.py).
-o3d.utility.set_max_threads(1)
+# Reproducible only with Open3D on one thread of its own, which the pipeline sets before it runs
+# (artclass_core.scheduler.single_threaded_open3d).
 
 
 @dataclass(frozen=True)
@@ -152,21 +150,22 @@ class RobustRule(DecisionRule):
     description = "counts the rigid motions needed to explain the points, with noise-scaled thresholds (default)"
     Params = RobustRuleParams
     uses_frames_between = True    # optical flow is followed from frame to frame where it cannot jump
+    uses_scratch = True           # the evidence below is kept in the pair's scratch dict
 
     def decide(self, cells: list[CellMotion], *, source: Cloud, target: Cloud,
-               between: tuple[Cloud, ...] = ()) -> RuleDecision:
+               between: tuple[Cloud, ...] = (), scratch: dict | None = None) -> RuleDecision:
         p = self.params
         matched = [n for n, c in enumerate(cells) if c.matched]
         if not matched or source.normals is None or target.normals is None:
             return RuleDecision("skipped", [None] * len(cells), reason="no matched cell with normals")
         # What the thresholds do not change is computed once per pair and found again on re-deciding.
-        memo = pair_memo(source, target)
-        key = ("robust", p.max_points_per_cell, p.use_flow, tuple(map(id, between)),
+        memo = {} if scratch is None else scratch
+        key = ("robust", p.max_points_per_cell, p.use_flow, tuple(c.frame_index for c in between),
                tuple((cells[n].cell, id(cells[n].registration)) for n in matched))
         ev = memo.get(key)
         if ev is None:
             ev = memo[key] = _Evidence(cells, matched, source, target, max_points=p.max_points_per_cell,
-                                       use_flow=p.use_flow, between=between)
+                                       use_flow=p.use_flow, between=between, scratch=memo)
         owner, counts = ev.owner, ev.counts
 
         tau = max(p.noise_floor_m, p.noise_factor * ev.sigma)
@@ -331,9 +330,10 @@ class _Evidence:
     far (memoised, so re-deciding under other thresholds repeats none of this work)."""
 
     def __init__(self, cells: list[CellMotion], matched: list[int], source: Cloud, target: Cloud, *,
-                 max_points: int, use_flow: bool = True, between: tuple[Cloud, ...] = ()):
-        # Arrays, never the clouds themselves: this lives in the clouds' pair_memo, which must not keep
-        # them alive (a streaming run drops each cloud, and with it this, as soon as its pairs are done).
+                 max_points: int, use_flow: bool = True, between: tuple[Cloud, ...] = (),
+                 scratch: dict | None = None):
+        # Arrays, never the clouds themselves: this lives in the pair's scratch dict, which must not keep
+        # them alive (a streaming run drops each cloud as soon as its pairs are done).
         self.src_points, self.src_normals, self.src_view = source.points, source.normals, source.view
         self.tgt_points, self.tgt_normals, self.tgt_view = target.points, target.normals, target.view
         self.tree, self.source_tree = cKDTree(target.points), cKDTree(source.points)
@@ -362,7 +362,7 @@ class _Evidence:
         self.hyps = [np.eye(4), icp_point_to_plane(src_all, self.tgt, np.eye(4), steps),
                      icp_point_to_plane(src_all, self.tgt, shift, steps)]
         # Where the optical flow says each scoring point went, and how far from there it may be.
-        self.flow = flow_targets(source, target, self.pts, between=between) if use_flow else \
+        self.flow = flow_targets(source, target, self.pts, between=between, scratch=scratch) if use_flow else \
             FlowEvidence.none(len(self.pts))
         self.has_flow = self.flow.full
         seen = self.has_flow | self.flow.edge

@@ -25,7 +25,7 @@ class PackedMask:
     bits: bytes
 
     @classmethod
-    def pack(cls, mask: np.ndarray) -> "PackedMask":
+    def pack(cls, mask: np.ndarray) -> PackedMask:
         mask = np.asarray(mask, dtype=bool)
         rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
         if len(rows) == 0:

@@ -176,6 +176,7 @@ def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: Backgroun
     total = len(pts)
     rng = np.random.default_rng(params.plane_seed)
     planes: list[Plane] = []
+    support = pts[:0]          # the first plane's inliers, once it is found
     faces = 0
     while len(planes) < params.max_planes and faces < MAX_FACES_PASSED:
         least = params.min_wall_fraction if planes else params.min_plane_fraction

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -12,9 +12,9 @@ from .hands import HOLDER_KINDS, grasp_pose, holder_pieces, wave_path
 from .motion import MOTIONS, Trajectory, make_trajectory
 from .objects import OBJECTS, ObjectSpec, part_poses
 from .render import (
+    HAND,
     NOISE_LEVELS,
     CleanFrame,
-    HAND,
     Intrinsics,
     SceneMesh,
     add_sensor_noise,

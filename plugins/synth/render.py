@@ -77,7 +77,7 @@ class Intrinsics:
             )
 
     @classmethod
-    def for_resolution(cls, width_px: int = 640, height_px: int = 480) -> "Intrinsics":
+    def for_resolution(cls, width_px: int = 640, height_px: int = 480) -> Intrinsics:
         """The simulated camera for a ``width_px`` x ``height_px`` image.
 
         4:3 images are a Kinect-like sensor: 640x480 gives fx = fy = 570, cx = 319.5,

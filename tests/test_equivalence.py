@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import dataclasses
 import gc
+import os
 import re
+import subprocess
+import sys
 import weakref
 
 import numpy as np
@@ -18,9 +21,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from artclass_core import ArtclassError, Config, Pipeline, PipelineParams
-from artclass_core.geometry import (diameter_of_vertices, grid_cells, hull_vertices, largest_distance,
-                                    quaternion_wxyz)
-from artclass_core.pipeline import StageCache, cloud_hull
+from artclass_core.geometry import (
+    diameter_of_vertices,
+    grid_cells,
+    hull_vertices,
+    largest_distance,
+    quaternion_wxyz,
+)
+from artclass_core.pipeline import StageCache, stage_config
 
 from conftest import make_sequence
 
@@ -62,6 +70,7 @@ def test_identical_results_whatever_the_number_of_workers(registry, hinge, regis
     assert fingerprint(runs[2]) == fingerprint(runs[0])
 
 
+@pytest.mark.slow
 def test_identical_results_with_the_default_config(registry, hinge):
     cfg = dataclasses.replace(Config(), pipeline=PipelineParams(k=2))
     one, two = (Pipeline(registry, cfg).run(hinge, workers=w) for w in (1, 2))
@@ -69,16 +78,31 @@ def test_identical_results_with_the_default_config(registry, hinge):
     assert [p.info for p in two.pairs] == [p.info for p in one.pairs]
 
 
+@pytest.mark.slow
 def test_repeated_runs_are_identical(registry, hinge):
     """Open3D's multi-threaded point-to-plane ICP differed in the 14th digit between runs, which now
-    and then changed a cluster of the robust rule; the registrars keep Open3D to one thread."""
+    and then changed a cluster of the robust rule; the pipeline keeps Open3D to one thread."""
     import open3d as o3d
 
-    assert o3d.utility.get_max_threads() == 1
     cfg = dataclasses.replace(Config(), pipeline=PipelineParams(k=2))
     first = fingerprint(Pipeline(registry, cfg).run(hinge))
+    assert o3d.utility.get_max_threads() == 1
     for _ in range(4):
         assert fingerprint(Pipeline(registry, cfg).run(hinge)) == first
+
+
+@pytest.mark.slow
+def test_importing_the_plugins_leaves_open3d_alone_and_the_pipeline_sets_one_thread():
+    code = ("import open3d as o3d\n"
+            "from artclass_core import Pipeline, load_registry\n"
+            "before = o3d.utility.get_max_threads()\n"
+            "registry = load_registry()\n"
+            "assert before > 1 and o3d.utility.get_max_threads() == before, 'an import changed the threads'\n"
+            "Pipeline(registry)\n"
+            "assert o3d.utility.get_max_threads() == 1\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "OMP_NUM_THREADS": "2"})
+    assert done.returncode == 0, done.stderr[-2000:]
 
 
 def test_point_to_plane_icp_is_reproducible(registry, hinge):
@@ -152,6 +176,7 @@ def _max_alive_clouds(registry, n_frames: int, workers: int, k: int = 2) -> tupl
     return max(most), tracker.alive()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("workers", [1, 2])
 def test_streaming_holds_a_bounded_number_of_clouds(registry, workers):
     k = 2
@@ -275,6 +300,7 @@ def test_redecide_equals_a_fresh_run_and_leaves_the_first_result_alone(registry,
     assert redecided.params["rule"]["q_bar"] == 0.5 and redecided.params["pipeline"]["alpha"] == 0.6
 
 
+@pytest.mark.slow
 def test_redecide_is_the_same_whatever_the_number_of_workers(registry, hinge):
     cfg = dataclasses.replace(Config(), pipeline=PipelineParams(k=2))
     changed = cfg.with_overrides(registry, {"noise_factor": "2.5"})    # moves every cost and threshold
@@ -388,14 +414,11 @@ def test_pair_diameter_from_hull_vertices_is_exact(registry, seed):
     assert both == largest_distance(np.concatenate([a, b]))      # bit for bit
 
 
-def test_cell_size_uses_the_remembered_hull(registry, hinge):
+def test_cell_size_is_a_fifth_of_the_pair_diameter(registry, hinge):
     pipe = Pipeline(registry, config())
     a, b = pipe.frame(hinge, 0).cloud, pipe.frame(hinge, 2).cloud
     assert pipe.cell_size(a, b) == max(largest_distance(np.concatenate([a.points, b.points])) / 5, 1e-4)
-    assert cloud_hull(a) is cloud_hull(a), "computed once per cloud"
-    moved = a.points + [0.5, 0.0, 0.0]
-    a.points = moved                                             # a new array: the hull is redone
-    assert np.allclose(cloud_hull(a).min(0), moved.min(0))
+    a.points = a.points + [0.5, 0.0, 0.0]                        # moved: the hull follows the points
     assert pipe.cell_size(a, b) == max(largest_distance(np.concatenate([a.points, b.points])) / 5, 1e-4)
 
 
@@ -476,39 +499,35 @@ def test_bench_command_reports_every_stage(sample_dir, tmp_path, capsys):
     assert data["long"]["n_pairs"] == 40 - 5
 
 
-# -- the pair memo (a rule's threshold-independent evidence) ------------------------------------------
+# -- the pair's scratch space (a rule's threshold-independent evidence) ----------------------------------
 
-def test_pair_memo_lives_as_long_as_both_clouds():
-    from artclass_core import Cloud
-    from artclass_core.pipeline import _PAIR_MEMOS, pair_memo
-
-    a, b = Cloud(0, np.zeros((3, 3))), Cloud(1, np.ones((3, 3)))
-    memo = pair_memo(a, b)
-    memo["evidence"] = 42
-    assert pair_memo(a, b) is memo
-    assert pair_memo(b, a) is not memo, "the pair is ordered"
-    assert pair_memo(a, Cloud(1, np.ones((3, 3)))) is not memo, "equal contents, another object"
-    n = len(_PAIR_MEMOS)
-    del b
-    gc.collect()
-    assert len(_PAIR_MEMOS) < n, "dropped with the target"
-    b2 = Cloud(1, np.ones((3, 3)))
-    assert "evidence" not in pair_memo(a, b2), "a new cloud never sees an old memo, even at a reused id"
+def test_pair_scratch_lives_with_the_cached_registration(registry, hinge):
+    cache = StageCache(max_frames=64, max_pairs=1)
+    pipe = Pipeline(registry, config())
+    one = pipe.run(hinge, cache=cache)
+    key = pipe.pair_key(hinge, one.pairs[-1].i, one.pairs[-1].j, cache)
+    scratch = cache.scratch(key)
+    scratch["evidence"] = 42
+    assert cache.scratch(key) is scratch
+    assert cache.scratch(pipe.pair_key(hinge, 0, pipe.params.k, cache)) is not scratch, "another pair"
+    cache.put("register", pipe.pair_key(hinge, 0, pipe.params.k, cache), ((), 0.01))   # drops the first entry
+    assert "evidence" not in cache.scratch(key), "dropped with its registration"
 
 
 def test_rule_evidence_in_the_memo_is_reused_when_redeciding(registry, hinge):
-    """A rule that keeps its costly part in pair_memo does it once per pair, however often it re-decides."""
+    """A rule that keeps its costly part in the pair's scratch does it once per pair, however often it
+    re-decides, from a kept result or from the stage cache."""
     from artclass_core import DecisionRule, RuleDecision
-    from artclass_core.pipeline import pair_memo
 
     calls = []
 
     class Memoising(DecisionRule):
         name, description = "memo_test", "test rule"
         Params = registry.get("rule", "paper").Params
+        uses_scratch = True
 
-        def decide(self, cells, *, source, target):
-            memo = pair_memo(source, target)
+        def decide(self, cells, *, source, target, scratch):
+            memo = scratch
             key = tuple((c.cell, id(c.registration)) for c in cells if c.matched)
             if key not in memo:
                 calls.append(1)
@@ -526,3 +545,31 @@ def test_rule_evidence_in_the_memo_is_reused_when_redeciding(registry, hinge):
     two = pipe.redecide(first)
     assert len(calls) == n_calls, "the evidence was found again"
     assert [p.decision for p in one.pairs] != [p.decision for p in two.pairs]
+    cache = StageCache()
+    streamed = Pipeline(registry, config()).run(hinge, cache=cache)          # no clouds kept in the result
+    pipe.redecide(streamed, sequence=hinge, cache=cache)
+    n_calls = len(calls)
+    assert fingerprint(pipe.redecide(streamed, sequence=hinge, cache=cache)) == fingerprint(two)
+    assert len(calls) == n_calls, "the evidence was found again in the cache"
+
+
+def test_stage_configs_depend_on_what_the_stage_uses():
+    stages = ("segment", "preprocess", "register", "decide")
+    base = Config(rule="paper")
+    keys = {s: stage_config(base, s) for s in stages}
+
+    def changed(config):
+        return {s for s in stages if stage_config(config, s) != keys[s]}
+
+    from artclass_plugins.rules.paper import PaperRuleParams
+    later = {"register", "decide"}
+    assert changed(Config(rule="paper", rule_params=PaperRuleParams(q_bar=0.5))) == {"decide"}
+    assert changed(Config(rule="paper", pipeline=PipelineParams(alpha=0.9))) == {"decide"}
+    assert changed(Config(rule="paper", pipeline=PipelineParams(min_fitness=0.9))) == {"decide"}
+    assert changed(Config(rule="paper", pipeline=PipelineParams(w=7))) == set()
+    assert changed(Config(rule="paper", pipeline=PipelineParams(k=2))) == set()
+    assert changed(Config(rule="paper", pipeline=PipelineParams(cell_size_m=0.02))) == later
+    assert changed(Config(rule="paper", registrar="icp_point_to_plane")) == later
+    assert changed(Config(rule="paper", pipeline=PipelineParams(min_cell_points=20))) == later
+    assert changed(Config(rule="paper", preprocessor="paper")) == {"preprocess", *later}
+    assert changed(Config(rule="paper", segmenter="mask")) == set(stages)

@@ -1,0 +1,107 @@
+"""The stage cache: frame clouds and pair registrations kept between runs, keyed on what they depend on."""
+
+from __future__ import annotations
+
+import threading
+import weakref
+from collections import OrderedDict
+from typing import Any
+
+from .types import Sequence
+
+TABLES = ("frame", "register")
+
+
+class StageCache:
+    """Frame clouds and pair registrations kept between runs, keyed on everything they depend on.
+
+    Used by :meth:`Pipeline.run` (``cache=``) and :meth:`Pipeline.redecide`; the keys are
+    :meth:`Pipeline.frame_key` and :meth:`Pipeline.pair_key`, built from
+    :data:`~artclass_core.config.STAGE_DEPENDENCIES`. Both tables are LRU-bounded (``max_frames``
+    clouds, ``max_pairs`` registered pairs), so a cache can stay alive in a long-lived app. Each
+    registered pair also owns a scratch dict (:meth:`scratch`) that a decision rule keeps its
+    threshold-independent evidence in; it goes when the pair's entry goes. Sequences are told apart by
+    identity (the same :class:`Sequence` object), never by path, so two in-memory sequences can never
+    share entries. Thread-safe.
+
+    Parameters
+    ----------
+    max_frames : int
+        Frames (clouds) kept; each is a preprocessed cloud, typically 50-500 kB.
+    max_pairs : int
+        Registered pairs kept; each holds its cells' transforms and point indices, or its motion evidence.
+    """
+
+    def __init__(self, *, max_frames: int = 512, max_pairs: int = 1024):
+        self.max_frames, self.max_pairs = max_frames, max_pairs
+        self._tables: dict[str, OrderedDict[tuple, Any]] = {t: OrderedDict() for t in TABLES}
+        self._limits = {"frame": max_frames, "register": max_pairs}
+        self._scratch: dict[tuple, dict] = {}
+        self._lock = threading.Lock()
+        self._tokens: dict[int, int] = {}      # id(sequence) -> token, dropped when the sequence dies
+        self._next_token = 0
+        self.hits = {t: 0 for t in TABLES}
+        self.misses = {t: 0 for t in TABLES}
+
+    def sequence_token(self, sequence: Sequence) -> int:
+        """A number that stands for ``sequence`` (this very object) in the keys."""
+        with self._lock:
+            key = id(sequence)
+            if key not in self._tokens:
+                self._tokens[key] = self._next_token
+                self._next_token += 1
+                weakref.finalize(sequence, self._forget, key)
+            return self._tokens[key]
+
+    def get(self, stage: str, key: tuple) -> Any | None:
+        """The entry of ``stage`` (``"frame"`` or ``"register"``) under ``key``, or None (counted as a miss)."""
+        with self._lock:
+            table = self._tables[stage]
+            value = table.get(key)
+            if value is None:
+                self.misses[stage] += 1
+            else:
+                table.move_to_end(key)
+                self.hits[stage] += 1
+            return value
+
+    def put(self, stage: str, key: tuple, value: Any) -> None:
+        """Keep ``value`` under ``key``; the least recently used entries beyond the limit are dropped."""
+        with self._lock:
+            table = self._tables[stage]
+            table[key] = value
+            table.move_to_end(key)
+            while len(table) > self._limits[stage]:
+                self._drop(stage, table.popitem(last=False)[0])
+
+    def scratch(self, pair_key: tuple) -> dict:
+        """The scratch dict of the registered pair under ``pair_key``: it lives as long as the pair's
+        entry, so a rule finds its evidence again when the pair is re-decided."""
+        with self._lock:
+            return self._scratch.setdefault(pair_key, {})
+
+    def _drop(self, stage: str, key: tuple) -> None:
+        if stage == "register":
+            self._scratch.pop(key, None)
+
+    def _forget(self, sequence_id: int) -> None:
+        with self._lock:
+            token = self._tokens.pop(sequence_id, None)
+            if token is None:
+                return
+            for stage, table in self._tables.items():
+                for k in [k for k in table if k[0] == token]:
+                    del table[k]
+                    self._drop(stage, k)
+
+    def clear(self) -> None:
+        with self._lock:
+            for table in self._tables.values():
+                table.clear()
+            self._scratch.clear()
+
+    def stats(self) -> dict[str, Any]:
+        """Entries held and hits/misses per stage."""
+        with self._lock:
+            return dict(frames=len(self._tables["frame"]), pairs=len(self._tables["register"]),
+                        hits=dict(self.hits), misses=dict(self.misses))

@@ -1,0 +1,60 @@
+"""From pair decisions to a sequence label: the moving max-count filter and the label rule."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Iterable
+from typing import Any
+
+from .types import DECISIONS, FrameResult, PairResult, RunResult
+
+SEVERITY = {"NM": 0, "RM": 1, "AM": 2}
+
+
+def max_count_filter(decisions: list[str], *, w: int) -> list[str]:
+    """Moving max-count (mode) filter with a centred window of ``w`` decisions.
+
+    A tie goes to the least severe of the tied (NM < RM < AM), so an isolated AM cannot win a tie,
+    not even in the truncated windows at the ends of the sequence.
+    """
+    out = []
+    before = (w - 1) // 2
+    for t in range(len(decisions)):
+        window = decisions[max(0, t - before): t - before + w]
+        counts = Counter(window)
+        top = max(counts.values())
+        tied = [d for d in counts if counts[d] == top]
+        out.append(min(tied, key=SEVERITY.__getitem__))
+    return out
+
+
+def sequence_label(filtered: Iterable[str]) -> str:
+    """``articulated`` if any filtered decision is AM, else ``rigid`` if any is RM, else ``static``."""
+    seen = set(filtered)
+    return "articulated" if "AM" in seen else "rigid" if "RM" in seen else "static"
+
+
+def fractions(decided: list[str]) -> dict[str, float]:
+    """Share of the decided pairs in each class (the paper's per-sequence "probabilities")."""
+    n = len(decided)
+    return {d: (decided.count(d) / n if n else 0.0) for d in DECISIONS}
+
+
+def labelled_result(sequence: dict[str, Any], frames: list[FrameResult], pairs: list[PairResult], *, w: int,
+                    params: dict[str, dict], plugins: dict[str, str], timing: dict[str, float]) -> RunResult:
+    """The :class:`RunResult` of a sequence's pair decisions: filtered with window ``w``, the label and
+    the class fractions, recorded with the ``params`` and ``plugins`` that produced them, the stage
+    ``timing`` (s) and the artclass version."""
+    decided = [p.decision for p in pairs if p.decision != "skipped"]
+    filtered = max_count_filter(decided, w=w)
+    return RunResult(sequence=sequence, label=sequence_label(filtered), fractions=fractions(decided), pairs=pairs,
+                     filtered=filtered, frames=frames, params=params, plugins=plugins,
+                     timing_s={k: round(v, 4) for k, v in timing.items()}, version=_version())
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("artclass")
+    except PackageNotFoundError:
+        return "unknown"
