@@ -28,9 +28,9 @@ def rotation(axis, angle_deg: float) -> np.ndarray:
     return cv2.Rodrigues(np.radians(angle_deg) * np.asarray(axis, float))[0]
 
 
-def pose(R: np.ndarray = np.eye(3), t=(0.0, 0.0, 0.0)) -> np.ndarray:
+def pose(R: np.ndarray | None = None, t=(0.0, 0.0, 0.0)) -> np.ndarray:
     T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t
+    T[:3, :3], T[:3, 3] = np.eye(3) if R is None else R, t
     return T
 
 
@@ -83,11 +83,12 @@ BASE = panel_points(0.16, 0.10, spacing_m=0.0004) - [0.08, 0.0, 0.0]     # 16 x 
 LEVER = panel_points(0.10, 0.02, spacing_m=0.0004)                        # 10 x 2 cm, pivot at x = 0
 
 
-def plate_with_lever(angle_deg: float, carry: np.ndarray = np.eye(4), index: int = 0, *, axis=(0, 1, 0)) -> Frame:
+def plate_with_lever(angle_deg: float, carry: np.ndarray | None = None, index: int = 0, *,
+                     axis=(0, 1, 0)) -> Frame:
     """A plate facing the camera with a lever on it (5 mm proud), turned by ``angle_deg`` about a
     line through the plate's centre: vertical (``axis`` y, the lever lifts) or along the view (z, the
     lever turns in the plate's plane); the whole object moved by ``carry``."""
-    plate = carry @ pose(t=(0.0, 0.0, DEPTH_M))
+    plate = (np.eye(4) if carry is None else carry) @ pose(t=(0.0, 0.0, DEPTH_M))
     lever = plate @ pose(rotation(axis, angle_deg), t=(0.0, 0.0, -0.005))
     return frame([(BASE, plate, 1), (LEVER, lever, 2), TABLE], index)
 

@@ -24,7 +24,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from artclass_core import Cloud, MotionEvidence, PairRegistrar, Params, param
-from artclass_core.geometry import transform
 from artclass_core.types import SURFACE
 
 from .flow import flow_targets
