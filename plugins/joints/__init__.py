@@ -1,7 +1,7 @@
 """Joints: which way a moving part moves relative to its parent, and how far.
 
 The built-in joint estimator fits the fixed, prismatic, revolute and screw models to the part's poses
-and chooses one by BIC (:func:`fit_joint`). :mod:`.metrics` compares an estimate with the truth and
+and chooses one by BIC (:func:`fit_joint`). :mod:`artclass_core.joint_metrics` compares an estimate with the truth and
 :mod:`.urdf` writes a model of parts and joints as a URDF.
 """
 
