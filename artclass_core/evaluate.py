@@ -13,7 +13,7 @@ import numpy as np
 
 from .errors import ArtclassError
 from .joint_metrics import score_articulation
-from .parts import find_articulation
+from .parts import find_articulation, forget_clouds
 from .pipeline import Config, Pipeline, StageCache
 from .plugins import Registry
 from .types import DECISIONS, LABELS, RunResult, Sequence
@@ -183,10 +183,7 @@ def _score_joints(pipeline: Pipeline, seq: Sequence, result: RunResult, truth: d
         path = Path(seq.path) / "parts" / f"{result.frames[f].name}.png"
         if path.is_file():
             images[f] = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    for f in result.frames:           # the run's clouds and evidence were kept for this only
-        f.cloud = None
-    for p in result.pairs:
-        p.evidence = None
+    forget_clouds(result)             # the run's clouds and evidence were kept for this only
     return score_articulation(articulation, truth, images)
 
 

@@ -542,6 +542,14 @@ def find_articulation(result: RunResult, *, estimator: JointEstimator,
     return Articulation(parts, joints, base_poses, views)
 
 
+def forget_clouds(result: RunResult) -> None:
+    """Drop the clouds and evidence a run kept for :func:`find_articulation` (they are large)."""
+    for f in result.frames:
+        f.cloud = None
+    for p in result.pairs:
+        p.evidence = None
+
+
 def _mask(result: RunResult, frame: int) -> np.ndarray:
     cloud = result.frames[frame].cloud if frame < len(result.frames) else None
     view = getattr(cloud, "view", None)

@@ -27,4 +27,10 @@ def register_joint_estimators(register):
     register(BICJointEstimator)
 
 
+@hookimpl
+def register_commands(subparsers):
+    from .export import register_commands as add_export     # imports the command line only when it is built
+    add_export(subparsers)
+
+
 __all__ = ["BICJointEstimator", "BICJointParams", "MODELS", "chain_pair_motions", "fit_joint"]
