@@ -499,7 +499,9 @@ def find_articulation(result: RunResult, *, estimator: JointEstimator,
     for o in sorted(observations, key=lambda o: (o.frame, not o.forward)):
         if o.frame in views or not np.isfinite(base_poses[o.frame]).all():
             continue
-        part = np.array([number.get(track.get((o.pair, int(m)), -1), -1) if m >= 0 else -1 for m in o.labels])
+        n_motions = len(result.pairs[o.pair].motions)
+        lookup = np.array([number.get(track.get((o.pair, m), -1), -1) for m in range(n_motions)] + [-1])
+        part = lookup[np.where(o.labels >= 0, o.labels, n_motions)]      # -1 for points of no motion
         if result.label != "articulated":
             part = np.where(o.labels >= 0, 0, -1)
         keep = part >= 0
