@@ -473,7 +473,10 @@ def find_articulation(result: RunResult, *, estimator: JointEstimator,
     """
     n_frames = int(result.sequence.get("n_frames") or len(result.frames))
     observations = _observations(result)
-    track = _tracks(observations, min_overlap=params.min_overlap)
+    if result.label == "articulated":
+        track = _tracks(observations, min_overlap=params.min_overlap)
+    else:                                  # one body: each pair's first motion is the object's
+        track = {(o.pair, int(m)): 0 if m == 0 else 1 for o in observations for m in np.unique(o.labels[o.labels >= 0])}
     size: dict[int, int] = {}
     for o in observations:
         for m, count in zip(*np.unique(o.labels[o.labels >= 0], return_counts=True)):

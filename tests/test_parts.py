@@ -225,3 +225,31 @@ def test_the_urdf_of_a_found_hinge_moves_like_the_flap(bic, tmp_path):
     placed = mesh @ robot.get_transform("part1", "base")[:3, :3].T + robot.get_transform("part1", "base")[:3, 3]
     flap = LID @ _hinge(STATES[f])[:3, :3].T + _hinge(STATES[f])[:3, 3]
     np.testing.assert_allclose(np.sort(placed, axis=0)[[0, -1]], np.sort(flap, axis=0)[[0, -1]], atol=0.003)
+
+
+def test_evaluation_reports_parts_and_joints():
+    """The evaluation sums the per-sequence joint scores up: over the articulated sequences where a
+    part was found, and counts rigid or static sequences that wrongly got a joint."""
+    from artclass_core.evaluate import Evaluation, SequenceOutcome, markdown
+
+    def outcome(name, truth, joints, iou=0.8):
+        o = SequenceOutcome(name, name.split("_")[0], truth, (truth,), truth)
+        o.joints = dict(part_iou=iou if joints else None, joints=joints)
+        return o
+
+    hinge = dict(type="revolute", true_type="revolute", axis_direction_error_deg=2.0, axis_position_error_mm=8.0,
+                 state_error=1.0, state_unit="deg")
+    slide = dict(type="revolute", true_type="prismatic", axis_direction_error_deg=6.0, axis_position_error_mm=None,
+                 state_error=4.0, state_unit="mm")
+    outs = [outcome("laptop_a", "articulated", [hinge]), outcome("drawer_a", "articulated", [slide], iou=0.6),
+            outcome("drawer_b", "articulated", []), outcome("mug_a", "rigid", []),
+            outcome("book_a", "rigid", [dict(hinge, true_type=None)])]
+    j = Evaluation("dense", outs, {}).metrics()["joints"]
+    assert (j["n_articulated"], j["n_with_part"], j["n_not_articulated"], j["not_articulated_with_joint"]) == (3, 2, 2, 1)
+    assert j["n_joints"] == 2 and j["joint_type_accuracy"] == 0.5
+    assert j["axis_direction_error_deg"] == 4.0 and j["axis_position_error_mm"] == 8.0
+    assert (j["state_error_deg"], j["state_error_mm"], j["part_iou"]) == (1.0, 4.0, pytest.approx(0.7))
+    assert j["per_object"]["drawer"]["joint_type_accuracy"] == 0.0
+    text = markdown([Evaluation("dense", outs, {})])
+    assert "| articulated sequences with a moving part found | 2 / 3 |" in text
+    assert "| rigid or static sequences with a joint | 1 / 2 |" in text
