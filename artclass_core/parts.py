@@ -472,31 +472,58 @@ def find_articulation(result: RunResult, *, estimator: JointEstimator,
     Articulation
     """
     n_frames = int(result.sequence.get("n_frames") or len(result.frames))
+    articulated = result.label == "articulated"
     observations = _observations(result)
-    if result.label == "articulated":
+    if articulated:
         track = _tracks(observations, min_overlap=params.min_overlap)
     else:                                  # one body: each pair's first motion is the object's
         track = {(o.pair, int(m)): 0 if m == 0 else 1 for o in observations for m in np.unique(o.labels[o.labels >= 0])}
+    size = _track_sizes(observations, track)
+    base = max(size, key=size.get) if size else 0
+    motion = {node: result.pairs[node[0]].motions[node[1]].T_target_from_source for node in track}
+    base_motion = {pair: T for (pair, m), T in motion.items() if track[(pair, m)] == base}
+    base_poses = chain_interleaved(n_frames, [(result.pairs[n].i, result.pairs[n].j, T) for n, T in base_motion.items()])
+    moving = _moving_tracks(result, track, base, base_motion, size, min_pairs=params.min_pairs) if articulated else {}
+    number = {base: 0, **{t: n + 1 for n, t in enumerate(moving)}}
+    views, points = _part_points(result, observations, track, number, base_poses)
+    joints = []
+    for t, nodes in moving.items():
+        relative = _relative_motions(result, nodes, motion, base_motion, base_poses)
+        own = points.get(number[t], {})
+        if len(relative) >= params.min_pairs and own:
+            centre = np.median(np.concatenate(list(own.values())), axis=0)
+            estimate, n_pairs = _pair_joint(relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness)
+            joints.append(PartJoint(0, number[t], estimate, n_pairs))
+    parts = [_part(n, points.get(n, {}), next((j for j in joints if j.child == n), None), size.get(t, 0))
+             for t, n in sorted(number.items(), key=lambda kv: kv[1])]
+    return Articulation(parts, joints, base_poses, views)
+
+
+def _track_sizes(observations: list[_Observation], track: dict[tuple, int]) -> dict[int, int]:
+    """Labelled points of each track over all frames."""
     size: dict[int, int] = {}
     for o in observations:
         for m, count in zip(*np.unique(o.labels[o.labels >= 0], return_counts=True)):
             t = track[(o.pair, int(m))]
             size[t] = size.get(t, 0) + int(count)
-    motion = {node: result.pairs[node[0]].motions[node[1]].T_target_from_source for node in track}
-    base = max(size, key=size.get) if size else 0
-    base_pairs = {pair: T for (pair, m), T in motion.items() if track[(pair, m)] == base}
-    base_poses = chain_interleaved(n_frames, [(result.pairs[n].i, result.pairs[n].j, T) for n, T in base_pairs.items()])
+    return size
 
-    moving = []
-    if result.label == "articulated":
-        seen = {}
-        for (pair, m), t in track.items():
-            if t != base and pair in base_pairs and result.pairs[pair].decision == "AM":
-                seen.setdefault(t, []).append((pair, m))
-        moving = sorted((t for t, nodes in seen.items() if len(nodes) >= params.min_pairs), key=lambda t: -size[t])
-    number = {base: 0, **{t: n + 1 for n, t in enumerate(moving)}}
 
-    # each part's points in the base's first-frame coordinates, per frame
+def _moving_tracks(result: RunResult, track: dict[tuple, int], base: int, base_motion: dict[int, np.ndarray],
+                   size: dict[int, int], *, min_pairs: int) -> dict[int, list[tuple]]:
+    """The moving parts (tracks other than the base seen in at least ``min_pairs`` AM pairs that also
+    see the base), largest first, each with its nodes (pair, motion)."""
+    seen: dict[int, list[tuple]] = {}
+    for (pair, m), t in track.items():
+        if t != base and pair in base_motion and result.pairs[pair].decision == "AM":
+            seen.setdefault(t, []).append((pair, m))
+    return {t: seen[t] for t in sorted(seen, key=lambda t: -size[t]) if len(seen[t]) >= min_pairs}
+
+
+def _part_points(result: RunResult, observations: list[_Observation], track: dict[tuple, int],
+                 number: dict[int, int], base_poses: np.ndarray) -> tuple[dict, dict[int, dict[int, np.ndarray]]]:
+    """Each frame's part labelling (one per frame: a pair's source side first) and each part's points
+    per frame, in the base's first-frame coordinates."""
     points: dict[int, dict[int, np.ndarray]] = {}
     views = {}
     for o in sorted(observations, key=lambda o: (o.frame, not o.forward)):
@@ -505,46 +532,40 @@ def find_articulation(result: RunResult, *, estimator: JointEstimator,
         n_motions = len(result.pairs[o.pair].motions)
         lookup = np.array([number.get(track.get((o.pair, m), -1), -1) for m in range(n_motions)] + [-1])
         part = lookup[np.where(o.labels >= 0, o.labels, n_motions)]      # -1 for points of no motion
-        if result.label != "articulated":
-            part = np.where(o.labels >= 0, 0, -1)
         keep = part >= 0
-        mask = _mask(result, o.frame)
-        views[o.frame] = (o.pixels[keep], part[keep], mask, _stride(result, o.frame))
+        views[o.frame] = (o.pixels[keep], part[keep], _mask(result, o.frame), _stride(result, o.frame))
         local = transform(o.points, np.linalg.inv(base_poses[o.frame]))
         for p in np.unique(part[keep]):
             points.setdefault(int(p), {})[o.frame] = local[part == p]
+    return views, points
 
-    joints = []
-    for t in moving:
-        child = number[t]
-        relative = []
-        for pair, m in seen[t]:
-            p = result.pairs[pair]
-            C = base_poses[p.i]
-            if not np.isfinite(C).all():
-                continue
-            M_camera = np.linalg.inv(base_pairs[pair]) @ motion[(pair, m)]
-            relative.append((p.i, p.j, np.linalg.inv(C) @ M_camera @ C))
-        own = points.get(child, {})
-        if len(relative) < params.min_pairs or not own:
-            continue
-        centre = np.median(np.concatenate(list(own.values())), axis=0)
-        estimate, n_pairs = _pair_joint(relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness)
-        joints.append(PartJoint(0, child, estimate, n_pairs))
 
-    parts = []
-    for t, n in sorted(number.items(), key=lambda kv: kv[1]):
-        own = points.get(n, {})
-        joint = next((j for j in joints if j.child == n), None)
-        cloud = np.zeros((0, 3))
-        if own:
-            f = max(own, key=lambda f: len(own[f]))
-            cloud = own[f]
-            if joint is not None:
-                cloud = transform(cloud, np.linalg.inv(joint_motion(joint.estimate, joint.estimate.states[f])))
-        parts.append(Part(n, "base" if n == 0 else f"part{n}", -1 if n == 0 else 0, cloud, sorted(own),
-                          size.get(t, 0)))
-    return Articulation(parts, joints, base_poses, views)
+def _relative_motions(result: RunResult, nodes: list[tuple], motion: dict, base_motion: dict[int, np.ndarray],
+                      base_poses: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
+    """(i, j, the part's motion relative to the base) of each pair that saw both, in the base's
+    first-frame coordinates: ``C_i^-1 B^-1 P C_i`` with B and P the pair's base and part motions and
+    C_i the base's pose in frame i."""
+    relative = []
+    for pair, m in nodes:
+        p = result.pairs[pair]
+        C = base_poses[p.i]
+        if np.isfinite(C).all():
+            relative.append((p.i, p.j, np.linalg.inv(C) @ np.linalg.inv(base_motion[pair]) @ motion[(pair, m)] @ C))
+    return relative
+
+
+def _part(index: int, own: dict[int, np.ndarray], joint: PartJoint | None, n_labelled: int) -> Part:
+    """A part, its points from the frame where it shows most (for a moving part, among the frames
+    with a state), brought back to state 0."""
+    frames = [f for f in own if joint is None or np.isfinite(joint.estimate.states[f])] or list(own)
+    cloud = np.zeros((0, 3))
+    if frames:
+        f = max(frames, key=lambda f: len(own[f]))
+        cloud = own[f]
+        if joint is not None:
+            cloud = transform(cloud, np.linalg.inv(joint_motion(joint.estimate, joint.estimate.states[f])))
+    return Part(index, "base" if index == 0 else f"part{index}", -1 if index == 0 else 0, cloud, sorted(own),
+                n_labelled)
 
 
 def forget_clouds(result: RunResult) -> None:
