@@ -408,7 +408,9 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
     ``BIC = -2 log L + k log n`` chooses among them (n poses, k parameters), among the models whose
     distinguishing motion the poses show above the noise (``distinct_sigmas``): a revolute joint that
     turns less than the orientation noise is a slide, a screw that slides less than the position
-    noise along its axis is a hinge. Two choices differ from theirs: (1) the per-frame states count
+    noise along its axis is a hinge. The screw, which they do not have, is a fallback: chosen only
+    when the best of the others leaves residuals beyond the noise (chi-square test at
+    ``outlier_level``) and the screw's BIC is lower. Two choices differ from theirs: (1) the per-frame states count
     in k, so a one-degree-of-freedom model that only absorbs noise (one residual component per pose)
     does not beat ``fixed``;
     (2) instead of a per-model inlier/outlier mixture, the poses the general screw model cannot
@@ -451,7 +453,12 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
         fits[name] = _refine(start, fitted, robust=False)
         scores[name] = fits[name].chi2 + n * log_norm + _n_params(fits[name].shape, n) * np.log(n)
     shown = [name for name in scores if _shows_itself(fits[name], fitted, params.distinct_sigmas)]
-    chosen = min(shown or ["fixed"], key=scores.get)
+    chosen = min([name for name in shown if name != "screw"] or ["fixed"], key=scores.get)
+    # the screw is the fallback: only when the simpler joint does not explain the poses within the
+    # noise (its chi-square beyond the outlier_level quantile) and the screw pays for itself by BIC
+    dof = max(6 * n - _n_params(fits[chosen].shape, n), 1)
+    if "screw" in shown and scores["screw"] < scores[chosen] and fits[chosen].chi2 > chi2.ppf(params.outlier_level, dof):
+        chosen = "screw"
 
     # 3. the chosen model's parameters and their uncertainty
     best = _recentred(fits[chosen], fitted)
