@@ -198,7 +198,11 @@ def show_parts(seq: Sequence, config, result, pair) -> dict:
     if not any(p.motions for p in result.pairs):
         return {}
     st.subheader("Parts and joints")
-    articulation = articulation_of(state.sequence_key(seq), state.stage_key(config, "decide"), result)
+    try:
+        articulation = articulation_of(state.sequence_key(seq), state.stage_key(config, "decide"), result)
+    except ArtclassError as exc:
+        st.warning(f"No parts: {exc}")
+        return {}
     st.markdown(f"**{articulation.summary()}**")
     figs = {"Parts and joints (3D)": figures.parts_3d(articulation)}
     left, right = st.columns([3, 2])
