@@ -16,6 +16,7 @@ from .errors import ArtclassError
 from .evaluate import evaluation, markdown
 from .interfaces import KINDS
 from .params import PipelineParams, describe
+from .parts import Articulation, find_articulation, forget_clouds
 from .pipeline import PLUGIN_KINDS, Config, Pipeline
 from .plugins import Registry, load_registry
 from .sequences import find_sequences, open_sequences
@@ -30,7 +31,7 @@ from .sweep import (
     swept_names,
     write_figure,
 )
-from .types import DECISIONS
+from .types import DECISIONS, RunResult
 
 
 class _Bars:
@@ -101,15 +102,14 @@ def config_from_args(registry: Registry, args: argparse.Namespace) -> Config:
 
 def cmd_classify(registry: Registry, args) -> int:
     config = config_from_args(registry, args)
-    sequences = open_sequences(registry, args.path, reader=args.reader)
-    if len(sequences) > 1:
-        names = ", ".join(s.name for s in sequences)
-        raise ArtclassError(f"{args.path} holds {len(sequences)} sequences ({names}); choose one with "
-                            f"PATH#NAME, or run `artclass evaluate` over them")
-    seq = sequences[0]
-    result = Pipeline(registry, config).run(seq, progress=_progress(sys.stderr.isatty()), workers=args.workers)
+    seq = open_one_sequence(registry, args.path, reader=args.reader)
+    result, articulation = classify_with_parts(registry, config, seq, workers=args.workers,
+                                               estimator=args.joint_estimator)
     if args.json:
-        print(json.dumps(result.to_dict(cells=not args.no_cells)))
+        out = result.to_dict(cells=not args.no_cells)
+        if articulation is not None:
+            out.update(articulation.to_dict())
+        print(json.dumps(out))
         return 0
     decisions = " ".join(p.decision if p.decision != "skipped" else "-" for p in result.pairs)
     print(f"{seq.name}: {result.label}"
@@ -120,9 +120,35 @@ def cmd_classify(registry: Registry, args) -> int:
     skipped = [p for p in result.pairs if p.decision == "skipped"]
     if skipped:
         print(f"  skipped pairs: {len(skipped)} (e.g. {skipped[0].i}-{skipped[0].j}: {skipped[0].reason})")
+    if articulation is not None:
+        print(f"  joints: {articulation.summary()}")
     print("  plugins: " + ", ".join(f"{k}={v}" for k, v in result.plugins.items()))
     print(f"  time: {result.timing_s['total']:.2f} s")
     return 0
+
+
+def open_one_sequence(registry: Registry, path: str, *, reader: str | None = None):
+    """The one sequence at ``path`` (``PATH#NAME`` picks one of several)."""
+    sequences = open_sequences(registry, path, reader=reader)
+    if len(sequences) > 1:
+        names = ", ".join(s.name for s in sequences)
+        raise ArtclassError(f"{path} holds {len(sequences)} sequences ({names}); choose one with "
+                            f"PATH#NAME, or run `artclass evaluate` over them")
+    return sequences[0]
+
+
+def classify_with_parts(registry: Registry, config: Config, sequence, *, workers: int,
+                        estimator: str = "bic") -> tuple[RunResult, Articulation | None]:
+    """Classify ``sequence`` and find its parts and joints (None with a rule that does not label
+    points by motion). The clouds a run keeps for the parts are dropped afterwards."""
+    pipeline = Pipeline(registry, config)
+    by_motion = pipeline.rule.needs == "motions"
+    result = pipeline.run(sequence, progress=_progress(sys.stderr.isatty()), workers=workers, keep_clouds=by_motion)
+    if not by_motion:
+        return result, None
+    articulation = find_articulation(result, estimator=registry.create("joint_estimator", estimator))
+    forget_clouds(result)
+    return result, articulation
 
 
 def _labelled_sequences(registry: Registry, args) -> list:
@@ -242,6 +268,7 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p.add_argument("path", help="sequence folder (PATH#NAME picks one of several)")
     _pipeline_options(p)
     p.add_argument("--no-cells", action="store_true", help="leave the per-cell details out of --json")
+    p.add_argument("--joint-estimator", default="bic", help="joint estimator plugin (default: %(default)s)")
     p.set_defaults(func=partial(cmd_classify, registry))
     p = sub.add_parser("evaluate", help="classify every labelled sequence under a folder and report accuracy")
     p.add_argument("root")

@@ -5,9 +5,15 @@ from __future__ import annotations
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
+import cv2
+import numpy as np
+
 from .errors import ArtclassError
+from .joint_metrics import score_articulation
+from .parts import find_articulation, forget_clouds
 from .pipeline import Config, Pipeline, StageCache
 from .plugins import Registry
 from .types import DECISIONS, LABELS, RunResult, Sequence
@@ -28,6 +34,7 @@ class SequenceOutcome:
     pair_total_legacy: int = 0
     n_pairs: int = 0
     seconds: float = 0.0
+    joints: dict[str, Any] | None = None  # parts and joints against the truth (sequences with joint truth)
 
     @property
     def correct(self) -> bool:
@@ -79,6 +86,7 @@ class Evaluation:
                                   fractions={d: _mean([o.fractions.get(d, 0.0) for o in os_ if o.fractions]) for d in DECISIONS})
                         for obj, os_ in sorted(per_object.items(), key=lambda kv: (kv[1][0].truth, kv[0]))},
             errors=sum(o.predicted is None for o in outs),
+            joints=joint_summary(outs),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -88,6 +96,40 @@ class Evaluation:
 
 def _mean(values: list[float]) -> float:
     return sum(values) / len(values) if values else 0.0
+
+
+def _median(values: list[float]) -> float | None:
+    values = [v for v in values if v is not None and np.isfinite(v)]
+    return float(np.median(values)) if values else None
+
+
+def _joint_figures(outs: list[SequenceOutcome]) -> dict[str, Any]:
+    """Joint-type accuracy and median errors over the joints found in ``outs``."""
+    joints = [j for o in outs for j in o.joints["joints"] if j.get("true_type")]
+    states = {unit: _median([j.get("state_error") for j in joints if j.get("state_unit") == unit]) for unit in ("deg", "mm")}
+    return dict(n_joints=len(joints),
+                joint_type_accuracy=sum(j["type"] == j["true_type"] for j in joints) / len(joints) if joints else None,
+                axis_direction_error_deg=_median([j.get("axis_direction_error_deg") for j in joints]),
+                axis_position_error_mm=_median([j.get("axis_position_error_mm") for j in joints]),
+                state_error_deg=states["deg"], state_error_mm=states["mm"],
+                part_iou=_median([o.joints["part_iou"] for o in outs if o.joints["part_iou"] is not None]))
+
+
+def joint_summary(outs: list[SequenceOutcome]) -> dict[str, Any] | None:
+    """Parts and joints over the sequences with joint truth: how many articulated ones got a moving
+    part, the figures over those (overall and per object), and how many others wrongly got a joint."""
+    scored = [o for o in outs if o.joints is not None]
+    if not scored:
+        return None
+    articulated = [o for o in scored if o.truth == "articulated"]
+    found = [o for o in articulated if o.joints["joints"]]
+    by_object: dict[str, list[SequenceOutcome]] = defaultdict(list)
+    for o in found:
+        by_object[o.object].append(o)
+    return dict(n_articulated=len(articulated), n_with_part=len(found),
+                n_not_articulated=len(scored) - len(articulated),
+                not_articulated_with_joint=sum(bool(o.joints["joints"]) for o in scored if o.truth != "articulated"),
+                **_joint_figures(found), per_object={obj: _joint_figures(os_) for obj, os_ in sorted(by_object.items())})
 
 
 def evaluate(registry: Registry, sequences: list[Sequence], config: Config, *, progress=None,
@@ -109,11 +151,18 @@ def run_outcome(pipeline: Pipeline, seq: Sequence, *, workers: int = 1,
     o = SequenceOutcome(seq.name, seq.object_name, seq.label, tuple(seq.accepted_labels), None)
     t0 = time.perf_counter()
     result = None
+    truth = getattr(seq, "truth", None)
+    with_joints = isinstance(truth, dict) and "joints" in truth and pipeline.rule.needs == "motions"
     try:
-        result = pipeline.run(seq, workers=workers, cache=cache)
+        result = pipeline.run(seq, workers=workers, cache=cache, keep_clouds=with_joints)
     except Exception as exc:       # bad data, or a plugin's bug: one line here, and the next sequence runs
         o.error = one_line(exc)
     else:
+        if with_joints:
+            try:
+                o.joints = _score_joints(pipeline, seq, result, truth)
+            except Exception as exc:      # the label stands; the parts are reported as failed
+                o.joints = dict(part_iou=None, joints=[], error=one_line(exc))
         o.predicted, o.fractions = result.label, result.fractions
         truthful = [p for p in result.pairs if p.truth and p.decision != "skipped"]
         o.pair_total = len(truthful)
@@ -124,6 +173,18 @@ def run_outcome(pipeline: Pipeline, seq: Sequence, *, workers: int = 1,
         o.n_pairs = len(result.pairs)
     o.seconds = time.perf_counter() - t0
     return o, result
+
+
+def _score_joints(pipeline: Pipeline, seq: Sequence, result: RunResult, truth: dict) -> dict[str, Any]:
+    """The parts and joints of a run against the sequence's joint truth and part images (``parts/``)."""
+    articulation = find_articulation(result, estimator=pipeline.registry.create("joint_estimator", "bic"))
+    images = {}
+    for f in articulation.frames:
+        path = Path(seq.path) / "parts" / f"{result.frames[f].name}.png"
+        if path.is_file():
+            images[f] = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    forget_clouds(result)             # the run's clouds and evidence were kept for this only
+    return score_articulation(articulation, truth, images)
 
 
 def one_line(exc: BaseException) -> str:
@@ -148,6 +209,38 @@ def config_label(config: Config) -> str:
 
 def _pct(x: float | None) -> str:
     return "–" if x is None else f"{100 * x:.2f}"
+
+
+def _number(x: float | None, digits: int = 1) -> str:
+    return "–" if x is None else f"{x:.{digits}f}"
+
+
+def _joint_lines(rules: list[str], ms: list[dict[str, Any]]) -> list[str]:
+    """The parts-and-joints section: overall, then per object (sequences with joint truth only)."""
+    if all(m.get("joints") is None for m in ms):
+        return []
+    rows = [("articulated sequences with a moving part found", lambda j: f"{j['n_with_part']} / {j['n_articulated']}"),
+            ("rigid or static sequences with a joint", lambda j: f"{j['not_articulated_with_joint']} / {j['n_not_articulated']}"),
+            ("joint type right %", lambda j: _pct(j["joint_type_accuracy"])),
+            ("median axis direction error (deg)", lambda j: _number(j["axis_direction_error_deg"])),
+            ("median axis position error at the part (mm)", lambda j: _number(j["axis_position_error_mm"])),
+            ("median state error, revolute (deg)", lambda j: _number(j["state_error_deg"])),
+            ("median state error, prismatic (mm)", lambda j: _number(j["state_error_mm"])),
+            ("median part IoU", lambda j: _number(j["part_iou"], 2))]
+    lines = ["", "## Parts and joints (over the articulated sequences where a moving part was found)", "",
+             "| metric | " + " | ".join(rules) + " |", "|---|" + "---|" * len(rules)]
+    for label, cell in rows:
+        lines.append(f"| {label} | " + " | ".join(cell(m["joints"]) if m.get("joints") else "–" for m in ms) + " |")
+    first = ms[0].get("joints")
+    if first and first["per_object"]:
+        lines += ["", f"Per object ({rules[0]}):", "",
+                  "| object | joints | type right % | axis direction (deg) | axis position (mm) | state (deg) "
+                  "| state (mm) | part IoU |", "|---|---|---|---|---|---|---|---|"]
+        for obj, j in first["per_object"].items():
+            lines.append(f"| {obj} | {j['n_joints']} | {_pct(j['joint_type_accuracy'])} | "
+                         f"{_number(j['axis_direction_error_deg'])} | {_number(j['axis_position_error_mm'])} | "
+                         f"{_number(j['state_error_deg'])} | {_number(j['state_error_mm'])} | {_number(j['part_iou'], 2)} |")
+    return lines
 
 
 def markdown(evals: list[Evaluation]) -> str:
@@ -183,6 +276,7 @@ def markdown(evals: list[Evaluation]) -> str:
         if c in ms[0]["per_class_accuracy"]:
             lines.append(f"| {c} accuracy % | " + " | ".join(_pct(m["per_class_accuracy"].get(c)) for m in ms) + " |")
     lines.append("| sequences / errors | " + " | ".join(f"{m['n_sequences']} / {m['errors']}" for m in ms) + " |")
+    lines += _joint_lines(rules, ms)
     for e, m in zip(evals, ms):
         lines += ["", f"## Confusion matrix ({e.rule}; rows truth, columns predicted)", "",
                   "| truth \\ predicted | " + " | ".join((*LABELS, "error")) + " |", "|---|" + "---|" * 4]

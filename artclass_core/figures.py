@@ -1,10 +1,9 @@
 """Plotly figure builders for artclass results: the app's plots, reusable from notebooks and scripts.
 
 Pure functions of artclass data types: no Streamlit, no file access, no algorithm. Each returns a
-:class:`plotly.graph_objects.Figure` (or plain rows for a table). Import them from the project root::
+:class:`plotly.graph_objects.Figure` (or plain rows for a table)::
 
-    import sys; sys.path.insert(0, PROJECT_ROOT)
-    from app.figures import decision_timeline, motion_arrows, frame_images, cells_table, confusion_figure
+    from artclass_core.figures import decision_timeline, motion_arrows, frame_images, cells_table, confusion_figure
 
 Stable API
 ----------
@@ -456,3 +455,86 @@ def frame_images_with_hand(frame: Frame, mask: np.ndarray | None, hand: np.ndarr
         fig.data[0].source = _png_uri(_overlay(_overlay(frame.rgb, mask), hand, colour=(46, 120, 228)))
         fig.layout.annotations[0].text += f" + hand ({int(np.count_nonzero(hand))} px)"
     return fig
+
+
+# -- parts and joints ------------------------------------------------------------------------------------
+
+def _part_colour(index: int) -> str:
+    return "#8C8C8C" if index == 0 else CLUSTER_COLOURS[(index - 1) % len(CLUSTER_COLOURS)]
+
+
+def parts_3d(articulation, *, max_points: int = 4000) -> go.Figure:
+    """The parts found in a video, each in its colour (at the first state, in the base's coordinates
+    of the first frame), and one arrow per joint along its axis.
+
+    Parameters
+    ----------
+    articulation : :class:`artclass_core.parts.Articulation`
+    max_points : at most this many points of each part are drawn
+
+    Returns
+    -------
+    Figure with one ``base`` / ``partN`` trace per part and one ``<type> axis`` cone and line per joint.
+    """
+    fig = go.Figure()
+    extent = np.concatenate([p.points_m for p in articulation.parts if len(p.points_m)] or [np.zeros((1, 3))])
+    length = max(float(np.linalg.norm(np.ptp(extent, axis=0))) / 2, 0.05)
+    for part in articulation.parts:
+        pts = _subsample(np.asarray(part.points_m), max_points)
+        fig.add_trace(go.Scatter3d(x=pts[:, 0], y=pts[:, 1], z=pts[:, 2], mode="markers", name=part.name,
+                                   marker=dict(size=2.0, color=_part_colour(part.index), opacity=0.8),
+                                   hovertemplate=f"{part.name}<extra></extra>"))
+    for joint in articulation.joints:
+        e = joint.estimate
+        if e.axis_direction is None or e.axis_point_m is None:
+            continue
+        d, c = np.asarray(e.axis_direction, float), np.asarray(e.axis_point_m, float)
+        tail, head = c - d * length / 2, c + d * length / 2
+        colour = _part_colour(joint.child)
+        text = html.escape(e.summary(up=articulation.UP))
+        fig.add_trace(go.Scatter3d(x=[tail[0], head[0]], y=[tail[1], head[1]], z=[tail[2], head[2]], mode="lines",
+                                   line=dict(color=colour, width=6), name=f"{e.type} axis", legendgroup=f"j{joint.child}",
+                                   text=[text] * 2, hovertemplate="%{text}<extra></extra>"))
+        tip = d * length / 5
+        fig.add_trace(go.Cone(x=[head[0]], y=[head[1]], z=[head[2]], u=[tip[0]], v=[tip[1]], w=[tip[2]],
+                              sizemode="raw", sizeref=1.0, anchor="tail", colorscale=[[0, colour], [1, colour]],
+                              showscale=False, name=f"{e.type} axis", legendgroup=f"j{joint.child}", showlegend=False,
+                              text=[text], hovertemplate="%{text}<extra></extra>"))
+    fig.update_layout(scene=dict(aspectmode="data", xaxis_title="x (m)", yaxis_title="y (m)", zaxis_title="z (m)",
+                                 camera=dict(up=dict(x=0, y=-1, z=0), eye=dict(x=0.0, y=-0.3, z=-2.0))))
+    return _layout(fig, title=f"Parts and joints: {articulation.summary()}", height=480)
+
+
+def joint_states(articulation) -> go.Figure:
+    """Each joint's state over the video (degrees or millimetres), with one standard deviation as a band."""
+    fig = go.Figure()
+    for joint in articulation.joints:
+        e = joint.estimate
+        scale, unit = (1000.0, "mm") if e.type == "prismatic" else (np.degrees(1.0), "deg")
+        frames = np.arange(len(e.states))
+        q = e.states * scale
+        std = (e.states_std if e.states_std is not None else np.zeros_like(e.states)) * scale
+        colour = _part_colour(joint.child)
+        name = f"part{joint.child} ({e.type}, {unit})"
+        fig.add_trace(go.Scatter(x=np.r_[frames, frames[::-1]], y=np.r_[q + std, (q - std)[::-1]], fill="toself",
+                                 fillcolor=colour, opacity=0.2, line=dict(width=0), hoverinfo="skip",
+                                 showlegend=False, legendgroup=name))
+        fig.add_trace(go.Scatter(x=frames, y=q, mode="lines+markers", name=name, legendgroup=name,
+                                 line=dict(color=colour), hovertemplate="frame %{x}: %{y:.1f} " + unit + "<extra></extra>"))
+    return _layout(fig, title="Joint state over the video", xaxis_title="frame", yaxis_title="state (deg or mm)",
+                   height=320)
+
+
+def part_image(frame: Frame, labels: np.ndarray | None, *, title: str | None = None, max_width: int = 320) -> go.Figure:
+    """The colour image with each part of ``labels`` (H, W; 0 none, 1 + part index) in its colour."""
+    rgb = frame.rgb.copy()
+    if labels is not None:
+        for value in np.unique(labels[labels > 0]):
+            colour = _part_colour(int(value) - 1).lstrip("#")
+            rgb = _overlay(rgb, labels == value, colour=tuple(int(colour[k:k + 2], 16) for k in (0, 2, 4)))
+    if rgb.shape[1] > max_width:
+        rgb = cv2.resize(rgb, (max_width, round(rgb.shape[0] * max_width / rgb.shape[1])), interpolation=cv2.INTER_AREA)
+    fig = go.Figure(go.Image(source=_png_uri(rgb)))
+    fig.update_xaxes(visible=False)
+    fig.update_yaxes(visible=False)
+    return _layout(fig, title=title or f"Frame {frame.index}: parts", height=300, margin=dict(l=0, r=0, t=40, b=0))

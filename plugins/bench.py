@@ -11,6 +11,8 @@ cached under ``$XDG_CACHE_HOME/artclass/bench`` keyed by the generator's version
   of its time;
 - the time to re-decide the sequence after a decision-rule parameter changes (reusing the cached
   registrations through :class:`artclass_core.pipeline.StageCache`), next to a full re-run;
+- the cost of finding the parts and joints (:func:`artclass_core.parts.find_articulation`) on top of
+  the classification, as a share of its run time;
 - a long sequence (default 1000 frames, the rendered frames played back and forth by
   :class:`CycledSequence`, so nothing long has to be rendered): peak resident memory and the
   resident memory after 10 % of the pairs and at the end (it must not grow with the length).
@@ -194,6 +196,36 @@ def measure_run(spec: dict) -> dict:
                 run_kwargs=kw, load=os.getloadavg()[0])
 
 
+def measure_parts(spec: dict) -> dict:
+    """The cost of finding parts and joints on top of classification (called in a child): one run that
+    keeps what the parts need, then :func:`artclass_core.parts.find_articulation` on it."""
+    from artclass_core import Pipeline, load_registry
+    from artclass_core.parts import find_articulation
+
+    registry = load_registry()
+    seq = _open(registry, spec)
+    pipe = Pipeline(registry, _config(registry, spec))
+    estimator = registry.create("joint_estimator", "bic")
+    t0, c0 = time.perf_counter(), time.process_time()
+    result = pipe.run(seq, keep_clouds=True, **_run_kwargs(pipe, spec))
+    t1, c1 = time.perf_counter(), time.process_time()
+    articulation = find_articulation(result, estimator=estimator)
+    t2, c2 = time.perf_counter(), time.process_time()
+    return dict(spec=spec, n_frames=len(seq), label=result.label, run_s=t1 - t0, parts_s=t2 - t1,
+                run_cpu_s=c1 - c0, parts_cpu_s=c2 - c1, summary=articulation.summary(), peak_rss_mb=peak_rss_mb(),
+                load=os.getloadavg()[0])
+
+
+def format_parts(m: dict) -> str:
+    if "error" in m:
+        return f"parts and joints: error: {m['error']}\n"
+    return (f"parts and joints ({m['n_frames']} frames, segmenter={m['spec']['segmenter']}, "
+            f"workers={m['spec'].get('workers', 1)}): {m['parts_s']:.2f} s on top of the run's {m['run_s']:.2f} s "
+            f"= {m['parts_s'] / m['run_s']:.1%} of the classification's wall time ({m['parts_cpu_s']:.2f} / "
+            f"{m['run_cpu_s']:.2f} s = {m['parts_cpu_s'] / m['run_cpu_s']:.1%} of its CPU time; peak RSS "
+            f"{m['peak_rss_mb']:.0f} MB with the clouds kept, load {m['load']:.1f}); label {m['label']}; {m['summary']}\n")
+
+
 def _nudged_rule_params(registry, config, factor: float = 1.1):
     """The rule's params with its first float parameter multiplied by ``factor`` (within bounds)."""
     from artclass_core import describe
@@ -256,7 +288,7 @@ def measure_redecide(spec: dict) -> dict:
     return out
 
 
-_TASKS = {"run": measure_run, "redecide": measure_redecide}
+_TASKS = {"run": measure_run, "redecide": measure_redecide, "parts": measure_parts}
 
 
 def _child(task: str, spec: dict, conn) -> None:
@@ -416,6 +448,11 @@ def run_bench(args) -> int:
         results["redecide"] = m
         out.write(format_redecide(m) + "\n")
         out.flush()
+    if not args.skip_parts and segmenters and not args.paper:
+        m = in_child("parts", dict(base, segmenter=segmenters[0], workers=max(workers)))
+        results["parts"] = m
+        out.write(format_parts(m) + "\n")
+        out.flush()
     if args.long_frames and segmenters:
         m = in_child("run", dict(base, segmenter=segmenters[0], workers=max(workers), long_frames=args.long_frames))
         results["long"] = m
@@ -449,6 +486,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--long-frames", type=int, default=1000,
                    help="length of the memory test sequence (0 = skip; default 1000)")
     p.add_argument("--skip-redecide", action="store_true", help="skip the re-decide measurement")
+    p.add_argument("--skip-parts", action="store_true", help="skip the parts-and-joints measurement")
     p.add_argument("--quick", action="store_true",
                    help="a short check: the mask segmenter, the default registrar, 1 worker, no long sequence")
     p.add_argument("--json", metavar="FILE", help="also write every number to this JSON file")

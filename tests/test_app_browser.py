@@ -138,6 +138,8 @@ def test_app_renders_3d_and_follows_a_slider(server, page):
     before = page.evaluate(TIMELINE_JS)
     assert len(before) == n_frames - k          # pairs (i, i + k)
     assert page.locator(".js-plotly-plot").count() >= 4
+    # the parts and joints: the joint's one line above a 3D scene of the parts and the axis arrow
+    assert page.get_by_role("heading", name="Parts and joints").count() == 1
     page.wait_for_timeout(1000)                 # let the WebGL scene draw before the screenshot
     page.screenshot(path=str(ARTEFACTS / "app_browser_start.png"), full_page=True)
 

@@ -11,14 +11,14 @@ from scipy.spatial.transform import Rotation
 
 from artclass_core import InputError, Params, hookimpl, load_registry
 from artclass_core.interfaces import JointEstimate, JointEstimator
-from artclass_plugins.joints import BICJointParams, chain_pair_motions, fit_joint
-from artclass_plugins.joints.metrics import (
+from artclass_core.joint_metrics import (
     axis_direction_error_rad,
     axis_position_error_m,
     joint_type_accuracy,
     part_iou,
     state_error,
 )
+from artclass_plugins.joints import BICJointParams, chain_pair_motions, fit_joint
 from artclass_plugins.joints.synthetic import synthetic_joint
 
 NOISE_M, NOISE_RAD = 0.001, np.radians(0.5)      # 1 mm and 0.5 degree per axis

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import json
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 import yourdfpy
 
 from artclass_core import InputError
+from artclass_core.cli import main
 from artclass_core.interfaces import JointEstimate
 from artclass_plugins.joints.urdf import ArticulatedModel, Joint, Link, joint_from_estimate, write_urdf
 
@@ -74,3 +79,44 @@ def test_a_flat_part_is_refused(tmp_path):
     flat = np.c_[rng.uniform(size=(50, 2)), np.zeros(50)]
     with pytest.raises(InputError, match="'sheet'"):
         write_urdf(ArticulatedModel("m", (Link("sheet", flat),), ()), tmp_path)
+
+
+# -- the command line: a video's parts and joints, exported ---------------------------------------------
+
+LAPTOP = Path(__file__).resolve().parents[1] / "sample_data" / "laptop_articulate"
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    out = tmp_path_factory.mktemp("urdf")
+    assert main(["export", str(LAPTOP), "--urdf", str(out), "--workers", "1"]) == 0
+    return out
+
+
+def test_export_writes_the_laptops_hinge(exported):
+    robot = yourdfpy.URDF.load(str(exported / "laptop_articulate.urdf"), build_scene_graph=True, load_meshes=True)
+    assert robot.base_link == "base" and set(robot.link_map) == {"base", "part1"}
+    (joint,) = robot.joint_map.values()
+    assert (joint.type, joint.parent, joint.child) == ("revolute", "base", "part1")
+    assert np.linalg.norm(joint.axis) == pytest.approx(1.0)
+    assert joint.limit.lower == pytest.approx(0.0, abs=0.02) and 0.3 < joint.limit.upper < 1.0   # the lid opens
+    # the lid's hull hangs near its hinge (the joint frame sits on the axis, near the part)
+    lid = robot.scene.geometry["part1.ply"]
+    assert np.linalg.norm(lid.bounds, axis=1).min() < 0.3
+
+
+def test_export_refuses_to_write_into_the_sequence(tmp_path, capsys):
+    assert main(["export", str(LAPTOP), "--urdf", str(LAPTOP / "urdf"), "--workers", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "own folder" in err
+    assert not (LAPTOP / "urdf").exists()
+
+
+def test_classify_json_has_parts_and_joints(capsys):
+    assert main(["classify", str(LAPTOP), "--json", "--no-cells", "--workers", "1"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert [p["name"] for p in out["parts"]] == ["base", "part1"]
+    (joint,) = out["joints"]
+    assert joint["type"] == "revolute" and (joint["parent"], joint["child"]) == (0, 1)
+    assert re.fullmatch(r"revolute joint, axis \d+ deg from vertical, 0-\d+ deg over the video", joint["summary"])
+    assert len(joint["states"]) == out["sequence"]["n_frames"]

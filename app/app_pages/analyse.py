@@ -11,6 +11,7 @@ import streamlit as st
 
 from app import state, uploads
 from artclass_core import ArtclassError, InputError, Sequence, figures
+from artclass_core.parts import Articulation, find_articulation
 
 log = logging.getLogger("artclass.app")
 SOURCES = ("Bundled samples", "Folder on the server", "Upload a zip")
@@ -169,6 +170,7 @@ def show_result(seq: Sequence, config, result) -> None:
             st.plotly_chart(images[fr.index], key=f"an_frame_{'ij'[fr is target]}", config={"displaylogo": False}, theme=None)
             if fr.skipped:
                 st.caption(f"Frame {fr.index} skipped: {fr.skipped}")
+    parts = show_parts(seq, config, result, pair)
     if pair.motions:
         with st.expander(f"Motions of pair {pair.i} → {pair.j} ({len(pair.motions)})", expanded=False):
             st.dataframe(pd.DataFrame(figures.motions_table(pair)), hide_index=True, width="stretch")
@@ -178,9 +180,40 @@ def show_result(seq: Sequence, config, result) -> None:
             st.dataframe(pd.DataFrame(figures.cells_table(pair)), hide_index=True, width="stretch")
     export(seq, result, {"Decision timeline": timeline,
                          **({f"Pair {pair.i} → {pair.j} (3D motion)": motion} if motion is not None else {}),
-                         **{f"Frame {n}": f for n, f in images.items()}})
+                         **{f"Frame {n}": f for n, f in images.items()}, **parts})
     with st.expander("Resolved automatic values and frame details"):
         st.dataframe(pd.DataFrame([f.to_dict() for f in result.frames]), hide_index=True, width="stretch")
+
+
+@st.cache_resource(max_entries=4, show_spinner="Finding parts and joints")
+def articulation_of(seq_key: str, config_key: str, _result) -> Articulation:
+    """The parts and joints of a run (keyed on the sequence and the whole configuration)."""
+    return find_articulation(_result, estimator=state.registry().create("joint_estimator", "bic"))
+
+
+def show_parts(seq: Sequence, config, result, pair) -> dict:
+    """The parts in colour (in 3D and on frame ``pair.i``), each joint's axis as an arrow, and the
+    joint states over the video. Returns the figures shown, for the export."""
+    if not any(p.motions for p in result.pairs):
+        return {}
+    st.subheader("Parts and joints")
+    try:
+        articulation = articulation_of(state.sequence_key(seq), repr(config), result)
+    except ArtclassError as exc:
+        st.warning(f"No parts: {exc}")
+        return {}
+    st.markdown(f"**{articulation.summary()}**")
+    figs = {"Parts and joints (3D)": figures.parts_3d(articulation)}
+    left, right = st.columns([3, 2])
+    left.plotly_chart(figs["Parts and joints (3D)"], key="an_joints_3d", config={"displaylogo": False}, theme=None)
+    figs[f"Frame {pair.i}: parts"] = figures.part_image(seq[pair.i], articulation.label_image(pair.i))
+    right.plotly_chart(figs[f"Frame {pair.i}: parts"], key="an_joints_image", config={"displaylogo": False}, theme=None)
+    if articulation.joints:
+        figs["Joint states"] = figures.joint_states(articulation)
+        st.plotly_chart(figs["Joint states"], key="an_joints_states", config={"displaylogo": False}, theme=None)
+        st.caption("The joint's state in each frame, relative to the first frame where the part was seen moving "
+                   "(the band: one standard deviation). Axes are in the camera frame of the first frame.")
+    return figs
 
 
 def hand_of(seq: Sequence, i: int, config) -> np.ndarray | None:

@@ -1,7 +1,7 @@
 """Joints: which way a moving part moves relative to its parent, and how far.
 
 The built-in joint estimator fits the fixed, prismatic, revolute and screw models to the part's poses
-and chooses one by BIC (:func:`fit_joint`). :mod:`.metrics` compares an estimate with the truth and
+and chooses one by BIC (:func:`fit_joint`). :mod:`artclass_core.joint_metrics` compares an estimate with the truth and
 :mod:`.urdf` writes a model of parts and joints as a URDF.
 """
 
@@ -25,6 +25,12 @@ class BICJointEstimator(JointEstimator):
 @hookimpl
 def register_joint_estimators(register):
     register(BICJointEstimator)
+
+
+@hookimpl
+def register_commands(subparsers):
+    from .export import register_commands as add_export  # imports the command line only when it is built
+    add_export(subparsers)
 
 
 __all__ = ["BICJointEstimator", "BICJointParams", "MODELS", "chain_pair_motions", "fit_joint"]

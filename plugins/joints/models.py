@@ -26,6 +26,7 @@ from scipy.stats import chi2
 
 from artclass_core import InputError, Params, param
 from artclass_core.interfaces import JointEstimate
+from artclass_core.parts import chain_pair_motions  # noqa: F401  (part of this module's API)
 
 MODELS = ("fixed", "prismatic", "revolute", "screw")
 
@@ -62,6 +63,10 @@ class BICJointParams(Params):
                                             "part's motion is reported as free.")
     n_hypotheses: int = param(48, unit="pairs", bounds=(1, 10_000),
                               help="Pose pairs drawn to start each model (least median of squares).")
+    distinct_sigmas: float = param(3.0, unit="sigma", bounds=(0.0, 100.0),
+                                   help="A model is chosen only where what sets it apart shows by more than this many "
+                                        "noise sigmas over the video: a revolute joint's turn, a prismatic joint's "
+                                        "travel, a screw's turn and its slide along the axis.")
     seed: int = param(0, unit="1", bounds=(0, 2**31 - 1), help="Seed of the drawing of pose pairs.")
 
 
@@ -400,9 +405,14 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
     predicted and observed pose under Gaussian noise (their ``sigma_position``, ``sigma_orientation``),
     the models start from minimal samples (here pose pairs, scored by least median of squares in the
     spirit of their MLESAC), are refined by non-linear least squares, and
-    ``BIC = -2 log L + k log n`` chooses among them (n poses, k parameters).
-    Two choices differ from theirs: (1) the per-frame states count in k, so a one-degree-of-freedom
-    model that only absorbs noise (one residual component per pose) does not beat ``fixed``;
+    ``BIC = -2 log L + k log n`` chooses among them (n poses, k parameters), among the models whose
+    distinguishing motion the poses show above the noise (``distinct_sigmas``): a revolute joint that
+    turns less than the orientation noise is a slide, a screw that slides less than the position
+    noise along its axis is a hinge. The screw, which they do not have, is a fallback: chosen only
+    when the best of the others leaves residuals beyond the noise (chi-square test at
+    ``outlier_level``) and the screw's BIC is lower. Two choices differ from theirs: (1) the per-frame states count
+    in k, so a one-degree-of-freedom model that only absorbs noise (one residual component per pose)
+    does not beat ``fixed``;
     (2) instead of a per-model inlier/outlier mixture, the poses the general screw model cannot
     explain (beyond the ``outlier_level`` quantile of chi-square with 6 degrees of freedom) are left
     out of every model's score, so all models are compared on the same poses. The noise levels are
@@ -442,7 +452,13 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
             continue
         fits[name] = _refine(start, fitted, robust=False)
         scores[name] = fits[name].chi2 + n * log_norm + _n_params(fits[name].shape, n) * np.log(n)
-    chosen = min(scores, key=scores.get)
+    shown = [name for name in scores if _shows_itself(fits[name], fitted, params.distinct_sigmas)]
+    chosen = min([name for name in shown if name != "screw"] or ["fixed"], key=scores.get)
+    # the screw is the fallback: only when the simpler joint does not explain the poses within the
+    # noise (its chi-square beyond the outlier_level quantile) and the screw pays for itself by BIC
+    dof = max(6 * n - _n_params(fits[chosen].shape, n), 1)
+    if "screw" in shown and scores["screw"] < scores[chosen] and fits[chosen].chi2 > chi2.ppf(params.outlier_level, dof):
+        chosen = "screw"
 
     # 3. the chosen model's parameters and their uncertainty
     best = _recentred(fits[chosen], fitted)
@@ -450,6 +466,23 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
                      scores=scores, params=params,
                      info=dict(sigma_position_m=float(sigma_m), sigma_orientation_rad=float(sigma_rad),
                                n_known=int(len(known)), n_outliers=int((~inlier).sum())))
+
+
+def _shows_itself(fit: _Fit, poses: _Poses, factor: float) -> bool:
+    """Whether the poses show what sets the model apart by more than ``factor`` noise sigmas over the
+    video: a turn (revolute, screw), a travel (prismatic) and a slide along the axis (screw)."""
+    if fit.shape.name == "fixed":
+        return True
+    xi, R0, t0 = fit.unpack()
+    q = poses.project(xi, R0, t0)
+    span = float(np.ptp(q)) if len(q) else 0.0
+    w = np.linalg.norm(xi[:3])
+    turn, slide = span * w, span * (abs(float(xi[:3] @ xi[3:])) / w if w > 0 else np.linalg.norm(xi[3:]))
+    if fit.shape.name == "prismatic":
+        return slide > factor * poses.sigma_m
+    if fit.shape.name == "revolute":
+        return turn > factor * poses.sigma_rad
+    return turn > factor * poses.sigma_rad and slide > factor * poses.sigma_m
 
 
 def _n_params(shape: _Shape, n_poses: int) -> int:
@@ -492,48 +525,3 @@ def _estimate(fit: _Fit, *, known: np.ndarray, inlier: np.ndarray, n_frames: int
         states[:], states_std[:] = np.nan, np.nan
     return JointEstimate(joint_type, direction, point, states, inliers, dir_std, point_std, states_std,
                          {k: float(v) for k, v in scores.items()}, info)
-
-
-# -- poses from pair motions -------------------------------------------------------------------------------
-
-def chain_pair_motions(n_frames: int, pairs, *, origin_m: np.ndarray) -> np.ndarray:
-    """Per-frame poses of a part from its motions between frame pairs.
-
-    Parameters
-    ----------
-    n_frames : int
-    pairs : iterable of (i, j, T_j_from_i)
-        ``T_j_from_i`` (4, 4) moves the part, in its parent's frame, from where it is in frame i to
-        where it is in frame j (metres).
-    origin_m : ndarray, shape (3,)
-        The part's origin (e.g. its centroid) in the parent's frame in the first frame reached.
-
-    Returns
-    -------
-    ndarray, shape (n_frames, 4, 4): the part's pose in each frame, identity rotation and ``origin_m``
-    in the first frame of any pair; NaN for frames no chain of pairs reaches from it. Each frame is
-    reached by the fewest pairs (breadth first), so errors add up over as few steps as possible.
-    """
-    links: dict[int, list[tuple[int, np.ndarray]]] = {}
-    for i, j, T in pairs:
-        T = np.asarray(T, float)
-        if not np.isfinite(T).all():
-            continue
-        links.setdefault(int(i), []).append((int(j), T))
-        links.setdefault(int(j), []).append((int(i), np.linalg.inv(T)))
-    poses = np.full((n_frames, 4, 4), np.nan)
-    if not links:
-        return poses
-    root = min(links)
-    poses[root] = np.eye(4)
-    poses[root, :3, 3] = origin_m
-    frontier = [root]
-    while frontier:
-        following = []
-        for i in frontier:
-            for j, T in links[i]:
-                if np.isnan(poses[j, 0, 0]):
-                    poses[j] = T @ poses[i]
-                    following.append(j)
-        frontier = following
-    return poses

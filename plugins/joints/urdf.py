@@ -7,6 +7,7 @@ axis and the limits of the states seen in the video.
 
 from __future__ import annotations
 
+import dataclasses
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -152,3 +153,30 @@ def _check_tree(model: ArticulatedModel) -> None:
         reached.update(frontier)
     if len(roots) != 1 or len(set(children)) != len(children) or reached != set(names):
         raise InputError(f"model {model.name!r}: the joints do not make one tree (roots: {roots})")
+
+
+def model_from_articulation(articulation, *, name: str) -> ArticulatedModel:
+    """The URDF model of the parts and joints found in a video
+    (:class:`artclass_core.parts.Articulation`).
+
+    The base is the root link, in the base's coordinates of the first frame; each moving part is a
+    link on its joint, its points at state 0 moved into the joint frame. URDF has no screw joint: a
+    screw is written as the revolute joint of its turn.
+    """
+    links, joints = [], []
+    names = {part.index: part.name for part in articulation.parts}
+    for part in articulation.parts:
+        joint = next((j for j in articulation.joints if j.child == part.index), None)
+        points = np.asarray(part.points_m, float)
+        if joint is not None:
+            estimate = joint.estimate
+            if estimate.type == "screw":
+                estimate = dataclasses.replace(estimate, type="revolute")
+            urdf_joint = joint_from_estimate(estimate, name=f"{names[joint.parent]}_to_{part.name}",
+                                             parent=names[joint.parent], child=part.name)
+            points = points - urdf_joint.T_parent_from_joint[:3, 3]
+            joints.append(urdf_joint)
+        elif part.index != 0:
+            continue                                  # a part without a joint is not in the tree
+        links.append(Link(part.name, points))
+    return ArticulatedModel(name, tuple(links), tuple(joints))

@@ -1,0 +1,594 @@
+"""Parts and joints over a whole video, from the per-pair motions and point labels of a finished run.
+
+A rule that decides from motions gives every pair (i, j) its rigid motions and labels each point of
+frame i (and, judged the other way, of frame j) with the motion that explains it. This module links
+those per-pair segments through the frames into parts, and fits a joint to each moving part's motion
+relative to the base:
+
+1. **Tracks.** A pair's motion and another pair's motion are the same part when their labelled points
+   overlap (intersection over union of at least ``min_overlap``): on the same frame (a pair's source
+   and an earlier pair's target are one cloud) or on neighbouring frames (the same pixels, which
+   move little in one frame). Overlaps are merged greedily, largest first, never putting two motions
+   of one pair into one part.
+2. **Base.** The part with the most labelled points over the video; every other part seen moving in
+   at least ``min_pairs`` pairs is a moving part.
+3. **Base poses.** The base's motions are chained through the pairs into its pose in every frame,
+   relative to the first frame. Pairs (i, i + k) link only every k-th frame; the k interleaved chains
+   are tied together by interpolating the first chain's poses in time (constant velocity).
+4. **Joints.** Each pair that sees a moving part and the base gives the part's motion relative to the
+   base, in the base's coordinates of the first frame (the camera frame of frame 0 when the base does
+   not move). For a one-degree-of-freedom joint each is ``exp(Δq ξ)``, one twist ξ whatever the
+   pair, so the joint estimator is given the part's pose moved by each relative motion and by its
+   inverse (independent errors, as its model selection assumes). The states per frame follow by
+   least squares from the pairs' differences ``q_j - q_i = Δq``, the interleaved chains of pairs
+   tied by a weak smoothness term between neighbouring frames.
+
+Every moving part hangs on the base: a chain (a lamp's two arms) gives the outer arm a joint on the
+base that no single degree of freedom explains.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+from scipy.ndimage import distance_transform_edt
+from scipy.spatial.transform import Rotation
+
+from .errors import ArtclassError
+from .geometry import transform
+from .interfaces import JointEstimate, JointEstimator
+from .params import Params, param
+from .types import RunResult
+
+
+@dataclass(frozen=True)
+class PartsParams(Params):
+    min_overlap: float = param(0.25, unit="fraction", bounds=(0.05, 1.0),
+                               help="Two labelled regions (of two pairs, on one frame or neighbouring frames) may be "
+                                    "one part when their intersection over union reaches this (the larger overlaps "
+                                    "are merged first, and never two motions of one pair).")
+    min_pairs: int = param(2, unit="pairs", bounds=(1, 10_000),
+                           help="A moving part must be seen moving relative to the base in at least this many pairs.")
+    smoothness: float = param(1e-3, unit="1", bounds=(1e-9, 1.0),
+                              help="Weight of the smoothness term between neighbouring frames' states, relative to a "
+                                   "pair difference: it only places the interleaved chains of pairs relative to each "
+                                   "other.")
+
+
+@dataclass
+class Part:
+    """A part of the object over the video.
+
+    Attributes
+    ----------
+    index : int, 0 for the base
+    name : str
+    parent : int, the parent part's index (-1 for the base)
+    points_m : ndarray, shape (N, 3), metres: the part's points at state 0, in the base's coordinates of
+        the first frame (the URDF moves a child's into its joint frame)
+    frames : list of int: the frames in which the part was labelled
+    n_labelled : int: its labelled points over all frames
+    """
+
+    index: int
+    name: str
+    parent: int
+    points_m: np.ndarray
+    frames: list[int]
+    n_labelled: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(index=self.index, name=self.name, parent=self.parent, n_frames=len(self.frames),
+                    n_labelled=self.n_labelled, n_points=len(self.points_m))
+
+
+@dataclass
+class PartJoint:
+    """The joint of ``child`` on ``parent`` (part indices): the estimate in the base's coordinates of
+    the first frame, with a state per frame of the video."""
+
+    parent: int
+    child: int
+    estimate: JointEstimate
+    n_pairs: int
+
+    def to_dict(self, *, up: np.ndarray) -> dict[str, Any]:
+        e = self.estimate
+
+        def vec(v):
+            return None if v is None else [round(float(x), 6) for x in v]
+
+        def num(x):
+            return None if x is None or not np.isfinite(x) else round(float(x), 6)
+
+        return dict(parent=self.parent, child=self.child, type=e.type, summary=e.summary(up=up),
+                    axis_direction=vec(e.axis_direction), axis_point_m=vec(e.axis_point_m),
+                    axis_direction_std_rad=num(e.axis_direction_std_rad), axis_point_std_m=num(e.axis_point_std_m),
+                    state_unit=e.state_unit, states=[num(q) for q in e.states],
+                    states_std=[num(q) for q in (e.states_std if e.states_std is not None else e.states * np.nan)],
+                    n_pairs=self.n_pairs, scores={k: round(v, 3) for k, v in e.scores.items()},
+                    info={k: (round(v, 6) if isinstance(v, float) else v) for k, v in e.info.items()})
+
+
+@dataclass
+class Articulation:
+    """The parts and joints found in a run.
+
+    ``base_poses[f]`` maps the base's coordinates of the first frame to camera coordinates of frame f
+    (NaN where unknown). ``label_image(f)`` gives frame f's part segmentation.
+    """
+
+    parts: list[Part]
+    joints: list[PartJoint]
+    base_poses: np.ndarray
+    _views: dict[int, tuple] = field(default_factory=dict, repr=False)
+
+    #: The camera's vertical (y points down), the reference of "from vertical" in the summaries.
+    UP = np.array([0.0, -1.0, 0.0])
+
+    def summary(self) -> str:
+        """One line per joint, or why there is none."""
+        if not self.joints:
+            return "no joint: no part moves relative to the rest"
+        return "; ".join(j.estimate.summary(up=self.UP) for j in self.joints)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(parts=[p.to_dict() for p in self.parts], joints=[j.to_dict(up=self.UP) for j in self.joints])
+
+    @property
+    def frames(self) -> list[int]:
+        """Frames with a part segmentation."""
+        return sorted(self._views)
+
+    def label_image(self, frame: int) -> np.ndarray | None:
+        """Frame ``frame``'s part segmentation, shape (H, W), uint8: 0 = not the object, 1 + part index;
+        each pixel of the segmenter's mask takes the part of the nearest labelled point. None when no
+        pair labelled the frame."""
+        if frame not in self._views:
+            return None
+        pixels, part, mask, stride = self._views[frame]
+        seeds = np.zeros(mask.shape, np.uint8)
+        seeds[pixels[:, 1], pixels[:, 0]] = part + 1
+        if not mask.any():
+            mask = cv2.dilate((seeds > 0).astype(np.uint8), np.ones((stride, stride), np.uint8)) > 0
+        _, (rows, cols) = distance_transform_edt(seeds == 0, return_indices=True)
+        return np.where(mask, seeds[rows, cols], 0).astype(np.uint8)
+
+
+# -- the pairs' labelled points ------------------------------------------------------------------------
+
+@dataclass
+class _Observation:
+    """One pair's labelling of one frame: pixels (N, 2), points (N, 3, camera frame) and motion labels."""
+
+    pair: int
+    frame: int
+    pixels: np.ndarray
+    points: np.ndarray
+    labels: np.ndarray
+    forward: bool
+
+
+def _observations(result: RunResult) -> list[_Observation]:
+    """Each labelled pair's labelling of its source frame and of its target frame."""
+    clouds = {f.index: f.cloud for f in result.frames if f.cloud is not None}
+    out = []
+    for n, p in enumerate(result.pairs):
+        if p.labels is None or not p.motions or p.decision == "skipped":
+            continue
+        ev = p.evidence
+        if ev is not None:
+            cut = ev.n_source if ev.n_source is not None else len(ev.points)
+            sides = ((p.i, slice(0, cut), True), (p.j, slice(cut, len(ev.points)), False))
+            for frame, part, forward in sides:
+                out.append(_Observation(n, frame, ev.pixels[part], ev.points[part], p.labels[part], forward))
+        elif p.i in clouds and clouds[p.i].pixels is not None:
+            c = clouds[p.i]
+            out.append(_Observation(n, p.i, c.pixels, c.points, p.labels[:len(c.points)], True))
+        else:
+            raise ArtclassError("finding parts needs each pair's labelled points: run with keep_clouds=True")
+    return out
+
+
+# -- 1. tracks: which motions of which pairs are one part -------------------------------------------------
+
+def _overlaps(a: _Observation, b: _Observation, same_cloud: bool) -> list[tuple[float, tuple, tuple]]:
+    """(IoU, node a, node b) of every pair of motions of two labellings of one or neighbouring frames."""
+    if same_cloud and len(a.labels) == len(b.labels):
+        la, lb = a.labels, b.labels
+    else:
+        key_a, key_b = _pixel_keys(a.pixels), _pixel_keys(b.pixels)
+        order = np.argsort(key_b)
+        at = np.clip(np.searchsorted(key_b, key_a, sorter=order), 0, len(key_b) - 1)
+        hit = key_b[order[at]] == key_a
+        la, lb = a.labels[hit], b.labels[order[at[hit]]]
+    out = []
+    ma, mb = np.unique(la[la >= 0]), np.unique(lb[lb >= 0])
+    for m in ma:
+        in_a = la == m
+        for n in mb:
+            in_b = lb == n
+            inter = np.count_nonzero(in_a & in_b)
+            if inter:
+                out.append((inter / np.count_nonzero(in_a | in_b), (a.pair, int(m)), (b.pair, int(n))))
+    return out
+
+
+def _pixel_keys(pixels: np.ndarray) -> np.ndarray:
+    return pixels[:, 1].astype(np.int64) * 1_000_000 + pixels[:, 0]
+
+
+def _tracks(observations: list[_Observation], *, min_overlap: float) -> dict[tuple, int]:
+    """Track number of every node (pair, motion): greedy merging by overlap, largest first, never two
+    motions of one pair in one track."""
+    nodes = {(o.pair, int(m)) for o in observations for m in np.unique(o.labels[o.labels >= 0])}
+    by_frame: dict[int, list[_Observation]] = {}
+    for o in observations:
+        by_frame.setdefault(o.frame, []).append(o)
+    edges = []
+    for f, here in by_frame.items():
+        for x in range(len(here)):
+            for y in range(x + 1, len(here)):
+                if here[x].pair != here[y].pair:
+                    edges += _overlaps(here[x], here[y], same_cloud=True)
+        for other in by_frame.get(f + 1, []):
+            for o in here:
+                if o.pair != other.pair:
+                    edges += _overlaps(o, other, same_cloud=False)
+    parent = {n: n for n in nodes}
+    members = {n: {n[0]} for n in nodes}
+
+    def root(n):
+        while parent[n] != n:
+            parent[n] = parent[parent[n]]
+            n = parent[n]
+        return n
+
+    def merge(edges):
+        for iou, a, b in sorted(edges, key=lambda e: -e[0]):
+            ra, rb = root(a), root(b)
+            if iou < min_overlap:
+                break
+            if ra != rb and not members[ra] & members[rb]:
+                parent[rb] = ra
+                members[ra] |= members.pop(rb)
+
+    merge(edges)
+    # a part hidden for a while: the track that ends before another begins, on the frames either side
+    frames: dict[tuple, set] = {}
+    for o in observations:
+        for m in np.unique(o.labels[o.labels >= 0]):
+            frames.setdefault(root((o.pair, int(m))), set()).add(o.frame)
+    gaps = []
+    for ra, fa in frames.items():
+        for rb, fb in frames.items():
+            if ra != rb and max(fa) < min(fb) and not members[ra] & members[rb]:
+                gaps += [e for x in by_frame[max(fa)] for y in by_frame[min(fb)]
+                         for e in _overlaps(x, y, same_cloud=False) if root(e[1]) == ra and root(e[2]) == rb]
+    merge(gaps)
+    roots = sorted({root(n) for n in nodes})
+    return {n: roots.index(root(n)) for n in nodes}
+
+
+# -- poses chained through pairs ---------------------------------------------------------------------------
+
+def chain_pair_motions(n_frames: int, pairs, *, origin_m: np.ndarray) -> np.ndarray:
+    """Per-frame poses of a part from its motions between frame pairs.
+
+    Parameters
+    ----------
+    n_frames : int
+    pairs : iterable of (i, j, T_j_from_i)
+        ``T_j_from_i`` (4, 4) moves the part, in its parent's frame, from where it is in frame i to
+        where it is in frame j (metres).
+    origin_m : ndarray, shape (3,)
+        The part's origin (e.g. its centroid) in the parent's frame in the first frame reached.
+
+    Returns
+    -------
+    ndarray, shape (n_frames, 4, 4): the part's pose in each frame, identity rotation and ``origin_m``
+    in the first frame of any pair; NaN for frames no chain of pairs reaches from it. Each frame is
+    reached by the fewest pairs (breadth first), so errors add up over as few steps as possible.
+    """
+    links: dict[int, list[tuple[int, np.ndarray]]] = {}
+    for i, j, T in pairs:
+        T = np.asarray(T, float)
+        if not np.isfinite(T).all():
+            continue
+        links.setdefault(int(i), []).append((int(j), T))
+        links.setdefault(int(j), []).append((int(i), np.linalg.inv(T)))
+    poses = np.full((n_frames, 4, 4), np.nan)
+    if not links:
+        return poses
+    root = min(links)
+    poses[root] = np.eye(4)
+    poses[root, :3, 3] = origin_m
+    frontier = [root]
+    while frontier:
+        following = []
+        for i in frontier:
+            for j, T in links[i]:
+                if np.isnan(poses[j, 0, 0]):
+                    poses[j] = T @ poses[i]
+                    following.append(j)
+        frontier = following
+    return poses
+
+
+# -- 3. base poses --------------------------------------------------------------------------------------
+
+def _screw(T: np.ndarray, s: float) -> np.ndarray:
+    """The rigid motion T (4, 4) taken ``s`` times along its screw: ``exp(s log T)``."""
+    w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+
+    def V(w):                       # exp of the twist (w, v) moves the origin by V(w) v
+        theta = np.linalg.norm(w)
+        K = np.cross(np.eye(3), w)
+        if theta < 1e-9:
+            return np.eye(3) + K / 2
+        return np.eye(3) + (1 - np.cos(theta)) / theta**2 * K + (theta - np.sin(theta)) / theta**3 * (K @ K)
+
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_rotvec(s * w).as_matrix()
+    out[:3, 3] = V(s * w) @ (s * np.linalg.solve(V(w), T[:3, 3]))
+    return out
+
+
+def _interpolated(poses: np.ndarray, known: np.ndarray, frame: int) -> np.ndarray:
+    """The pose at ``frame`` between the nearest known frames, moving at constant velocity along the
+    screw motion between them (beyond the ends, that of the nearest two)."""
+    frames = np.flatnonzero(known)
+    if len(frames) == 1:
+        return poses[frames[0]]
+    after = int(np.clip(np.searchsorted(frames, frame), 1, len(frames) - 1))
+    a, b = frames[after - 1], frames[after]
+    return _screw(poses[b] @ np.linalg.inv(poses[a]), (frame - a) / (b - a)) @ poses[a]
+
+
+def chain_interleaved(n_frames: int, pairs: list[tuple[int, int, np.ndarray]]) -> np.ndarray:
+    """Poses (n_frames, 4, 4) of a body in every frame from its motions ``T_j_from_i`` between frame
+    pairs, relative to the first frame reached (identity there); chains of pairs that do not meet
+    (pairs (i, i + k) form k of them) are placed by interpolating the first chain's poses in time.
+    NaN where no pair reaches."""
+    poses = chain_pair_motions(n_frames, pairs, origin_m=np.zeros(3))
+    while True:
+        known = np.isfinite(poses).all(axis=(1, 2))
+        rest = [(i, j, T) for i, j, T in pairs if not (known[i] or known[j])]
+        if not rest:
+            return poses
+        part = chain_pair_motions(n_frames, rest, origin_m=np.zeros(3))
+        root = int(np.flatnonzero(np.isfinite(part).all(axis=(1, 2)))[0])
+        start = _interpolated(poses, known, root)
+        reached = np.isfinite(part).all(axis=(1, 2))
+        poses[reached] = part[reached] @ start
+
+
+# -- 4. joints ----------------------------------------------------------------------------------------
+
+def _translation(v: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, 3] = v
+    return T
+
+
+def frame_states(n_frames: int, pairs: list[tuple[int, int]], deltas: np.ndarray, stds: np.ndarray, *,
+                 smoothness: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame states (n_frames,) and their standard deviations from pair differences
+    ``q_j - q_i = deltas`` (with standard deviations ``stds``), by weighted least squares.
+
+    Neighbouring frames are tied by ``q_{f-1} - 2 q_f + q_{f+1} = 0`` (constant speed) at
+    ``smoothness`` times the weight of the best pair: this decides only what the pairs leave open (how
+    the interleaved chains of pairs (i, i + k) sit relative to each other, and a part's motion while
+    it was hidden), as the smoothest motion. States are relative to the first
+    frame of any pair; NaN for frames no pair reaches.
+    """
+    seen = sorted({f for p in pairs for f in p})
+    states, std = np.full(n_frames, np.nan), np.full(n_frames, np.nan)
+    if not seen:
+        return states, std
+    frames = list(range(seen[0], seen[-1] + 1))     # frames between the pairs' are tied through too
+    col = {f: c for c, f in enumerate(frames)}
+    weights = 1.0 / np.maximum(np.asarray(stds, float), 1e-12)
+    tie = smoothness * float(weights.max())
+    A = np.zeros((len(pairs) + len(frames), len(frames)))
+    y = np.zeros(len(A))
+    for r, ((i, j), d, w) in enumerate(zip(pairs, deltas, weights)):
+        A[r, col[j]], A[r, col[i]], y[r] = w, -w, d * w
+    for r, c in enumerate(range(1, len(frames) - 1), start=len(pairs)):
+        A[r, c - 1], A[r, c], A[r, c + 1] = tie, -2 * tie, tie
+    A[-1, 0] = tie                                     # the first frame's state is 0
+    q = np.linalg.lstsq(A, y, rcond=None)[0]
+    cov = np.linalg.pinv(A.T @ A)
+    rows = [col[f] for f in seen]
+    states[seen] = q[rows] - q[0]
+    std[seen] = np.sqrt(np.clip(np.diag(cov) + cov[0, 0] - 2 * cov[:, 0], 0, None))[rows]
+    return states, std
+
+
+def _pair_joint(relative: list[tuple[int, int, np.ndarray]], centre_m: np.ndarray, n_frames: int, *,
+                estimator: JointEstimator, smoothness: float) -> tuple[JointEstimate, int]:
+    """The joint from a part's relative motions (i, j, motion in the base's first-frame coordinates)
+    and the number of pairs it explains. The estimator sees the part's pose (origin ``centre_m``)
+    moved by each relative motion and by its inverse, and unmoved: for a one-degree-of-freedom joint
+    all lie on one path, ``exp(±Δq ξ)``, with independent errors."""
+    start = _translation(centre_m)
+    poses = np.stack([start] + [M @ start for _, _, M in relative] + [np.linalg.inv(M) @ start for _, _, M in relative])
+    estimate = estimator.estimate(poses)
+    n = len(relative)
+    forward, backward = np.arange(1, n + 1), np.arange(n + 1, 2 * n + 1)
+    explained = estimate.inliers[forward] & estimate.inliers[backward] & np.isfinite(estimate.states[forward]) \
+        & np.isfinite(estimate.states[backward])
+    keep = np.flatnonzero(explained) if estimate.type not in ("fixed", "free") else np.zeros(0, int)
+    states = np.full(n_frames, np.nan)
+    std = np.full(n_frames, np.nan)
+    direction = estimate.axis_direction
+    if len(keep):
+        deltas = (estimate.states[forward[keep]] - estimate.states[backward[keep]]) / 2
+        spread = estimate.states_std if estimate.states_std is not None else np.ones(len(poses))
+        pair_std = np.nan_to_num(np.hypot(spread[forward[keep]], spread[backward[keep]]) / 2, nan=1.0)
+        states, std = frame_states(n_frames, [relative[k][:2] for k in keep], deltas, pair_std, smoothness=smoothness)
+        if states[np.nanargmax(np.abs(states))] < 0:
+            states, direction = -states, -direction          # rising states; the axis turns with them
+    elif estimate.type == "fixed":
+        states[sorted({f for i, j, _ in relative for f in (i, j)})] = 0.0
+        std = np.where(np.isfinite(states), 0.0, np.nan)
+    info = dict(estimate.info, n_pairs=n, n_pairs_explained=int(explained.sum()))
+    return JointEstimate(estimate.type, direction, estimate.axis_point_m, states, np.isfinite(states),
+                         estimate.axis_direction_std_rad, estimate.axis_point_std_m, std, estimate.scores,
+                         info), int(explained.sum())
+
+
+def joint_motion(estimate: JointEstimate, state: float) -> np.ndarray:
+    """The motion (4, 4) of the child, in the parent's coordinates, from state 0 to ``state``."""
+    T = np.eye(4)
+    if estimate.axis_direction is None or not np.isfinite(state):
+        return T
+    d = np.asarray(estimate.axis_direction, float)
+    if estimate.type == "prismatic":
+        T[:3, 3] = state * d
+        return T
+    R = Rotation.from_rotvec(state * d).as_matrix()
+    c = np.asarray(estimate.axis_point_m, float)
+    T[:3, :3], T[:3, 3] = R, c - R @ c + d * state * estimate.info.get("pitch_m_per_rad", 0.0)
+    return T
+
+
+# -- the whole ---------------------------------------------------------------------------------------------
+
+def find_articulation(result: RunResult, *, estimator: JointEstimator,
+                      params: PartsParams = PartsParams()) -> Articulation:
+    """Parts and joints over the video of a finished run (see the module docstring).
+
+    Parameters
+    ----------
+    result : RunResult
+        A run of a rule that decides from motions, with ``keep_clouds=True`` (the pairs' labelled
+        points are needed). A sequence not labelled articulated gets the base only and no joint.
+    estimator : JointEstimator
+        The joint estimator (``registry.create("joint_estimator", "bic")`` for the built-in one).
+    params : PartsParams
+
+    Returns
+    -------
+    Articulation
+    """
+    n_frames = int(result.sequence.get("n_frames") or len(result.frames))
+    articulated = result.label == "articulated"
+    observations = _observations(result)
+    if articulated:
+        track = _tracks(observations, min_overlap=params.min_overlap)
+    else:                                  # one body: each pair's first motion is the object's
+        track = {(o.pair, int(m)): 0 if m == 0 else 1 for o in observations for m in np.unique(o.labels[o.labels >= 0])}
+    size = _track_sizes(observations, track)
+    base = max(size, key=size.get) if size else 0
+    motion = {node: result.pairs[node[0]].motions[node[1]].T_target_from_source for node in track}
+    base_motion = {pair: T for (pair, m), T in motion.items() if track[(pair, m)] == base}
+    base_poses = chain_interleaved(n_frames, [(result.pairs[n].i, result.pairs[n].j, T) for n, T in base_motion.items()])
+    moving = _moving_tracks(result, track, base, base_motion, size, min_pairs=params.min_pairs) if articulated else {}
+    number = {base: 0, **{t: n + 1 for n, t in enumerate(moving)}}
+    views, points = _part_points(result, observations, track, number, base_poses)
+    joints = []
+    for t, nodes in moving.items():
+        relative = _relative_motions(result, nodes, motion, base_motion, base_poses)
+        own = points.get(number[t], {})
+        if len(relative) >= params.min_pairs and own:
+            centre = np.median(np.concatenate(list(own.values())), axis=0)
+            estimate, n_pairs = _pair_joint(relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness)
+            joints.append(PartJoint(0, number[t], estimate, n_pairs))
+    parts = [_part(n, points.get(n, {}), next((j for j in joints if j.child == n), None), size.get(t, 0))
+             for t, n in sorted(number.items(), key=lambda kv: kv[1])]
+    return Articulation(parts, joints, base_poses, views)
+
+
+def _track_sizes(observations: list[_Observation], track: dict[tuple, int]) -> dict[int, int]:
+    """Labelled points of each track over all frames."""
+    size: dict[int, int] = {}
+    for o in observations:
+        for m, count in zip(*np.unique(o.labels[o.labels >= 0], return_counts=True)):
+            t = track[(o.pair, int(m))]
+            size[t] = size.get(t, 0) + int(count)
+    return size
+
+
+def _moving_tracks(result: RunResult, track: dict[tuple, int], base: int, base_motion: dict[int, np.ndarray],
+                   size: dict[int, int], *, min_pairs: int) -> dict[int, list[tuple]]:
+    """The moving parts (tracks other than the base seen in at least ``min_pairs`` AM pairs that also
+    see the base), largest first, each with its nodes (pair, motion)."""
+    seen: dict[int, list[tuple]] = {}
+    for (pair, m), t in track.items():
+        if t != base and pair in base_motion and result.pairs[pair].decision == "AM":
+            seen.setdefault(t, []).append((pair, m))
+    return {t: seen[t] for t in sorted(seen, key=lambda t: -size[t]) if len(seen[t]) >= min_pairs}
+
+
+def _part_points(result: RunResult, observations: list[_Observation], track: dict[tuple, int],
+                 number: dict[int, int], base_poses: np.ndarray) -> tuple[dict, dict[int, dict[int, np.ndarray]]]:
+    """Each frame's part labelling (one per frame: a pair's source side first) and each part's points
+    per frame, in the base's first-frame coordinates."""
+    points: dict[int, dict[int, np.ndarray]] = {}
+    views = {}
+    for o in sorted(observations, key=lambda o: (o.frame, not o.forward)):
+        if o.frame in views or not np.isfinite(base_poses[o.frame]).all():
+            continue
+        n_motions = len(result.pairs[o.pair].motions)
+        lookup = np.array([number.get(track.get((o.pair, m), -1), -1) for m in range(n_motions)] + [-1])
+        part = lookup[np.where(o.labels >= 0, o.labels, n_motions)]      # -1 for points of no motion
+        keep = part >= 0
+        views[o.frame] = (o.pixels[keep], part[keep], _mask(result, o.frame), _stride(result, o.frame))
+        local = transform(o.points, np.linalg.inv(base_poses[o.frame]))
+        for p in np.unique(part[keep]):
+            points.setdefault(int(p), {})[o.frame] = local[part == p]
+    return views, points
+
+
+def _relative_motions(result: RunResult, nodes: list[tuple], motion: dict, base_motion: dict[int, np.ndarray],
+                      base_poses: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
+    """(i, j, the part's motion relative to the base) of each pair that saw both, in the base's
+    first-frame coordinates: ``C_i^-1 B^-1 P C_i`` with B and P the pair's base and part motions and
+    C_i the base's pose in frame i."""
+    relative = []
+    for pair, m in nodes:
+        p = result.pairs[pair]
+        C = base_poses[p.i]
+        if np.isfinite(C).all():
+            relative.append((p.i, p.j, np.linalg.inv(C) @ np.linalg.inv(base_motion[pair]) @ motion[(pair, m)] @ C))
+    return relative
+
+
+def _part(index: int, own: dict[int, np.ndarray], joint: PartJoint | None, n_labelled: int) -> Part:
+    """A part, its points from the frame where it shows most (for a moving part, among the frames
+    with a state), brought back to state 0."""
+    frames = [f for f in own if joint is None or np.isfinite(joint.estimate.states[f])] or list(own)
+    cloud = np.zeros((0, 3))
+    if frames:
+        f = max(frames, key=lambda f: len(own[f]))
+        cloud = own[f]
+        if joint is not None:
+            cloud = transform(cloud, np.linalg.inv(joint_motion(joint.estimate, joint.estimate.states[f])))
+    return Part(index, "base" if index == 0 else f"part{index}", -1 if index == 0 else 0, cloud, sorted(own),
+                n_labelled)
+
+
+def forget_clouds(result: RunResult) -> None:
+    """Drop the clouds and evidence a run kept for :func:`find_articulation` (they are large)."""
+    for f in result.frames:
+        f.cloud = None
+    for p in result.pairs:
+        p.evidence = None
+
+
+def _mask(result: RunResult, frame: int) -> np.ndarray:
+    cloud = result.frames[frame].cloud if frame < len(result.frames) else None
+    view = getattr(cloud, "view", None)
+    if view is not None and view.mask is not None:
+        return view.mask
+    if view is not None:
+        return np.zeros(view.gray.shape, bool)
+    raise ArtclassError(f"frame {frame} has no image to segment: run with keep_clouds=True")
+
+
+def _stride(result: RunResult, frame: int) -> int:
+    return int(result.frames[frame].info.get("stride_px", 1) or 1)
