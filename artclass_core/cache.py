@@ -1,4 +1,16 @@
-"""The stage cache: frame clouds and pair registrations kept between runs, keyed on what they depend on."""
+"""The stage cache: frame clouds and pair registrations kept between runs, keyed on what they depend on.
+
+Incremental re-runs
+-------------------
+A :class:`StageCache` keeps each frame's cloud and each pair's registrations, keyed on exactly what
+they depend on; pass the same cache to successive runs, and a change of a decision setting (rule,
+``alpha``, ``min_fitness``, ``w``) only re-decides::
+
+    cache = StageCache()
+    result = Pipeline(registry, config).run(sequence, cache=cache)            # reads, segments, registers
+    config2 = dataclasses.replace(config, rule_params=RuleParams(q_bar=0.2))
+    result2 = Pipeline(registry, config2).run(sequence, cache=cache)          # decides only
+"""
 
 from __future__ import annotations
 

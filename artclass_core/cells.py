@@ -8,10 +8,11 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from .errors import ArtclassError
 from .geometry import diameter_of_vertices, grid_cells, hull_vertices, transform
-from .interfaces import Registrar
+from .interfaces import DecisionRule, Registrar
 from .params import PipelineParams
-from .types import CellMotion, Cloud
+from .types import CellMotion, Cloud, PairResult
 
 CELLS_PER_DIAMETER = 5.0      # the paper's x = D / 5
 MIN_CELL_SIZE_M = 1e-4
@@ -89,3 +90,26 @@ def checked_cells(cells: Iterable[CellMotion], *, min_fitness: float) -> list[Ce
                        f"low fitness {reg.fitness:.2f}" if reg.fitness < min_fitness else None)
         out.append(dataclasses.replace(c, skipped=skipped, cluster=None, key=None))
     return out
+
+
+def decide_cells(rule: DecisionRule, i: int, j: int, cells: list[CellMotion], source: Cloud, target: Cloud,
+                 cell_size_m: float, between: tuple[Cloud | None, ...], *, alpha: float, scratch: dict) -> PairResult:
+    """The alpha check and ``rule`` on copies of a registered pair's cells (see
+    :meth:`artclass_core.pipeline.Pipeline.decide`)."""
+    cells = [dataclasses.replace(c, cluster=None, key=None) for c in cells]
+    pair = PairResult(i, j, "skipped", cells=cells, cell_size_m=cell_size_m, scratch=scratch)
+    n_matched = sum(c.matched for c in cells)
+    if not cells or n_matched == 0 or n_matched < alpha * len(cells):
+        pair.reason = f"only {n_matched} of {len(cells)} cells matched (alpha = {alpha:g})"
+        return pair
+    extra = {"between": between} if rule.uses_frames_between and None not in between else {}
+    if getattr(rule, "uses_scratch", False):
+        extra["scratch"] = scratch
+    out = rule.decide(cells, source=source, target=target, **extra)
+    if len(out.clusters) != len(cells):
+        raise ArtclassError(f"rule {rule.name!r} returned {len(out.clusters)} clusters for {len(cells)} cells")
+    for c, k in zip(cells, out.clusters):
+        c.cluster = k
+        c.key = out.keys[k] if k is not None and k < len(out.keys) else None
+    pair.decision, pair.reason, pair.info = out.decision, out.reason, out.info
+    return pair

@@ -12,12 +12,13 @@ from typing import Any
 
 from tqdm import tqdm
 
+from .config import PLUGIN_KINDS, Config
 from .errors import ArtclassError
 from .evaluate import evaluation, markdown
 from .interfaces import KINDS
 from .params import PipelineParams, describe
 from .parts import Articulation, find_articulation, forget_clouds
-from .pipeline import PLUGIN_KINDS, Config, Pipeline
+from .pipeline import Pipeline
 from .plugins import Registry, load_registry
 from .sequences import find_sequences, open_sequences
 from .sweep import (

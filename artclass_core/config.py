@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import Any
 
 from .errors import ParamError
-from .params import Params, PipelineParams, describe, parse_value
+from .params import Params, PipelineParams, as_dict, describe, parse_value
 from .plugins import Registry
 
 PLUGIN_KINDS = ("segmenter", "preprocessor", "registrar", "rule")
@@ -89,6 +90,15 @@ class Config:
         params = getattr(self, f"{kind}_params")
         cls = registry.get(kind, name).Params
         return params if isinstance(params, cls) else cls()
+
+    def record(self, registry: Registry, *, segmenter: str) -> tuple[dict[str, str], dict[str, dict[str, Any]]]:
+        """The plugin of each kind (with the ``segmenter`` that ran) and every parameter, as recorded
+        with a result."""
+        plugins = {kind: getattr(self, kind) for kind in PLUGIN_KINDS}
+        plugins["segmenter"] = segmenter
+        params = {"pipeline": as_dict(self.pipeline)}
+        params.update((kind, as_dict(self.plugin_params(registry, kind, plugins[kind]))) for kind in PLUGIN_KINDS)
+        return plugins, params
 
     def with_overrides(self, registry: Registry, overrides: dict[str, str | float | int | None]) -> Config:
         """A copy with parameters set by name or paper symbol (``v=0.005``, ``q_bar=0.2`` ...).

@@ -2,61 +2,37 @@
 moving max-count filter -> sequence label.
 
 Each step is a method of :class:`Pipeline`; :meth:`Pipeline.run` streams a whole sequence, holding
-only the clouds that pending pairs need. The pieces live in their own modules: :mod:`~artclass_core.config` (what runs, and
-what each stage depends on: :data:`~artclass_core.config.STAGE_DEPENDENCIES`),
-:mod:`~artclass_core.cache` (:class:`StageCache`), :mod:`~artclass_core.cells` (per-cell registration),
+only the clouds that pending pairs need. The pieces live in their own modules:
+:mod:`~artclass_core.config` (what runs, and what each stage depends on), :mod:`~artclass_core.frames`
+(steps 1 and 2), :mod:`~artclass_core.cells` (per-cell registration), :mod:`~artclass_core.cache`
+(:class:`StageCache`: give one to successive runs to redo only what a changed setting touches),
 :mod:`~artclass_core.scheduler` (worker threads) and :mod:`~artclass_core.labels` (filter and label).
-
-Incremental re-runs
--------------------
-A :class:`StageCache` keeps each frame's cloud and each pair's registrations, keyed on exactly what
-they depend on; pass the same cache to successive runs, and a change of a decision setting (rule,
-``alpha``, ``min_fitness``, ``w``) only re-decides::
-
-    cache = StageCache()
-    result = Pipeline(registry, config).run(sequence, cache=cache)            # reads, segments, registers
-    config2 = dataclasses.replace(config, rule_params=RuleParams(q_bar=0.2))
-    result2 = Pipeline(registry, config2).run(sequence, cache=cache)          # decides only
 """
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
 from collections import Counter
 from collections.abc import Iterable
-from dataclasses import dataclass
 from typing import Any
-
-import numpy as np
 
 from . import cells as _cells
 from .cache import StageCache
-from .config import AUTO_SEGMENTER, PLUGIN_KINDS, STAGES, Config, _fitting, stage_config, stage_dependencies
-from .errors import ArtclassError, InputError, ParamError
-from .labels import SEVERITY, fractions, labelled_result, max_count_filter, sequence_label
-from .params import as_dict
+from .config import STAGES, Config, _fitting
+from .errors import InputError, ParamError
+from .frames import FrameSteps
+from .labels import fractions, labelled_result, max_count_filter, sequence_label
 from .plugins import Registry
-from .scheduler import Progress, add_time, merge_timing, single_threaded_open3d, stream_pairs
+from .scheduler import Progress, add_time, single_threaded_open3d, stream_pairs
 from .types import CellMotion, Cloud, FrameResult, MotionEvidence, PairResult, RunResult, Sequence
 
-__all__ = ["AUTO_SEGMENTER", "PLUGIN_KINDS", "SEVERITY", "STAGES", "Config", "Pipeline", "Progress", "StageCache",
-           "fractions", "max_count_filter", "sequence_label", "stage_config"]
+__all__ = ["Config", "Pipeline", "StageCache", "fractions", "max_count_filter", "sequence_label"]
 
 
-@dataclass(frozen=True)
-class _RawFrame:
-    """What segmentation and preprocessing gave for one frame, before the pipeline's own checks."""
-
-    index: int
-    name: str
-    cloud: Cloud | None
-    mask_pixels: int
-
-
-class Pipeline:
-    """The configured plugins, ready to run step by step or on a whole sequence."""
+class Pipeline(FrameSteps):
+    """The configured plugins, ready to run step by step or on a whole sequence (steps 1 and 2, one
+    frame to its cloud, are :class:`~artclass_core.frames.FrameSteps`)."""
 
     def __init__(self, registry: Registry, config: Config | None = None, *, segmenters: dict | None = None):
         """``segmenters``: segmenters by name, shared with pipelines of the same segmentation settings."""
@@ -65,8 +41,8 @@ class Pipeline:
         self.config = _fitting(registry, config or Config())
         self.params = self.config.pipeline
         for kind in ("preprocessor", "registrar", "rule"):
-            setattr(self, kind, registry.create(kind, getattr(self.config, kind),
-                                                self.config.plugin_params(registry, kind)))
+            plugin = registry.create(kind, getattr(self.config, kind), self.config.plugin_params(registry, kind))
+            setattr(self, kind, plugin)
         if self.registrar.gives != self.rule.needs:
             raise ParamError(f"rule {self.rule.name!r} decides from {self.rule.needs}, but registrar "
                              f"{self.registrar.name!r} gives {self.registrar.gives}: choose a matching pair "
@@ -123,63 +99,6 @@ class Pipeline:
         timing["total"] = time.perf_counter() - t_start
         return self.summarise(sequence, frames, pairs, timing)
 
-    # -- steps 1 and 2: one frame -> cloud -------------------------------------------------------
-    def segmenter_name(self, sequence: Sequence) -> str:
-        name = self.config.segmenter
-        if name == AUTO_SEGMENTER:
-            name = "mask" if sequence.has_masks else "depth_threshold"
-        return name
-
-    def segmenter(self, sequence: Sequence):
-        name = self.segmenter_name(sequence)
-        with self._lock:
-            if name not in self._segmenters:
-                self._segmenters[name] = self.registry.create(
-                    "segmenter", name, self.config.plugin_params(self.registry, "segmenter", name))
-            return self._segmenters[name]
-
-    def frame(self, sequence: Sequence, i: int, *, timing: dict[str, float] | None = None,
-              cache: StageCache | None = None) -> FrameResult:
-        """Read, segment and preprocess frame ``i`` (taken from ``cache`` when it holds it). A frame with
-        no object is returned as skipped."""
-        return self._finish_frame(self._raw_frame(sequence, i, timing if timing is not None else {}, cache))
-
-    def frame_key(self, sequence: Sequence, i: int, cache: StageCache) -> tuple:
-        """The cache key of frame ``i``: the sequence, the frame and what the ``preprocess`` stage depends on."""
-        return (cache.sequence_token(sequence), i, *self.depends(sequence, "preprocess"))
-
-    def depends(self, sequence: Sequence, stage: str) -> tuple:
-        """What the output of ``stage`` on ``sequence`` depends on (:func:`~artclass_core.config.stage_dependencies`)."""
-        return stage_dependencies(self.config, self.registry, stage, segmenter=self.segmenter_name(sequence))
-
-    def _raw_frame(self, sequence: Sequence, i: int, timing: dict[str, float], cache: StageCache | None) -> _RawFrame:
-        key = None if cache is None else self.frame_key(sequence, i, cache)
-        if (hit := None if key is None else cache.get("frame", key)) is not None:
-            return hit
-        t0 = time.perf_counter()
-        frame = sequence[i]
-        t1 = time.perf_counter()
-        mask = self.segmenter(sequence).segment(frame, sequence=sequence)
-        t2 = time.perf_counter()
-        merge_timing(timing, {"read": t1 - t0, "segment": t2 - t1})
-        n_mask = 0 if mask is None else int(np.count_nonzero(mask))
-        raw = _RawFrame(i, frame.name, None, 0)
-        if n_mask:
-            raw = _RawFrame(i, frame.name, self.preprocessor.process(frame, mask, intrinsics=sequence.intrinsics), n_mask)
-            add_time(timing, "preprocess", time.perf_counter() - t2)
-        if key is not None:
-            cache.put("frame", key, raw)
-        return raw
-
-    def _finish_frame(self, raw: _RawFrame) -> FrameResult:
-        if raw.cloud is None:
-            return FrameResult(raw.index, raw.name, None, skipped="no object found")
-        cloud = raw.cloud
-        if len(cloud) < self.params.min_cell_points:
-            return FrameResult(raw.index, raw.name, None, skipped=f"only {len(cloud)} object points",
-                               mask_pixels=raw.mask_pixels, info=dict(cloud.info))
-        return FrameResult(raw.index, raw.name, cloud, mask_pixels=raw.mask_pixels, info=dict(cloud.info))
-
     # -- step 3: a pair of clouds -> registrations -----------------------------------------------
     def cell_size(self, source: Cloud, target: Cloud) -> float:
         """The cell size x (m) of the pair (:func:`artclass_core.cells.cell_size`)."""
@@ -217,23 +136,8 @@ class Pipeline:
         (:attr:`DecisionRule.uses_frames_between`); it gets none when one of them is missing.
         ``scratch`` is the pair's scratch dict, for a rule that keeps evidence in it.
         """
-        scratch = {} if scratch is None else scratch
-        cells = [dataclasses.replace(c, cluster=None, key=None) for c in cells]
-        pair = PairResult(i, j, "skipped", cells=cells, cell_size_m=cell_size_m, scratch=scratch)
-        n_matched = sum(c.matched for c in cells)
-        if not cells or n_matched == 0 or n_matched < self.params.alpha * len(cells):
-            pair.reason = f"only {n_matched} of {len(cells)} cells matched (alpha = {self.params.alpha:g})"
-            return pair
-        between = tuple(between)
-        extra = {"between": between} if self.rule.uses_frames_between and None not in between else {}
-        out = self.rule.decide(cells, source=source, target=target, **extra, **self._scratch_arg(scratch))
-        if len(out.clusters) != len(cells):
-            raise ArtclassError(f"rule {self.rule.name!r} returned {len(out.clusters)} clusters for {len(cells)} cells")
-        for c, k in zip(cells, out.clusters):
-            c.cluster = k
-            c.key = out.keys[k] if k is not None and k < len(out.keys) else None
-        pair.decision, pair.reason, pair.info = out.decision, out.reason, out.info
-        return pair
+        return _cells.decide_cells(self.rule, i, j, cells, source, target, cell_size_m, tuple(between),
+                                   alpha=self.params.alpha, scratch={} if scratch is None else scratch)
 
     def decide_motions(self, i: int, j: int, evidence: MotionEvidence, *, scratch: dict | None = None) -> PairResult:
         """Apply the decision rule to a pair's motion evidence (from a pair registrar)."""
@@ -288,10 +192,6 @@ class Pipeline:
 
     def _summarise(self, sequence_info: dict[str, Any], segmenter: str, frames: list[FrameResult],
                    pairs: list[PairResult], timing: dict[str, float]) -> RunResult:
-        plugins = {kind: getattr(self.config, kind) for kind in PLUGIN_KINDS}
-        plugins["segmenter"] = segmenter
-        params = {"pipeline": as_dict(self.params)}
-        params.update((kind, as_dict(self.config.plugin_params(self.registry, kind, plugins[kind])))
-                      for kind in PLUGIN_KINDS)
+        plugins, params = self.config.record(self.registry, segmenter=segmenter)
         return labelled_result(sequence_info, frames, pairs, w=self.params.w, params=params, plugins=plugins,
                                timing=timing)

@@ -34,10 +34,13 @@ from typing import Any
 
 import pandas as pd
 
+from .cache import StageCache
+from .config import PLUGIN_KINDS, STAGES, Config, stage_config
 from .errors import ArtclassError, InputError, ParamError
 from .evaluate import SequenceOutcome, one_line, run_outcome
-from .pipeline import PLUGIN_KINDS, STAGES, Config, Pipeline, Progress, StageCache, stage_config
+from .pipeline import Pipeline
 from .plugins import Registry, load_registry
+from .scheduler import Progress
 from .sequences import open_sequences
 from .types import DECISIONS, Sequence
 

@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from artclass_plugins.joints import fit_joint
 from artclass_core.joint_metrics import axis_direction_error_rad, axis_position_error_m, state_error
+from artclass_plugins.joints import fit_joint
 from artclass_plugins.joints.synthetic import synthetic_joint
 
 NOISE = [(0.0005, 0.25), (0.001, 0.5), (0.002, 1.0), (0.005, 2.0)]     # (metres, degrees) per axis

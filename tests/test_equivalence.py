@@ -21,6 +21,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from artclass_core import ArtclassError, Config, Pipeline, PipelineParams
+from artclass_core.cache import StageCache
+from artclass_core.config import stage_config
 from artclass_core.geometry import (
     diameter_of_vertices,
     grid_cells,
@@ -28,7 +30,6 @@ from artclass_core.geometry import (
     largest_distance,
     quaternion_wxyz,
 )
-from artclass_core.pipeline import StageCache, stage_config
 
 from conftest import make_sequence
 
