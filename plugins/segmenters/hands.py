@@ -233,12 +233,12 @@ def find_hands(frame: Frame, background: np.ndarray, intrinsics: Intrinsics, *, 
         skin = hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2, border=False)
         rest = ~background & ~candidates & ~step & (d > 0)
         arm = arms(rest, skin, d, intrinsics, support, step=step, plane_distance_m=plane_distance_m, touch_m=touch)
-        hand = arm | hand_regions(skin, d, intrinsics, min_area_m2=0.0)     # those reaching the border
-        if arm.any():                                                        # and those an arm holds
-            regions = _regions(skin)
-            for region, on_arm in zip(regions, _touching(regions, arm, d, intrinsics, touch_m=touch)):
-                if on_arm:
-                    hand |= region
+        regions = _regions(skin)
+        on_arm = _touching(regions, arm, d, intrinsics, touch_m=touch) if arm.any() else [False] * len(regions)
+        hand = arm.copy()
+        for region, held_out in zip(regions, on_arm):    # skin regions reaching the border, or an arm
+            if held_out or region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any():
+                hand |= region
     if hand.any():
         near, far = _depth_range(d, hand, 1)
         hand |= ~background & step & (far > 0) & ((d == 0) | ((d >= near - touch) & (d <= far + touch)))
@@ -323,10 +323,11 @@ def _touching(regions: list[np.ndarray], other: np.ndarray, depth_m: np.ndarray,
 def _depth_range(d: np.ndarray, where: np.ndarray, reach_px: int) -> tuple[np.ndarray, np.ndarray]:
     """Nearest and farthest reading of ``d`` (0 = none) among the pixels ``where``, in the square of
     half-width ``reach_px`` around each pixel; +inf and 0 where there is none. float32 (H, W) each."""
+    d = d.astype(np.float32, copy=False)
     seen = where & (d > 0)
     kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
-    near = cv2.erode(np.where(seen, d, np.float32(np.inf)).astype(np.float32), kernel, borderValue=np.inf)
-    far = cv2.dilate(np.where(seen, d, np.float32(0)).astype(np.float32), kernel, borderValue=0)
+    near = cv2.erode(np.where(seen, d, np.float32(np.inf)), kernel, borderValue=np.inf)
+    far = cv2.dilate(np.where(seen, d, np.float32(0)), kernel, borderValue=0)
     return near, far
 
 

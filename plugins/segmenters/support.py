@@ -163,7 +163,8 @@ def refine_plane(points: np.ndarray, normal: np.ndarray, offset_m: float, *, dis
         if inliers.sum() < 3:
             break
         centre = points[inliers].mean(axis=0)
-        normal = np.linalg.svd(points[inliers] - centre, full_matrices=False)[2][2]
+        spread = points[inliers] - centre
+        normal = np.linalg.eigh(spread.T @ spread)[1][:, 0]    # the direction of least spread
         offset = -float(normal @ centre)
     inliers = np.abs(points @ normal + offset) < distance_m
     if offset < 0:
