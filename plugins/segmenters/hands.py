@@ -80,9 +80,11 @@ def parse_hsv(text: str) -> tuple[tuple[int, int, int], tuple[int, int, int]] | 
 class HandParams(Params):
     """Which pixels are a hand or gripper, removed from the objects (shared by the mask-free segmenters)."""
 
-    exclude_hands: bool = param(True, help="Remove hands (skin colour, regions reaching the image border) and the "
-                                           "configured gripper from the objects, and prefer the object a hand "
-                                           "holds; off = every region is an object candidate.")
+    exclude_hands: bool = param(True, help="Remove hands (skin colour, regions reaching the image border), the arms "
+                                           "or sleeves that hold them (of any colour: entering from the border "
+                                           "above the table) and the configured gripper from the objects, and "
+                                           "prefer the object a hand holds; off = every region is an object "
+                                           "candidate.")
     hand_min_area_m2: float = param(0.003, unit="m^2", bounds=(0.0, 1.0),
                                     help="Skin- or gripper-coloured regions whose surface (seen from the camera, "
                                          "measured with depth) is smaller are not a hand: about two fingers, "
@@ -92,7 +94,8 @@ class HandParams(Params):
                                      "pixels of its outline.")
     hand_touch_m: float = param(0.02, unit="m", bounds=(0.0, 0.5),
                                 help="An object whose pixels next to the hand lie within this depth of the hand's "
-                                     "is held (about a finger's thickness); held objects are chosen first.")
+                                     "is held (about a finger's thickness); held objects are chosen first. An "
+                                     "arm joins a hand it comes this close to in 3-D.")
     gripper_hsv: str = param("", help="The gripper's colour as an HSV box 'h0,s0,v0,h1,s1,v1' in OpenCV units "
                                       "(H 0-180, S and V 0-255), e.g. '0,0,0,180,100,100' for a dark grey "
                                       "gripper; its regions that reach the image border are removed like "
