@@ -245,6 +245,9 @@ def find_hands(frame: Frame, background: np.ndarray, intrinsics: Intrinsics, *, 
     if hand.any():
         near, far = _depth_range(d, hand, 1)
         hand |= ~background & step & (far > 0) & ((d == 0) | ((d >= near - touch) & (d <= far + touch)))
+        # pixels without a reading are the hand's where a closing of the margin's radius puts them
+        # inside it (dropouts on skin), not a band along its side (the sensor's shadow on the table)
+        hand &= (d > 0) | close_gaps(hand & (d > 0), params.hand_margin_px)
     if params.hand_masks:
         hand |= load_hand_mask(Path(sequence_path) / Path(params.hand_masks).expanduser(), frame)
     return hand
@@ -332,6 +335,14 @@ def _depth_range(d: np.ndarray, where: np.ndarray, reach_px: int) -> tuple[np.nd
     near = cv2.erode(np.where(seen, d, np.float32(np.inf)), kernel, borderValue=np.inf)
     far = cv2.dilate(np.where(seen, d, np.float32(0)), kernel, borderValue=0)
     return near, far
+
+
+def close_gaps(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    """``mask`` closed by a disc of ``radius_px`` (its gaps narrower than the disc filled): bool (H, W)."""
+    if not radius_px or not mask.any():
+        return mask
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
+    return cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, disc) > 0
 
 
 def widen(mask: np.ndarray, radius_px: int) -> np.ndarray:
