@@ -169,13 +169,16 @@ def thin_objects(low: np.ndarray, rgb: np.ndarray, *, min_area_fraction: float, 
     found = components(low, open_px=1, min_area_fraction=min_area_fraction)
     if not found:
         return found
-    lab = cv2.cvtColor(np.ascontiguousarray(rgb, dtype=np.uint8), cv2.COLOR_RGB2Lab).astype(np.float32)
-    lab[..., 0] *= 100.0 / 255.0                  # OpenCV's 8-bit Lab: L scaled by 255/100, a and b offset by 128
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
     out = []
-    for m in found:
-        ring = (cv2.dilate(m.astype(np.uint8), disc) > 0) & ~low
-        if ring.any() and np.linalg.norm(lab[m].mean(axis=0) - lab[ring].mean(axis=0)) >= contrast:
+    for m in found:                               # each in its bounding box, grown by the ring
+        x, y, bw, bh = cv2.boundingRect(m.astype(np.uint8))
+        box = np.s_[max(y - ring_px, 0):y + bh + ring_px, max(x - ring_px, 0):x + bw + ring_px]
+        lab = cv2.cvtColor(np.ascontiguousarray(rgb[box], dtype=np.uint8), cv2.COLOR_RGB2Lab).astype(np.float32)
+        lab[..., 0] *= 100.0 / 255.0              # OpenCV's 8-bit Lab: L scaled by 255/100, a and b offset by 128
+        inside = m[box]
+        ring = (cv2.dilate(inside.astype(np.uint8), disc) > 0) & ~low[box]
+        if ring.any() and np.linalg.norm(lab[inside].mean(axis=0) - lab[ring].mean(axis=0)) >= contrast:
             out.append(m)
     return out
 
