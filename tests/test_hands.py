@@ -19,7 +19,7 @@ import pytest
 from artclass_core import Config, Frame, InputError, Intrinsics, ParamError, Pipeline, Sequence, load_registry
 from artclass_plugins.segmenters.depth_threshold import DepthThresholdParams, DepthThresholdSegmenter
 from artclass_plugins.segmenters.hands import (HandParams, arms, find_hands, hand_regions, held, hsv_mask,
-                                               parse_hsv, skin_mask)
+                                               on_plane, parse_hsv, skin_mask)
 from artclass_plugins.segmenters.selection import mask_iou
 from artclass_plugins.segmenters.support import Plane, background_mask, fit_planes
 from artclass_plugins.segmenters.u2net import U2netParams, U2netSegmenter
@@ -187,8 +187,8 @@ def test_arms_reach_the_border_stand_off_the_table_and_touch_the_hand():
 
     def arm_of(region: np.ndarray, height: np.ndarray) -> np.ndarray:
         depth = table_depth(height).astype(np.float32)
-        return arms(region, hand, depth, INTR, table, step=np.zeros((H, W), bool), plane_distance_m=0.012,
-                    touch_m=0.02)
+        contact = on_plane(depth, INTR, table, step=np.zeros((H, W), bool), plane_distance_m=0.012)
+        return arms(region, hand, depth, INTR, contact=contact, touch_m=0.02)
 
     sleeve = np.zeros((H, W), bool)
     sleeve[rows, 200:] = True

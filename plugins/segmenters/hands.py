@@ -49,7 +49,8 @@ from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, par
 from .support import DEPTH_STEP_M, Plane, clean_depth, label_regions, plane_height_m
 
 __all__ = ["HandParams", "SKIN_CR", "SKIN_CB", "skin_mask", "hsv_mask", "parse_hsv", "hand_regions",
-           "held", "load_hand_mask", "find_hands", "widen", "arms"]
+           "held", "load_hand_mask", "find_hands", "widen", "arms", "on_plane",
+           "rests"]
 
 # Chai & Ngan (1999): the skin-colour map in YCrCb, 8-bit (OpenCV's YCrCb has the same offsets).
 SKIN_CR = (133, 173)
@@ -233,15 +234,21 @@ def find_hands(frame: Frame, background: np.ndarray, intrinsics: Intrinsics, *, 
     if support is None:
         hand = hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2)
     else:
-        skin = hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2, border=False)
-        rest = ~background & ~candidates & ~step & (d > 0)
-        arm = arms(rest, skin, d, intrinsics, support, step=step, plane_distance_m=plane_distance_m, touch_m=touch)
-        regions = _regions(skin)
-        on_arm = _touching(regions, arm, d, intrinsics, touch_m=touch) if arm.any() else [False] * len(regions)
-        hand = arm.copy()
-        for region, held_out in zip(regions, on_arm):    # skin regions reaching the border, or an arm
-            if held_out or region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any():
-                hand |= region
+        regions = _regions(hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2,
+                                        border=False))
+        contact = on_plane(d, intrinsics, support, step=step, plane_distance_m=plane_distance_m)
+        hand = np.zeros(d.shape, bool)
+        held_out = [r for r in regions if not rests(r, contact)]     # a skin-coloured object lies on the table
+        for r in regions:
+            if r[0].any() or r[-1].any() or r[:, 0].any() or r[:, -1].any():
+                hand |= r
+        arm = arms(~background & ~candidates & ~step & (d > 0), np.logical_or.reduce(held_out), d, intrinsics,
+                   contact=contact, touch_m=touch) if held_out else hand
+        if arm.any():
+            hand |= arm
+            for r, on_arm in zip(held_out, _touching(held_out, arm, d, intrinsics, touch_m=touch)):
+                if on_arm:                                               # held out by an arm
+                    hand |= r
     if hand.any():
         near, far = _depth_range(d, hand, 1)
         hand |= ~background & step & (far > 0) & ((d == 0) | ((d >= near - touch) & (d <= far + touch)))
@@ -262,8 +269,27 @@ CONTACT_SIGMAS = 3.0
 CONTACT_PIXELS = 2.0
 
 
-def arms(foreground: np.ndarray, hands: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, support: Plane,
-         *, step: np.ndarray, plane_distance_m: float, touch_m: float) -> np.ndarray:
+def on_plane(depth_m: np.ndarray, intrinsics: Intrinsics, support: Plane, *, step: np.ndarray,
+             plane_distance_m: float) -> np.ndarray:
+    """The pixels where what stands on the support plane comes down to it: within
+    ``plane_distance_m + CONTACT_SIGMAS * noise + CONTACT_PIXELS * z / fx`` of the plane (the
+    background cut, the plane's measured noise and a pixel's size at depth z), with a reading, off
+    depth steps (``step``: the flying pixels between an arm and the table behind it are no contact).
+    bool (H, W)."""
+    height = plane_height_m(depth_m, intrinsics, support)
+    return ((height < plane_distance_m + CONTACT_SIGMAS * max(support.noise_m, DEPTH_STEP_M)
+             + CONTACT_PIXELS * depth_m / intrinsics.fx) & ~step & (depth_m > 0))
+
+
+def rests(region: np.ndarray, contact: np.ndarray) -> bool:
+    """Whether ``region`` rests on the support plane: at least CONTACT_PX of its pixels on it
+    (``contact``, from :func:`on_plane`): an object lying on the table shows its lower rows just above
+    the background cut; an arm held over it does not."""
+    return np.count_nonzero(region & contact) >= CONTACT_PX
+
+
+def arms(foreground: np.ndarray, hands: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, *,
+         contact: np.ndarray, touch_m: float) -> np.ndarray:
     """The arms (sleeves) among the regions of ``foreground``: those that reach the image border, do not
     rest on the support plane, and touch ``hands`` in 3-D.
 
@@ -271,39 +297,25 @@ def arms(foreground: np.ndarray, hands: np.ndarray, depth_m: np.ndarray, intrins
     ----------
     foreground : ndarray of bool, shape (H, W) -- pixels standing out of the background, not hand
         coloured, away from depth steps
-    hands : ndarray of bool, shape (H, W) -- hand-sized skin (or gripper) regions
+    hands : ndarray of bool, shape (H, W) -- hand-sized skin (or gripper) regions held above the table
     depth_m : ndarray, shape (H, W), metres, 0 = no reading
     intrinsics : pinhole intrinsics of the image
-    support : the support plane (its ``noise_m`` measured)
-    step : ndarray of bool, shape (H, W) -- pixels at a depth step (flying pixels between an arm and
-        the table behind it; not evidence of contact)
-    plane_distance_m : metres -- the background cut: foreground pixels stand at least this far off
+    contact : ndarray of bool, shape (H, W) -- the pixels on the support plane (:func:`on_plane`)
     touch_m : metres -- how far an arm may be from the hand it joins, in depth and across the image
         (at the hand's median depth)
 
     Returns
     -------
     ndarray of bool, shape (H, W)
-
-    Notes
-    -----
-    A region rests on the plane when at least ``CONTACT_PX`` of its pixels off depth steps lie within
-    ``plane_distance_m + CONTACT_SIGMAS * noise + CONTACT_PIXELS * z / fx`` of it: an object lying
-    on the table shows its lower rows just above the background cut; an arm held over it does not.
     """
     out = np.zeros(foreground.shape, bool)
     if not hands.any():
         return out
     n, labels, stats = label_regions(_open(foreground))
     reach = np.flatnonzero(_at_border(stats, foreground.shape)) + 1
-    if not len(reach):
-        return out
-    height = plane_height_m(depth_m, intrinsics, support)
-    contact = (height < plane_distance_m + CONTACT_SIGMAS * max(support.noise_m, DEPTH_STEP_M)
-               + CONTACT_PIXELS * depth_m / intrinsics.fx) & ~step & (depth_m > 0)
     regions = [labels == k for k in reach]
     for region, touches in zip(regions, _touching(regions, hands, depth_m, intrinsics, touch_m=touch_m)):
-        if touches and np.count_nonzero(region & contact) < CONTACT_PX:
+        if touches and not rests(region, contact):
             out |= region
     return out
 
