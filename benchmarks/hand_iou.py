@@ -10,9 +10,10 @@ For each sequence folder with ``hand/*.png`` (non-zero = the hand or gripper wit
 ``mask/*.png`` (the object) beside its frames, and each segmenter:
 
 * **hand IoU**: the segmenter's hand mask (before its margin) against ``hand/``, pooled over the
-  frames (intersection over union of all pixels of all frames with a hand in the truth), and the
-  mean per-frame IoU; by holder (``hand``, ``gripper``, from ``meta.json``). Also the share of the
-  frames without a hand in the truth in which a hand was found (false alarms).
+  frames (intersection over union of all pixels of all frames with a hand in the truth), the mean
+  per-frame IoU, and that mean over the frames where the true hand reaches the image border (its
+  arm enters the picture, as a real arm does); by holder (``hand``, ``gripper``, from
+  ``meta.json``). Also how many frames without a hand in the truth had a hand found (false alarms).
 * **object IoU**: the chosen (manipulated) mask against ``mask/``, mean per frame, by holder.
 
 ``--every N`` scores every N-th frame only (the chosen masks still see every frame before it, as
@@ -44,7 +45,7 @@ def holder_of(seq) -> str:
 
 def score_sequence(seg, seq, *, every: int) -> dict:
     """Pooled hand intersection / union, per-frame hand IoUs, false alarms and object IoUs of a sequence."""
-    out = dict(inter=0, union=0, hand_ious=[], alarms=0, empty=0, object_ious=[])
+    out = dict(inter=0, union=0, hand_ious=[], border_ious=[], alarms=0, empty=0, object_ious=[])
     hand_dir = Path(seq.path) / "hand"
     for i in range(0, len(seq), every):
         frame = seq[i]
@@ -61,6 +62,8 @@ def score_sequence(seg, seq, *, every: int) -> dict:
             out["inter"] += int(np.count_nonzero(found & truth))
             out["union"] += int(np.count_nonzero(found | truth))
             out["hand_ious"].append(mask_iou(found, truth))
+            if truth[0].any() or truth[-1].any() or truth[:, 0].any() or truth[:, -1].any():
+                out["border_ious"].append(mask_iou(found, truth))
         else:
             out["empty"] += 1
             out["alarms"] += int(found.any())
@@ -84,8 +87,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(f"{len(sequences)} sequences in {args.folder}, every {args.every}. frame scored")
     for name in [n for n in args.segmenters.split(",") if n]:
-        totals: dict[str, dict] = defaultdict(lambda: dict(inter=0, union=0, hand_ious=[], alarms=0, empty=0,
-                                                          object_ious=[]))
+        totals: dict[str, dict] = defaultdict(lambda: dict(inter=0, union=0, hand_ious=[], border_ious=[], alarms=0,
+                                                          empty=0, object_ious=[]))
         t0, c0 = time.perf_counter(), time.process_time()
         try:
             for seq in sequences:
@@ -100,7 +103,10 @@ def main(argv: list[str] | None = None) -> int:
         for key in sorted(totals, key=lambda k: (k == "all", k)):
             t = totals[key]
             hand = (f"hand IoU pooled {t['inter'] / t['union']:.3f}, mean {np.mean(t['hand_ious']):.3f} "
-                    f"({len(t['hand_ious'])} frames)" if t["union"] else "no hand in the truth")
+                    f"({len(t['hand_ious'])} frames), mean {np.mean(t['border_ious']):.3f} where it reaches the "
+                    f"border ({len(t['border_ious'])} frames)" if t["border_ious"] else
+                    "no hand in the truth" if not t["union"] else
+                    f"hand IoU pooled {t['inter'] / t['union']:.3f}, mean {np.mean(t['hand_ious']):.3f}")
             alarms = f"hand found in {t['alarms']} of {t['empty']} frames without" if t["empty"] else ""
             print(f"    {key:<8} object IoU {np.mean(t['object_ious']):.3f} ({len(t['object_ious'])} frames); "
                   f"{hand}; {alarms}".rstrip("; "), flush=True)
