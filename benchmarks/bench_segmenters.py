@@ -62,6 +62,21 @@ def make(registry, name: str, overrides: dict[str, str]):
     return cls(cls.Params(**fields))
 
 
+def parse_overrides(items: list[str]) -> dict:
+    """``NAME=VALUE`` strings as a dict, values as int, float or bool where they read as one."""
+    out: dict = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        out[key] = {"true": True, "false": False}.get(value.lower(), value)
+        for cast in (int, float):
+            try:
+                out[key] = cast(value)
+                break
+            except ValueError:
+                pass
+    return out
+
+
 def time_segmenter(registry, name: str, sequences: list[Sequence], *, repeat: int, overrides
                    ) -> tuple[list[float], list[float]]:
     """Wall and CPU (all threads) ms per frame of each repeat (fresh segmenter each time, all frames
@@ -171,14 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     if not YCBV.is_dir():
         print(f"bench_segmenters: {YCBV} is absent; it holds the 640x480 frames this benchmark times", file=sys.stderr)
         return 1
-    overrides = dict(item.split("=", 1) for item in args.param)
-    for k, v in list(overrides.items()):
-        for cast in (int, float):
-            try:
-                overrides[k] = cast(v)
-                break
-            except ValueError:
-                pass
+    overrides = parse_overrides(args.param)
     names = [n for n in args.segmenters.split(",") if n]
     if args.maskrcnn_model:
         names.append("maskrcnn")

@@ -31,7 +31,15 @@ from artclass_core import Frame, Intrinsics, Sequence, param
 
 from .hands import HandParams, find_hands, widen
 from .selection import InstanceSegmenter, SelectionParams
-from .support import BackgroundParams, Plane, above_planes, background_mask, clean_depth, fit_planes
+from .support import (
+    BackgroundParams,
+    Plane,
+    above_planes,
+    background_mask,
+    clean_depth,
+    fit_planes,
+    label_regions,
+)
 
 __all__ = ["DepthThresholdParams", "DepthThresholdSegmenter", "MaskFreeSegmenter", "components", "fill_dropouts",
            "fill_floors", "grow", "join_touching", "thin_objects"]
@@ -88,7 +96,7 @@ def grow(instances: list[np.ndarray], low: np.ndarray) -> list[np.ndarray]:
     """Hysteresis: each instance with the ``low`` pixels connected (8-connected) to it; instances the low
     pixels connect become one. Largest first; low pixels that touch no instance are dropped."""
     seeds = np.logical_or.reduce(instances)
-    _, labels, stats, _ = cv2.connectedComponentsWithStats((seeds | low).astype(np.uint8), connectivity=8)
+    _, labels, stats = label_regions(seeds | low)
     keep = sorted(np.unique(labels[seeds]), key=lambda k: (-stats[k, cv2.CC_STAT_AREA], k))
     return [labels == k for k in keep]
 
@@ -169,13 +177,16 @@ def thin_objects(low: np.ndarray, rgb: np.ndarray, *, min_area_fraction: float, 
     found = components(low, open_px=1, min_area_fraction=min_area_fraction)
     if not found:
         return found
-    lab = cv2.cvtColor(np.ascontiguousarray(rgb, dtype=np.uint8), cv2.COLOR_RGB2Lab).astype(np.float32)
-    lab[..., 0] *= 100.0 / 255.0                  # OpenCV's 8-bit Lab: L scaled by 255/100, a and b offset by 128
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
     out = []
-    for m in found:
-        ring = (cv2.dilate(m.astype(np.uint8), disc) > 0) & ~low
-        if ring.any() and np.linalg.norm(lab[m].mean(axis=0) - lab[ring].mean(axis=0)) >= contrast:
+    for m in found:                               # each in its bounding box, grown by the ring
+        x, y, bw, bh = cv2.boundingRect(m.astype(np.uint8))
+        box = np.s_[max(y - ring_px, 0):y + bh + ring_px, max(x - ring_px, 0):x + bw + ring_px]
+        lab = cv2.cvtColor(np.ascontiguousarray(rgb[box], dtype=np.uint8), cv2.COLOR_RGB2Lab).astype(np.float32)
+        lab[..., 0] *= 100.0 / 255.0              # OpenCV's 8-bit Lab: L scaled by 255/100, a and b offset by 128
+        inside = m[box]
+        ring = (cv2.dilate(inside.astype(np.uint8), disc) > 0) & ~low[box]
+        if ring.any() and np.linalg.norm(lab[inside].mean(axis=0) - lab[ring].mean(axis=0)) >= contrast:
             out.append(m)
     return out
 
@@ -197,7 +208,7 @@ def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> l
     if open_px:
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * open_px + 1, 2 * open_px + 1))
         m = cv2.morphologyEx(m, cv2.MORPH_OPEN, kernel)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    n, labels, stats = label_regions(m)
     min_area = max(1, int(np.ceil(min_area_fraction * m.size)))
     keep = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= min_area]
     keep.sort(key=lambda k: (-stats[k, cv2.CC_STAT_AREA], k))
@@ -218,21 +229,33 @@ class MaskFreeSegmenter(InstanceSegmenter):
     def scene(self, frame: Frame, *, sequence: Sequence) -> tuple[list[Plane], np.ndarray, np.ndarray]:
         """The background planes of ``frame``, its background mask and its pixels with a reading
         (see :func:`.support.background_mask`); the last frame's are kept, as hands and instances
-        both need them."""
+        both need them. The planes are sought first where they lie in the sequence's first frame (see
+        ``hints`` in :func:`.support.fit_planes`), so the result of a frame does not depend on which
+        frames were segmented before it."""
         key = (str(sequence.path), sequence.name, frame.index)
         with self._lock:
             last = getattr(self, "_last_scene", None)
             if last is None or last[0] != key:
-                planes = fit_planes(frame.depth_m, sequence.intrinsics, params=self.params)
+                planes = fit_planes(frame.depth_m, sequence.intrinsics, params=self.params,
+                                    hints=self._first_planes(frame, sequence) if frame.index else None)
                 last = self._last_scene = (key, (planes, *background_mask(frame.depth_m, sequence.intrinsics, planes,
                                                                            params=self.params)))
             return last[1]
 
+    def _first_planes(self, frame: Frame, sequence: Sequence) -> list[Plane]:
+        """The background planes of the sequence's first frame (kept for the last sequence)."""
+        key = (str(sequence.path), sequence.name)
+        first = getattr(self, "_first_scene", None)
+        if first is None or first[0] != key:
+            first = self._first_scene = (key, fit_planes(sequence[0].depth_m, sequence.intrinsics, params=self.params))
+        return first[1]
+
     def hands(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
         if not self.params.exclude_hands:
             return None
-        _, background, _ = self.scene(frame, sequence=sequence)
-        return find_hands(frame, background, sequence.intrinsics, params=self.params, sequence_path=sequence.path)
+        planes, background, _ = self.scene(frame, sequence=sequence)
+        return find_hands(frame, background, sequence.intrinsics, params=self.params, sequence_path=sequence.path,
+                          support=planes[0] if planes else None, plane_distance_m=self.params.plane_distance_m)
 
     def not_hand(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
         """The pixels that are not hand, its margin included (None when hands are not looked for)."""

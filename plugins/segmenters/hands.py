@@ -10,6 +10,13 @@ union of:
   border (a hand is held out from an arm that enters the picture; a skin-coloured object in the
   scene seldom reaches it) and its surface, measured with depth, is at least ``hand_min_area_m2``
   (two fingers: specks and patches of skin colour on objects are smaller);
+* **arms and sleeves, whatever their colour**: a region standing out of the background that reaches
+  the image border, is not resting on the support plane (none of its pixels away from depth steps
+  comes down to it: its lowest points stand off the plane by more than ``plane_distance_m`` plus the
+  plane's noise and a pixel's size at their depth), and touches a hand-sized skin region in 3-D (a
+  sleeve, a glove's cuff, the forearm of a robot arm), is an arm: it is removed with the hand, and
+  the hand it holds reaches the border through it. An object that reaches the border while it lies
+  on the table is kept;
 * **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``;
 * **given masks**: one PNG per frame in the folder ``hand_masks`` (a robot knows its own gripper),
   used as they are.
@@ -39,10 +46,11 @@ import numpy as np
 
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, param
 
-from .support import clean_depth
+from .support import DEPTH_STEP_M, Plane, clean_depth, label_regions, plane_height_m
 
 __all__ = ["HandParams", "SKIN_CR", "SKIN_CB", "skin_mask", "hsv_mask", "parse_hsv", "hand_regions",
-           "held", "load_hand_mask", "find_hands", "widen"]
+           "held", "load_hand_mask", "find_hands", "widen", "arms", "on_plane",
+           "rests"]
 
 # Chai & Ngan (1999): the skin-colour map in YCrCb, 8-bit (OpenCV's YCrCb has the same offsets).
 SKIN_CR = (133, 173)
@@ -73,9 +81,11 @@ def parse_hsv(text: str) -> tuple[tuple[int, int, int], tuple[int, int, int]] | 
 class HandParams(Params):
     """Which pixels are a hand or gripper, removed from the objects (shared by the mask-free segmenters)."""
 
-    exclude_hands: bool = param(True, help="Remove hands (skin colour, regions reaching the image border) and the "
-                                           "configured gripper from the objects, and prefer the object a hand "
-                                           "holds; off = every region is an object candidate.")
+    exclude_hands: bool = param(True, help="Remove hands (skin colour, regions reaching the image border), the arms "
+                                           "or sleeves that hold them (of any colour: entering from the border "
+                                           "above the table) and the configured gripper from the objects, and "
+                                           "prefer the object a hand holds; off = every region is an object "
+                                           "candidate.")
     hand_min_area_m2: float = param(0.003, unit="m^2", bounds=(0.0, 1.0),
                                     help="Skin- or gripper-coloured regions whose surface (seen from the camera, "
                                          "measured with depth) is smaller are not a hand: about two fingers, "
@@ -85,7 +95,8 @@ class HandParams(Params):
                                      "pixels of its outline.")
     hand_touch_m: float = param(0.02, unit="m", bounds=(0.0, 0.5),
                                 help="An object whose pixels next to the hand lie within this depth of the hand's "
-                                     "is held (about a finger's thickness); held objects are chosen first.")
+                                     "is held (about a finger's thickness); held objects are chosen first. An "
+                                     "arm joins a hand it comes this close to in 3-D.")
     gripper_hsv: str = param("", help="The gripper's colour as an HSV box 'h0,s0,v0,h1,s1,v1' in OpenCV units "
                                       "(H 0-180, S and V 0-255), e.g. '0,0,0,180,100,100' for a dark grey "
                                       "gripper; its regions that reach the image border are removed like "
@@ -125,10 +136,16 @@ def hsv_mask(rgb: np.ndarray, low: tuple[int, int, int], high: tuple[int, int, i
     return cv2.inRange(hsv, low, high) > 0
 
 
+def _at_border(stats: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Which regions (rows 1.. of OpenCV's component ``stats``) reach the image border: bool (n - 1,)."""
+    x, y, bw, bh = (stats[1:, k] for k in range(4))
+    return (x == 0) | (y == 0) | (x + bw == shape[1]) | (y + bh == shape[0])
+
+
 def hand_regions(candidates: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, *,
-                 min_area_m2: float) -> np.ndarray:
+                 min_area_m2: float, border: bool = True) -> np.ndarray:
     """The connected regions (8-connected, after a 3x3 opening) of ``candidates`` that reach the image
-    border and whose surface is at least ``min_area_m2``.
+    border (any region when ``border`` is False) and whose surface is at least ``min_area_m2``.
 
     Parameters
     ----------
@@ -142,17 +159,17 @@ def hand_regions(candidates: np.ndarray, depth_m: np.ndarray, intrinsics: Intrin
     -------
     ndarray of bool, shape (H, W)
     """
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(_open(candidates).astype(np.uint8), connectivity=8)
+    n, labels, stats = label_regions(_open(candidates))
     if n < 2:
         return np.zeros(candidates.shape, bool)
-    h, w = candidates.shape
     x, y, bw, bh, count = (stats[1:, k] for k in range(5))
-    border = np.flatnonzero((x == 0) | (y == 0) | (x + bw == w) | (y + bh == h)) + 1
-    if not len(border):
+    reach = _at_border(stats, candidates.shape)
+    kept = np.flatnonzero(reach if border else np.ones(n - 1, bool)) + 1
+    if not len(kept):
         return np.zeros(candidates.shape, bool)
     d = clean_depth(depth_m)
     out = np.zeros(candidates.shape, bool)
-    for k in border:
+    for k in kept:
         box = np.s_[y[k - 1]:y[k - 1] + bh[k - 1], x[k - 1]:x[k - 1] + bw[k - 1]]
         region = labels[box] == k
         z = d[box][region]
@@ -183,8 +200,10 @@ def load_hand_mask(folder: Path, frame: Frame) -> np.ndarray:
 
 
 def find_hands(frame: Frame, background: np.ndarray, intrinsics: Intrinsics, *, params: HandParams,
-               sequence_path: Path | str) -> np.ndarray:
-    """The hand (and gripper) mask of a frame (see the module docstring), not yet grown by its margin.
+               sequence_path: Path | str, support: Plane | None = None, plane_distance_m: float = 0.0
+               ) -> np.ndarray:
+    """The hand (and gripper) mask of a frame, with the arms that hold them (see the module
+    docstring), not yet grown by its margin.
 
     Parameters
     ----------
@@ -193,6 +212,8 @@ def find_hands(frame: Frame, background: np.ndarray, intrinsics: Intrinsics, *, 
     intrinsics : pinhole intrinsics of the frame
     params : the hand settings
     sequence_path : the sequence folder (``hand_masks`` is relative to it)
+    support : the support plane (see :func:`.support.fit_planes`); None = no arm search
+    plane_distance_m : metres -- the pixels nearer than this to a plane are background
 
     Returns
     -------
@@ -210,23 +231,130 @@ def find_hands(frame: Frame, background: np.ndarray, intrinsics: Intrinsics, *, 
     near, far = _depth_range(d, np.ones(background.shape, bool), 1)
     candidates &= ~background
     step = far - near > touch                          # no readings around: -inf, not a step
-    hand = hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2)
+    if support is None:
+        hand = hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2)
+    else:
+        regions = _regions(hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2,
+                                        border=False))
+        contact = on_plane(d, intrinsics, support, step=step, plane_distance_m=plane_distance_m)
+        hand = np.zeros(d.shape, bool)
+        held_out = [r for r in regions if not rests(r, contact)]     # a skin-coloured object lies on the table
+        for r in regions:
+            if r[0].any() or r[-1].any() or r[:, 0].any() or r[:, -1].any():
+                hand |= r
+        arm = arms(~background & ~candidates & ~step & (d > 0), np.logical_or.reduce(held_out), d, intrinsics,
+                   contact=contact, touch_m=touch) if held_out else hand
+        if arm.any():
+            hand |= arm
+            for r, on_arm in zip(held_out, _touching(held_out, arm, d, intrinsics, touch_m=touch)):
+                if on_arm:                                               # held out by an arm
+                    hand |= r
     if hand.any():
         near, far = _depth_range(d, hand, 1)
-        hand |= candidates & step & (far > 0) & ((d == 0) | ((d >= near - touch) & (d <= far + touch)))
+        hand |= ~background & step & (far > 0) & ((d == 0) | ((d >= near - touch) & (d <= far + touch)))
+        # pixels without a reading are the hand's where a closing of the margin's radius puts them
+        # inside it (dropouts on skin), not a band along its side (the sensor's shadow on the table)
+        hand &= (d > 0) | close_gaps(hand & (d > 0), params.hand_margin_px)
     if params.hand_masks:
         hand |= load_hand_mask(Path(sequence_path) / Path(params.hand_masks).expanduser(), frame)
     return hand
 
 
+# A region rests on the support plane when at least this many of its pixels come down to it (a line
+# of contact, not a stray reading).
+CONTACT_PX = 3
+# The lowest pixels of an object lying on the plane stand off it by the background cut, plus this many
+# of the plane's noise sigmas and of the pixel's size at their depth (the object's next row up).
+CONTACT_SIGMAS = 3.0
+CONTACT_PIXELS = 2.0
+
+
+def on_plane(depth_m: np.ndarray, intrinsics: Intrinsics, support: Plane, *, step: np.ndarray,
+             plane_distance_m: float) -> np.ndarray:
+    """The pixels where what stands on the support plane comes down to it: within
+    ``plane_distance_m + CONTACT_SIGMAS * noise + CONTACT_PIXELS * z / fx`` of the plane (the
+    background cut, the plane's measured noise and a pixel's size at depth z), with a reading, off
+    depth steps (``step``: the flying pixels between an arm and the table behind it are no contact).
+    bool (H, W)."""
+    height = plane_height_m(depth_m, intrinsics, support)
+    return ((height < plane_distance_m + CONTACT_SIGMAS * max(support.noise_m, DEPTH_STEP_M)
+             + CONTACT_PIXELS * depth_m / intrinsics.fx) & ~step & (depth_m > 0))
+
+
+def rests(region: np.ndarray, contact: np.ndarray) -> bool:
+    """Whether ``region`` rests on the support plane: at least CONTACT_PX of its pixels on it
+    (``contact``, from :func:`on_plane`): an object lying on the table shows its lower rows just above
+    the background cut; an arm held over it does not."""
+    return np.count_nonzero(region & contact) >= CONTACT_PX
+
+
+def arms(foreground: np.ndarray, hands: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, *,
+         contact: np.ndarray, touch_m: float) -> np.ndarray:
+    """The arms (sleeves) among the regions of ``foreground``: those that reach the image border, do not
+    rest on the support plane, and touch ``hands`` in 3-D.
+
+    Parameters
+    ----------
+    foreground : ndarray of bool, shape (H, W) -- pixels standing out of the background, not hand
+        coloured, away from depth steps
+    hands : ndarray of bool, shape (H, W) -- hand-sized skin (or gripper) regions held above the table
+    depth_m : ndarray, shape (H, W), metres, 0 = no reading
+    intrinsics : pinhole intrinsics of the image
+    contact : ndarray of bool, shape (H, W) -- the pixels on the support plane (:func:`on_plane`)
+    touch_m : metres -- how far an arm may be from the hand it joins, in depth and across the image
+        (at the hand's median depth)
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+    """
+    out = np.zeros(foreground.shape, bool)
+    if not hands.any():
+        return out
+    n, labels, stats = label_regions(_open(foreground))
+    reach = np.flatnonzero(_at_border(stats, foreground.shape)) + 1
+    regions = [labels == k for k in reach]
+    for region, touches in zip(regions, _touching(regions, hands, depth_m, intrinsics, touch_m=touch_m)):
+        if touches and not rests(region, contact):
+            out |= region
+    return out
+
+
+def _regions(mask: np.ndarray) -> list[np.ndarray]:
+    """The connected regions (8-connected) of ``mask``: list of bool (H, W)."""
+    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    return [labels == k for k in range(1, n)]
+
+
+def _touching(regions: list[np.ndarray], other: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, *,
+              touch_m: float) -> list[bool]:
+    """Which ``regions`` come within ``touch_m`` of ``other`` in 3-D: in depth, and across the image at
+    ``other``'s median depth, so across a gap of dropouts (sensors lose the rim of a sleeve's end and
+    of a forearm seen edge-on)."""
+    seen = other & (depth_m > 0)
+    if not seen.any():
+        return [False] * len(regions)
+    reach_px = int(np.ceil(touch_m * intrinsics.fx / float(np.median(depth_m[seen]))))
+    return held(regions, other, depth_m, touch_m=touch_m, reach_px=max(reach_px, 1))
+
+
 def _depth_range(d: np.ndarray, where: np.ndarray, reach_px: int) -> tuple[np.ndarray, np.ndarray]:
     """Nearest and farthest reading of ``d`` (0 = none) among the pixels ``where``, in the square of
     half-width ``reach_px`` around each pixel; +inf and 0 where there is none. float32 (H, W) each."""
+    d = d.astype(np.float32, copy=False)
     seen = where & (d > 0)
     kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
-    near = cv2.erode(np.where(seen, d, np.float32(np.inf)).astype(np.float32), kernel, borderValue=np.inf)
-    far = cv2.dilate(np.where(seen, d, np.float32(0)).astype(np.float32), kernel, borderValue=0)
+    near = cv2.erode(np.where(seen, d, np.float32(np.inf)), kernel, borderValue=np.inf)
+    far = cv2.dilate(np.where(seen, d, np.float32(0)), kernel, borderValue=0)
     return near, far
+
+
+def close_gaps(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    """``mask`` closed by a disc of ``radius_px`` (its gaps narrower than the disc filled): bool (H, W)."""
+    if not radius_px or not mask.any():
+        return mask
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
+    return cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, disc) > 0
 
 
 def widen(mask: np.ndarray, radius_px: int) -> np.ndarray:

@@ -25,7 +25,8 @@ manipulated". :func:`choose_instance` is that choice as a pure function:
 With a hand mask (segmenters that look for hands, see :mod:`.hands`), the hand's pixels in either
 frame are left out of the change score (a hand passing in front of a still object does not make it
 move), and when the hand holds some of the moving instances, step 3 chooses among those only (an
-arm that moves with the object it carries is not chosen over it).
+arm that moves with the object it carries is not chosen over it); when nothing moves and the hand
+holds some instances, step 4 chooses among those only (the object in the hand before it moves).
 
 "The previous choice" is the last choice made by rule 3 or by the fallback: a choice kept by rule 4
 does not replace it, so when a still object's segment merges with a neighbour's for a frame (two
@@ -236,7 +237,8 @@ def choose_instance(instances: list[np.ndarray], depth_m: np.ndarray, others: li
     min_change : change score above which an instance is moving
     keep_iou : IoU with ``previous`` from which an instance keeps the choice
     ignore : ndarray of bool, shape (H, W), optional -- pixels left out of the change score (hands)
-    held : list of bool, optional -- which instances a hand holds; held moving instances come first
+    held : list of bool, optional -- which instances a hand holds; held instances come first, moving
+        or still
 
     Returns
     -------
@@ -262,9 +264,13 @@ def choose_instance(instances: list[np.ndarray], depth_m: np.ndarray, others: li
             if staying:
                 return Choice(max(staying, key=lambda k: (scores[k], -k)), "moving, kept", **common)
         return Choice(max(moving, key=lambda k: (scores[k], -k)), "moving", **common)
-    if kept is not None and max(kept) >= keep_iou:
-        return Choice(int(np.argmax(kept)), "still, kept", **common)
-    return Choice(fallback_index(instances), "still, fallback", **common)
+    still = [k for k in range(len(instances)) if held[k]] if held is not None and any(held) else range(len(instances))
+    if kept is not None:
+        best = max(still, key=lambda k: (kept[k], -k))
+        if kept[best] >= keep_iou:
+            return Choice(best, "still, kept", **common)
+    chosen = fallback_index([instances[k] for k in still])
+    return Choice(None if chosen is None else still[chosen], "still, fallback", **common)
 
 
 @dataclass

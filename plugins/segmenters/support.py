@@ -15,12 +15,13 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from artclass_core import Intrinsics, Params, param
 
 __all__ = ["BackgroundParams", "Plane", "fit_planes", "background_mask", "above_planes", "range_mask",
-           "ransac_plane", "clean_depth"]
+           "ransac_plane", "refine_plane", "clean_depth", "plane_height_m", "DEPTH_STEP_M", "label_regions"]
 
 
 @dataclass(frozen=True)
@@ -85,6 +86,24 @@ def clean_depth(depth_m: np.ndarray) -> np.ndarray:
     return d
 
 
+def label_regions(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """``cv2.connectedComponentsWithStats(mask, connectivity=8)``, computed on the bounding box of
+    the mask's pixels only: the same (count, labels (H, W) int32, stats (count, 5)) in a fraction
+    of the time when the mask covers part of the image (OpenCV's statistics pass reads every pixel).
+    """
+    m = np.asarray(mask, dtype=np.uint8)
+    x, y, w, h = cv2.boundingRect(m)
+    labels = np.zeros(m.shape, np.int32)
+    if not w:
+        return 1, labels, np.array([[0, 0, m.shape[1], m.shape[0], m.size]], np.int32)
+    n, crop, stats, _ = cv2.connectedComponentsWithStats(m[y:y + h, x:x + w], connectivity=8)
+    labels[y:y + h, x:x + w] = crop
+    stats[1:, 0] += x
+    stats[1:, 1] += y
+    stats[0] = (0, 0, m.shape[1], m.shape[0], m.size - int(stats[1:, 4].sum()))
+    return n, labels, stats
+
+
 @functools.lru_cache(maxsize=8)
 def _rays(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel ray slopes ((u - cx) / fx, (v - cy) / fy), float32, shapes (1, W) and (H, 1)."""
@@ -127,13 +146,25 @@ def ransac_plane(points: np.ndarray, *, distance_m: float, iterations: int, rng:
     np.abs(distances, out=distances)
     counts = np.count_nonzero(distances < distance_m, axis=0)
     best = int(np.argmax(counts))
-    normal, offset = normals[best], offsets[best]
+    return refine_plane(points, normals[best], float(offsets[best]), distance_m=distance_m)
+
+
+def refine_plane(points: np.ndarray, normal: np.ndarray, offset_m: float, *, distance_m: float
+                 ) -> tuple[np.ndarray, float, np.ndarray]:
+    """A plane refitted by least squares (twice) on the ``points`` (N, 3) within ``distance_m`` of it.
+
+    Returns
+    -------
+    (normal (3,), offset_m, inliers (N,) bool), the normal oriented towards the origin (``offset_m`` >= 0)
+    """
+    normal, offset = np.asarray(normal, dtype=np.float64), float(offset_m)
     for _ in range(2):   # least-squares refit on the inliers, then re-select them
         inliers = np.abs(points @ normal + offset) < distance_m
         if inliers.sum() < 3:
             break
         centre = points[inliers].mean(axis=0)
-        normal = np.linalg.svd(points[inliers] - centre, full_matrices=False)[2][2]
+        spread = points[inliers] - centre
+        normal = np.linalg.eigh(spread.T @ spread)[1][:, 0]    # the direction of least spread
         offset = -float(normal @ centre)
     inliers = np.abs(points @ normal + offset) < distance_m
     if offset < 0:
@@ -145,7 +176,8 @@ def ransac_plane(points: np.ndarray, *, distance_m: float, iterations: int, rng:
 MAX_FACES_PASSED = 3
 
 
-def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: BackgroundParams) -> list[Plane]:
+def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: BackgroundParams,
+               hints: list[Plane] | None = None) -> list[Plane]:
     """The large background planes of a depth image, largest first.
 
     The first (largest) plane is the support plane. Each plane found removes its inliers and the
@@ -161,6 +193,9 @@ def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: Backgroun
     depth_m : ndarray, shape (H, W), metres (0 or NaN = no reading)
     intrinsics : the depth camera's pinhole intrinsics
     params : range and plane settings
+    hints : the planes of another frame of the same scene (e.g. its first): the k-th plane is sought
+        first by refitting the k-th hint to this frame's points, and by RANSAC only when the refit
+        holds less than half the hint's share of the points (the camera or the scene moved)
 
     Returns
     -------
@@ -182,7 +217,14 @@ def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: Backgroun
         least = params.min_wall_fraction if planes else params.min_plane_fraction
         if total == 0 or len(pts) < max(3, least * total):
             break
-        found = ransac_plane(pts, distance_m=params.plane_distance_m, iterations=params.plane_iterations, rng=rng)
+        found = None
+        hint = hints[len(planes)] if hints is not None and len(planes) < len(hints) else None
+        if hint is not None:
+            found = refine_plane(pts, np.asarray(hint.normal), hint.offset_m, distance_m=params.plane_distance_m)
+            if found[2].sum() < max(least, 0.5 * hint.inlier_fraction) * total:
+                found = None
+        if found is None:
+            found = ransac_plane(pts, distance_m=params.plane_distance_m, iterations=params.plane_iterations, rng=rng)
         if found is None:
             break
         normal, offset, inliers = found
@@ -206,6 +248,13 @@ def _signed(d: np.ndarray, rays: tuple[np.ndarray, np.ndarray], plane: Plane) ->
     """Per-pixel signed distance (m) of the back-projected depth ``d`` to ``plane`` (> 0 in front)."""
     nx, ny, nz = (np.float32(v) for v in plane.normal)
     return d * (nx * rays[0] + ny * rays[1] + nz) + np.float32(plane.offset_m)
+
+
+def plane_height_m(depth_m: np.ndarray, intrinsics: Intrinsics, plane: Plane) -> np.ndarray:
+    """Per-pixel signed distance (metres) of the back-projected depth to ``plane``: > 0 on the camera's
+    side. float32 (H, W); pixels without a reading give ``offset_m``."""
+    rays = _rays(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height)
+    return _signed(clean_depth(depth_m), rays, plane)
 
 
 def background_mask(depth_m: np.ndarray, intrinsics: Intrinsics, planes: list[Plane], *,

@@ -1,0 +1,117 @@
+"""Hand and object masks of the mask-free segmenters against a labelled benchmark folder.
+
+Not a test: it prints numbers. Run from the repository root::
+
+    .venv/bin/python benchmarks/hand_iou.py benchmark_data/vga2
+    .venv/bin/python benchmarks/hand_iou.py benchmark_data/vga2 --segmenters depth_threshold --every 3
+    .venv/bin/python benchmarks/hand_iou.py benchmark_data/vga2 --param exclude_hands=false
+
+For each sequence folder with ``hand/*.png`` (non-zero = the hand or gripper with its arm) and
+``mask/*.png`` (the object) beside its frames, and each segmenter:
+
+* **hand IoU**: the segmenter's hand mask (before its margin) against ``hand/``, pooled over the
+  frames (intersection over union of all pixels of all frames with a hand in the truth), the mean
+  per-frame IoU, and that mean over the frames where the true hand reaches the image border (its
+  arm enters the picture, as a real arm does); by holder (``hand``, ``gripper``, from
+  ``meta.json``). Also how many frames without a hand in the truth had a hand found (false alarms).
+* **object IoU**: the chosen (manipulated) mask against ``mask/``, mean per frame, by holder.
+
+``--every N`` scores every N-th frame only (the chosen masks still see every frame before it, as
+the choice of one frame depends on the previous ones). ``--param NAME=VALUE`` sets a segmenter
+parameter where the segmenter has it (as ``artclass evaluate --param``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from bench_segmenters import make, parse_overrides
+
+from artclass_core import ArtclassError, find_sequences, load_registry
+from artclass_core.io import read_mask
+from artclass_plugins.segmenters.selection import mask_iou
+
+
+def holder_of(seq) -> str:
+    meta = json.loads((Path(seq.path) / "meta.json").read_text())
+    return str(meta.get("hand") or "none")
+
+
+def score_sequence(seg, seq, *, every: int) -> dict:
+    """Pooled hand intersection / union, per-frame hand IoUs, false alarms and object IoUs of a sequence."""
+    out = dict(inter=0, union=0, hand_ious=[], border_ious=[], alarms=0, empty=0, object_ious=[])
+    hand_dir = Path(seq.path) / "hand"
+    for i in range(0, len(seq), every):
+        frame = seq[i]
+        mask = seg.segment(frame, sequence=seq)
+        if frame.mask is not None:
+            out["object_ious"].append(0.0 if mask is None else mask_iou(mask, frame.mask))
+        truth_file = hand_dir / f"{frame.name}.png"
+        if not truth_file.is_file():
+            continue
+        truth = read_mask(truth_file)
+        found = seg.hand_mask(frame, sequence=seq)
+        found = np.zeros_like(truth) if found is None else found
+        if truth.any():
+            out["inter"] += int(np.count_nonzero(found & truth))
+            out["union"] += int(np.count_nonzero(found | truth))
+            out["hand_ious"].append(mask_iou(found, truth))
+            if truth[0].any() or truth[-1].any() or truth[:, 0].any() or truth[:, -1].any():
+                out["border_ious"].append(mask_iou(found, truth))
+        else:
+            out["empty"] += 1
+            out["alarms"] += int(found.any())
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("folder", type=Path, help="a folder of labelled sequences with hand/ and mask/ truth")
+    ap.add_argument("--segmenters", default="depth_threshold,u2net")
+    ap.add_argument("--every", type=int, default=1, help="score every N-th frame")
+    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                    help="segmenter parameter (applied where the segmenter has it)")
+    args = ap.parse_args(argv)
+    overrides = parse_overrides(args.param)
+    registry = load_registry()
+    try:
+        sequences, _ = find_sequences(registry, args.folder)
+    except ArtclassError as exc:
+        print(f"hand_iou: {exc}", file=sys.stderr)
+        return 2
+    print(f"{len(sequences)} sequences in {args.folder}, every {args.every}. frame scored")
+    for name in [n for n in args.segmenters.split(",") if n]:
+        totals: dict[str, dict] = defaultdict(lambda: dict(inter=0, union=0, hand_ious=[], border_ious=[], alarms=0,
+                                                          empty=0, object_ious=[]))
+        t0, c0 = time.perf_counter(), time.process_time()
+        try:
+            for seq in sequences:
+                scores = score_sequence(make(registry, name, overrides), seq, every=args.every)
+                for key in (holder_of(seq), "all"):
+                    for k, v in scores.items():
+                        totals[key][k] += v
+        except ArtclassError as exc:
+            print(f"  {name:<16} error: {exc}")
+            continue
+        print(f"  {name} ({time.perf_counter() - t0:.0f} s, CPU {time.process_time() - c0:.0f} s)")
+        for key in sorted(totals, key=lambda k: (k == "all", k)):
+            t = totals[key]
+            hand = (f"hand IoU pooled {t['inter'] / t['union']:.3f}, mean {np.mean(t['hand_ious']):.3f} "
+                    f"({len(t['hand_ious'])} frames), mean {np.mean(t['border_ious']):.3f} where it reaches the "
+                    f"border ({len(t['border_ious'])} frames)" if t["border_ious"] else
+                    "no hand in the truth" if not t["union"] else
+                    f"hand IoU pooled {t['inter'] / t['union']:.3f}, mean {np.mean(t['hand_ious']):.3f}")
+            alarms = f"hand found in {t['alarms']} of {t['empty']} frames without" if t["empty"] else ""
+            print(f"    {key:<8} object IoU {np.mean(t['object_ious']):.3f} ({len(t['object_ious'])} frames); "
+                  f"{hand}; {alarms}".rstrip("; "), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
