@@ -38,11 +38,16 @@ def _timed_run(at, timeout: float) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m app.benchmark", description=__doc__.split("\n\n")[0])
-    parser.add_argument("sequence", nargs="?", help="a sequence folder (default: the first articulated sample)")
+    parser.add_argument(
+        "sequence", nargs="?", help="a sequence folder (default: the first articulated sample)"
+    )
     parser.add_argument("--repeat", type=int, default=3, help="slider moves per measurement (default 3)")
-    parser.add_argument("--paper", action="store_true",
-                        help="the paper's pipeline as written (paper preprocessor and rule, no pre-alignment) "
-                             "instead of the default plugins")
+    parser.add_argument(
+        "--paper",
+        action="store_true",
+        help="the paper's pipeline as written (paper preprocessor and rule, no pre-alignment) "
+        "instead of the default plugins",
+    )
     parser.add_argument("--timeout", type=float, default=600.0)
     args = parser.parse_args(argv)
 
@@ -61,22 +66,26 @@ def main(argv: list[str] | None = None) -> int:
         at.session_state["cfg_p:pipeline:core:prealign"] = False
     st.cache_data.clear()
     st.cache_resource.clear()
-    t_first = _timed_run(at, args.timeout)         # imports, plugin registry, every stage
+    t_first = _timed_run(at, args.timeout)  # imports, plugin registry, every stage
     if args.sequence:
         at.selectbox(key="an_sample").set_value(folder.name)
     st.cache_data.clear()
-    t_cold = _timed_run(at, args.timeout)          # every stage computed, modules loaded
+    t_cold = _timed_run(at, args.timeout)  # every stage computed, modules loaded
     name = at.title[0].value
     about = next(iter(at.caption)).value.split("·")
-    rows = [("first run of a fresh server (imports, registry, stages)", t_first),
-            ("run of a new sequence (every stage computed)", t_cold),
-            ("re-run, nothing changed (all cached)",
-             statistics.median(_timed_run(at, args.timeout) for _ in range(args.repeat)))]
+    rows = [
+        ("first run of a fresh server (imports, registry, stages)", t_first),
+        ("run of a new sequence (every stage computed)", t_cold),
+        (
+            "re-run, nothing changed (all cached)",
+            statistics.median(_timed_run(at, args.timeout) for _ in range(args.repeat)),
+        ),
+    ]
 
     def move(key: str, values: list, title: str) -> None:
         """Set the slider to each value in turn (values not seen before: nothing cached for them)."""
         times = []
-        for value in values[:args.repeat]:
+        for value in values[: args.repeat]:
             at.select_slider(key=key).set_value(value)
             times.append(_timed_run(at, args.timeout))
         rows.append((title, statistics.median(times)))
@@ -91,19 +100,37 @@ def main(argv: list[str] | None = None) -> int:
 
     from app import controls
     from artclass_core import describe
+
     rule = at.session_state["cfg_plugin:rule"]
-    spec = next((p for p in describe(load_registry().get("rule", rule).Params)
-                 if controls.widget_kind(p) == "slider"), None)
+    spec = next(
+        (
+            p
+            for p in describe(load_registry().get("rule", rule).Params)
+            if controls.widget_kind(p) == "slider"
+        ),
+        None,
+    )
     if spec is not None:
         key = controls.value_key("rule", rule, spec.name)
-        move(key, around(key, controls.slider_options(spec)), f"rule slider {spec.name} moved (re-decide, no ICP)")
+        move(
+            key,
+            around(key, controls.slider_options(spec)),
+            f"rule slider {spec.name} moved (re-decide, no ICP)",
+        )
     move("cfg_p:pipeline:core:w", [1, 5, 7, 9, 11], "w moved (re-filter only)")
     at.checkbox(key="cfg_auto:pipeline:core:cell_size_m").uncheck()
     _timed_run(at, args.timeout)
     x_key = "cfg_p:pipeline:core:cell_size_m"
-    move(x_key, around(x_key, controls.slider_options(next(p for p in describe(type(Config().pipeline))
-                                                           if p.name == "cell_size_m"))),
-         "x moved (re-register, no re-segmenting)")
+    move(
+        x_key,
+        around(
+            x_key,
+            controls.slider_options(
+                next(p for p in describe(type(Config().pipeline)) if p.name == "cell_size_m")
+            ),
+        ),
+        "x moved (re-register, no re-segmenting)",
+    )
     move("cfg_p:pipeline:core:k", [3, 4, 6, 7, 8, 2, 9], "k moved (new pairs registered, frames cached)")
 
     registry = load_registry()
@@ -113,8 +140,10 @@ def main(argv: list[str] | None = None) -> int:
     Pipeline(registry, Config.paper() if args.paper else Config()).run(seq)
     rows.append(("for comparison: Pipeline.run (CLI path, no app)", time.perf_counter() - t0))
 
-    print(f"app benchmark: {name} ({'·'.join(about[:3]).strip()}), rule {rule}; "
-          f"median of {args.repeat} where repeated")
+    print(
+        f"app benchmark: {name} ({'·'.join(about[:3]).strip()}), rule {rule}; "
+        f"median of {args.repeat} where repeated"
+    )
     for title, seconds in rows:
         print(f"  {title:<55} {seconds:7.2f} s")
     return 0

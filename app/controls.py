@@ -33,7 +33,7 @@ def _log_series(low: float, high: float) -> list[float]:
     out = []
     for e in range(math.floor(math.log10(low)) - 1, math.ceil(math.log10(high)) + 1):
         for m in _MANTISSAS:
-            v = _nice(m * 10.0 ** e)
+            v = _nice(m * 10.0**e)
             if low <= v <= high:
                 out.append(v)
     return out
@@ -64,7 +64,9 @@ def slider_options(spec: ParamSpec) -> list[Any]:
         if high - low <= 60:
             values = set(range(int(low), int(high) + 1))
         else:
-            values = set(range(int(low), int(low) + 21)) | {int(round(v)) for v in _log_series(max(low, 1), high)}
+            values = set(range(int(low), int(low) + 21)) | {
+                int(round(v)) for v in _log_series(max(low, 1), high)
+            }
             values |= {int(high)}
     elif low > 0 and high / low >= 50:
         values = set(_log_series(low, high)) | {_nice(low), _nice(high)}
@@ -83,10 +85,12 @@ def slider_options(spec: ParamSpec) -> list[Any]:
 
 def nearest_option(options: list[Any], value: float) -> Any:
     """The option closest to ``value`` (in ratio for positive values, else in difference)."""
+
     def distance(o):
         if o > 0 and value > 0:
             return abs(math.log(o / value))
         return abs(o - value) + (1e9 if (o > 0) != (value > 0) else 0)
+
     return min(options, key=distance)
 
 
@@ -155,8 +159,15 @@ def _auto_changed(spec: ParamSpec, vkey: str, akey: str, hint: float | None) -> 
             st.session_state[vkey] = spec.type(hint)
 
 
-def params_widgets(kind: str, plugin: str, params_cls: type, *, advanced: bool = False,
-                   hints: Mapping[str, float] | None = None, disabled: bool = False):
+def params_widgets(
+    kind: str,
+    plugin: str,
+    params_cls: type,
+    *,
+    advanced: bool = False,
+    hints: Mapping[str, float] | None = None,
+    disabled: bool = False,
+):
     """Draw one widget per parameter of ``params_cls`` and return the Params built from them.
 
     Parameters
@@ -186,8 +197,14 @@ def params_widgets(kind: str, plugin: str, params_cls: type, *, advanced: bool =
         shown = advanced or bool(spec.symbol) or not any_symbol
         is_auto = bool(spec.auto) and bool(st.session_state[akey])
         if shown and spec.auto:
-            st.checkbox(f"{label(spec)}: auto", key=akey, help=help_text(spec), disabled=disabled,
-                        on_change=_auto_changed, args=(spec, vkey, akey, hint))
+            st.checkbox(
+                f"{label(spec)}: auto",
+                key=akey,
+                help=help_text(spec),
+                disabled=disabled,
+                on_change=_auto_changed,
+                args=(spec, vkey, akey, hint),
+            )
             is_auto = bool(st.session_state[akey])
             if is_auto:
                 last = f" (last run: {format_value(spec, hint)})" if hint is not None else ""
@@ -210,21 +227,36 @@ def _widget(spec: ParamSpec, key: str, *, disabled: bool, compact: bool) -> None
     elif what == "selectbox":
         if st.session_state[key] not in spec.choices:
             st.session_state[key] = spec.default
-        st.selectbox(text, spec.choices, key=key, help=help_text(spec), disabled=disabled,
-                     label_visibility=visibility)
+        st.selectbox(
+            text, spec.choices, key=key, help=help_text(spec), disabled=disabled, label_visibility=visibility
+        )
     elif what == "text":
         st.text_input(text, key=key, help=help_text(spec), disabled=disabled, label_visibility=visibility)
     elif what == "number":
         low, high = spec.bounds
-        st.number_input(text, min_value=None if low is None else spec.type(low),
-                        max_value=None if high is None else spec.type(high), key=key, help=help_text(spec), disabled=disabled,
-                        format="%g" if spec.type is float else "%d", label_visibility=visibility)
+        st.number_input(
+            text,
+            min_value=None if low is None else spec.type(low),
+            max_value=None if high is None else spec.type(high),
+            key=key,
+            help=help_text(spec),
+            disabled=disabled,
+            format="%g" if spec.type is float else "%d",
+            label_visibility=visibility,
+        )
     else:
         options = slider_options(spec)
         if st.session_state[key] not in options:
             st.session_state[key] = nearest_option(options, float(st.session_state[key]))
-        st.select_slider(text, options=options, key=key, help=help_text(spec), disabled=disabled,
-                         format_func=lambda v, s=spec: format_value(s, v), label_visibility=visibility)
+        st.select_slider(
+            text,
+            options=options,
+            key=key,
+            help=help_text(spec),
+            disabled=disabled,
+            format_func=lambda v, s=spec: format_value(s, v),
+            label_visibility=visibility,
+        )
 
 
 def reset_params() -> None:

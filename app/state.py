@@ -43,9 +43,21 @@ from . import controls, uploads
 ROOT = Path(__file__).resolve().parent.parent
 ENV_SAMPLES = "ARTCLASS_SAMPLE_DATA"
 # Session-state keys kept across page switches (besides the configuration's cfg_ keys).
-PERSIST = controls.KEY_PREFIXES + ("an_source", "an_sample", "an_folder", "an_seqname", "ev_folder", "ev_compare")
-KIND_TITLES = {"rule": "Decision rule", "pipeline": "Pipeline", "preprocessor": "Preprocessing",
-               "registrar": "Registration", "segmenter": "Segmentation"}
+PERSIST = controls.KEY_PREFIXES + (
+    "an_source",
+    "an_sample",
+    "an_folder",
+    "an_seqname",
+    "ev_folder",
+    "ev_compare",
+)
+KIND_TITLES = {
+    "rule": "Decision rule",
+    "pipeline": "Pipeline",
+    "preprocessor": "Preprocessing",
+    "registrar": "Registration",
+    "segmenter": "Segmentation",
+}
 
 
 # -- where data comes from ---------------------------------------------------------------------------
@@ -120,11 +132,14 @@ def pipeline(config: Config) -> Pipeline:
     return _pipeline(repr(config), config)
 
 
-def run_sequence(seq: Sequence, config: Config, *, progress: Callable[[str, int, int], None] | None = None) -> RunResult:
+def run_sequence(
+    seq: Sequence, config: Config, *, progress: Callable[[str, int, int], None] | None = None
+) -> RunResult:
     """Classify ``seq`` (:meth:`Pipeline.run` through the app's :func:`stage_cache`, on every CPU),
     keeping the clouds for display. ``progress`` is called in the script's thread."""
-    return pipeline(config).run(seq, cache=stage_cache(), keep_clouds=True, progress=progress,
-                                workers=os.cpu_count() or 1)
+    return pipeline(config).run(
+        seq, cache=stage_cache(), keep_clouds=True, progress=progress, workers=os.cpu_count() or 1
+    )
 
 
 @st.cache_data(max_entries=64, show_spinner=False)
@@ -169,14 +184,19 @@ def hints_from(result: RunResult | None) -> dict[str, dict[str, float]]:
             continue
         for spec in describe(cls):
             info_key = f"{spec.symbol}_{spec.unit}" if spec.symbol and spec.unit else None
-            values = [f.info[info_key] for f in result.frames if info_key and isinstance(f.info.get(info_key), (int, float))]
+            values = [
+                f.info[info_key]
+                for f in result.frames
+                if info_key and isinstance(f.info.get(info_key), (int, float))
+            ]
             if values:
                 hints.setdefault(kind, {})[spec.name] = float(statistics.median(values))
     return hints
 
 
-def config_sidebar(reg: Registry, *, sequence: Sequence | None = None,
-                   hints: dict[str, dict[str, float]] | None = None) -> Config:
+def config_sidebar(
+    reg: Registry, *, sequence: Sequence | None = None, hints: dict[str, dict[str, float]] | None = None
+) -> Config:
     """Plugin choices and parameter widgets in the sidebar; returns the :class:`Config` they give.
 
     Raises :class:`ArtclassError` (e.g. a ``ParamError``) when the values do not make a valid
@@ -187,8 +207,12 @@ def config_sidebar(reg: Registry, *, sequence: Sequence | None = None,
     sb.subheader("Plugins")
     names = {}
     # The rule comes before the registrar: only registrars that give what the rule decides from are offered.
-    for kind, title in (("segmenter", "Segmenter"), ("preprocessor", "Preprocessor"), ("rule", "Decision rule"),
-                        ("registrar", "Registrar")):
+    for kind, title in (
+        ("segmenter", "Segmenter"),
+        ("preprocessor", "Preprocessor"),
+        ("rule", "Decision rule"),
+        ("registrar", "Registrar"),
+    ):
         options = ([AUTO_SEGMENTER] if kind == "segmenter" else []) + reg.names(kind)
         if kind == "registrar" and names.get("rule") in reg.names("rule"):
             needs = reg.get("rule", names["rule"]).needs
@@ -201,10 +225,15 @@ def config_sidebar(reg: Registry, *, sequence: Sequence | None = None,
             st.session_state[key] = default if default in options else (options[0] if options else None)
         describe_ = {n: reg.plugins[kind][n].cls.description for n in reg.names(kind)}
         describe_[AUTO_SEGMENTER] = "the sequence's own masks when it has them, else depth_threshold"
-        names[kind] = sb.selectbox(title, options, key=key, help="; ".join(f"{n}: {d}" for n, d in describe_.items()))
+        names[kind] = sb.selectbox(
+            title, options, key=key, help="; ".join(f"{n}: {d}" for n, d in describe_.items())
+        )
     sb.subheader("Parameters")
-    advanced = sb.toggle("Show all parameters", key="cfg_advanced",
-                         help="Also show the parameters that have no symbol in the paper.")
+    advanced = sb.toggle(
+        "Show all parameters",
+        key="cfg_advanced",
+        help="Also show the parameters that have no symbol in the paper.",
+    )
     built = {}
     errors = []
 
@@ -215,8 +244,9 @@ def config_sidebar(reg: Registry, *, sequence: Sequence | None = None,
                 st.caption("Chosen per sequence (auto); its parameters show once a sequence is open.")
                 return None
             try:
-                return controls.params_widgets(kind, plugin or "core", params_cls, advanced=advanced,
-                                               hints=hints.get(kind, {}))
+                return controls.params_widgets(
+                    kind, plugin or "core", params_cls, advanced=advanced, hints=hints.get(kind, {})
+                )
             except ArtclassError as exc:
                 errors.append(exc)
                 st.error(str(exc))
@@ -224,9 +254,12 @@ def config_sidebar(reg: Registry, *, sequence: Sequence | None = None,
 
     built["rule"] = section("rule", names["rule"], reg.get("rule", names["rule"]).Params, True)
     built["pipeline"] = section("pipeline", None, PipelineParams, True)
-    built["preprocessor"] = section("preprocessor", names["preprocessor"],
-                                    reg.get("preprocessor", names["preprocessor"]).Params, False)
-    built["registrar"] = section("registrar", names["registrar"], reg.get("registrar", names["registrar"]).Params, False)
+    built["preprocessor"] = section(
+        "preprocessor", names["preprocessor"], reg.get("preprocessor", names["preprocessor"]).Params, False
+    )
+    built["registrar"] = section(
+        "registrar", names["registrar"], reg.get("registrar", names["registrar"]).Params, False
+    )
     seg = None
     try:
         seg = resolved_segmenter(reg, names["segmenter"], sequence)
@@ -235,14 +268,25 @@ def config_sidebar(reg: Registry, *, sequence: Sequence | None = None,
         errors.append(exc)
         seg_cls = None
     built["segmenter"] = section("segmenter", seg, seg_cls, False)
-    sb.button("Reset parameters to defaults", on_click=controls.reset_params, key="cfg_reset",
-              help="Every parameter back to its default (automatic where the paper derives it).")
+    sb.button(
+        "Reset parameters to defaults",
+        on_click=controls.reset_params,
+        key="cfg_reset",
+        help="Every parameter back to its default (automatic where the paper derives it).",
+    )
     if errors:
         raise errors[0]
-    return Config(segmenter=names["segmenter"], preprocessor=names["preprocessor"], registrar=names["registrar"],
-                  rule=names["rule"], pipeline=built["pipeline"], segmenter_params=built["segmenter"],
-                  preprocessor_params=built["preprocessor"], registrar_params=built["registrar"],
-                  rule_params=built["rule"])
+    return Config(
+        segmenter=names["segmenter"],
+        preprocessor=names["preprocessor"],
+        registrar=names["registrar"],
+        rule=names["rule"],
+        pipeline=built["pipeline"],
+        segmenter_params=built["segmenter"],
+        preprocessor_params=built["preprocessor"],
+        registrar_params=built["registrar"],
+        rule_params=built["rule"],
+    )
 
 
 def keep_state() -> None:

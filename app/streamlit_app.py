@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:   # the app's modules import as app.*, from the project root
+if str(ROOT) not in sys.path:  # the app's modules import as app.*, from the project root
     sys.path.insert(0, str(ROOT))
 
 import streamlit as st  # noqa: E402
@@ -22,7 +22,12 @@ st.set_page_config(page_title="artclass", page_icon=":material/view_in_ar:", lay
 state.keep_state()
 HERE = Path(__file__).resolve().parent
 pages = [
-    st.Page(HERE / "app_pages" / "analyse.py", title="Analyse a sequence", icon=":material/view_in_ar:", default=True),
+    st.Page(
+        HERE / "app_pages" / "analyse.py",
+        title="Analyse a sequence",
+        icon=":material/view_in_ar:",
+        default=True,
+    ),
     st.Page(HERE / "app_pages" / "evaluate.py", title="Evaluate", icon=":material/fact_check:"),
     st.Page(HERE / "app_pages" / "plugins.py", title="Plugins", icon=":material/extension:"),
 ]

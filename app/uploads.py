@@ -35,15 +35,19 @@ from artclass_core import InputError
 
 ENV_DATA_ROOTS = "ARTCLASS_DATA_ROOTS"
 ENV_UPLOAD_DIR = "ARTCLASS_UPLOAD_DIR"
-MAX_TOTAL_BYTES = 1 << 30          # 1 GiB uncompressed
+MAX_TOTAL_BYTES = 1 << 30  # 1 GiB uncompressed
 MAX_FILES = 20_000
-UPLOAD_MAX_AGE_S = 24 * 3600       # extracted uploads older than this are removed
+UPLOAD_MAX_AGE_S = 24 * 3600  # extracted uploads older than this are removed
 _CHUNK = 1 << 20
 _DRIVE = re.compile(r"^[A-Za-z]:")
 
 
-def data_roots(argv: Iterable[str] | None = None, environ: Mapping[str, str] | None = None, *,
-               default: Iterable[str | Path] = ()) -> list[Path]:
+def data_roots(
+    argv: Iterable[str] | None = None,
+    environ: Mapping[str, str] | None = None,
+    *,
+    default: Iterable[str | Path] = (),
+) -> list[Path]:
     """The folders a typed-in path may lie in.
 
     Parameters
@@ -61,7 +65,9 @@ def data_roots(argv: Iterable[str] | None = None, environ: Mapping[str, str] | N
     parser.add_argument("--data-root", action="append", default=[])
     known, _ = parser.parse_known_args(list(argv or []))
     environ = os.environ if environ is None else environ
-    items = list(known.data_root) + [p for p in environ.get(ENV_DATA_ROOTS, "").split(os.pathsep) if p.strip()]
+    items = list(known.data_root) + [
+        p for p in environ.get(ENV_DATA_ROOTS, "").split(os.pathsep) if p.strip()
+    ]
     if not items:
         items = list(default)
     out: list[Path] = []
@@ -92,8 +98,10 @@ def confine(text: str, roots: Iterable[Path]) -> str:
     if not text:
         raise InputError("no folder given")
     if not roots:
-        raise InputError("no data folders are configured on this server (set ARTCLASS_DATA_ROOTS "
-                         "or --data-root)", path=text)
+        raise InputError(
+            "no data folders are configured on this server (set ARTCLASS_DATA_ROOTS or --data-root)",
+            path=text,
+        )
     path_text, sep, name = text.partition("#") if "#" in text and not Path(text).exists() else (text, "", "")
     path = Path(path_text).expanduser()
     if not path.is_absolute():
@@ -122,8 +130,14 @@ def _entry_parts(info: zipfile.ZipInfo, *, zip_name: str) -> tuple[str, ...]:
     return parts
 
 
-def extract_zip(source: bytes | BinaryIO | str | Path, dest: str | Path, *, max_total_bytes: int = MAX_TOTAL_BYTES,
-                max_files: int = MAX_FILES, name: str | None = None) -> Path:
+def extract_zip(
+    source: bytes | BinaryIO | str | Path,
+    dest: str | Path,
+    *,
+    max_total_bytes: int = MAX_TOTAL_BYTES,
+    max_files: int = MAX_FILES,
+    name: str | None = None,
+) -> Path:
     """Extract a zip into ``dest`` (which must not exist yet), within limits.
 
     Parameters
@@ -157,8 +171,10 @@ def extract_zip(source: bytes | BinaryIO | str | Path, dest: str | Path, *, max_
             raise InputError(f"holds {len(infos)} entries; the limit is {max_files}", path=zip_name)
         declared = sum(i.file_size for i in infos)
         if declared > max_total_bytes:
-            raise InputError(f"unpacks to {declared / 1e6:.1f} MB; the limit is {max_total_bytes / 1e6:.1f} MB",
-                             path=zip_name)
+            raise InputError(
+                f"unpacks to {declared / 1e6:.1f} MB; the limit is {max_total_bytes / 1e6:.1f} MB",
+                path=zip_name,
+            )
         plan = [(info, _entry_parts(info, zip_name=zip_name)) for info in infos]
         dest.mkdir(parents=True, exist_ok=False)
         root = dest.resolve()
@@ -168,7 +184,7 @@ def extract_zip(source: bytes | BinaryIO | str | Path, dest: str | Path, *, max_
                 if not parts:
                     continue
                 target = root.joinpath(*parts)
-                if not target.resolve().is_relative_to(root):   # belt and braces
+                if not target.resolve().is_relative_to(root):  # belt and braces
                     raise InputError(f"entry {info.filename!r} points outside the folder", path=zip_name)
                 if info.is_dir():
                     target.mkdir(parents=True, exist_ok=True)
@@ -178,8 +194,10 @@ def extract_zip(source: bytes | BinaryIO | str | Path, dest: str | Path, *, max_
                     while chunk := src.read(_CHUNK):
                         written += len(chunk)
                         if written > max_total_bytes:
-                            raise InputError(f"unpacks to more than {max_total_bytes / 1e6:.1f} MB "
-                                             f"(the limit)", path=zip_name)
+                            raise InputError(
+                                f"unpacks to more than {max_total_bytes / 1e6:.1f} MB (the limit)",
+                                path=zip_name,
+                            )
                         out.write(chunk)
         except InputError:
             shutil.rmtree(dest, ignore_errors=True)
@@ -199,8 +217,15 @@ def upload_root(environ: Mapping[str, str] | None = None) -> Path:
     return Path(environ.get(ENV_UPLOAD_DIR) or Path(tempfile.gettempdir()) / "artclass_uploads")
 
 
-def extract_upload(data: bytes, *, name: str, root: str | Path, max_total_bytes: int = MAX_TOTAL_BYTES,
-                   max_files: int = MAX_FILES, max_age_s: float = UPLOAD_MAX_AGE_S) -> Path:
+def extract_upload(
+    data: bytes,
+    *,
+    name: str,
+    root: str | Path,
+    max_total_bytes: int = MAX_TOTAL_BYTES,
+    max_files: int = MAX_FILES,
+    max_age_s: float = UPLOAD_MAX_AGE_S,
+) -> Path:
     """Extract an uploaded zip into a folder named by its content's hash under ``root``.
 
     The same upload gives the same folder (so the app's caches, keyed on the path, are reused);
@@ -213,13 +238,13 @@ def extract_upload(data: bytes, *, name: str, root: str | Path, max_total_bytes:
     digest = hashlib.sha256(data).hexdigest()[:24]
     final = root / digest
     if final.is_dir():
-        os.utime(final)   # keep it alive
+        os.utime(final)  # keep it alive
         return final
     partial = root / f".partial-{digest}-{os.getpid()}-{time.monotonic_ns()}"
     extract_zip(data, partial, max_total_bytes=max_total_bytes, max_files=max_files, name=name)
     try:
         partial.rename(final)
-    except OSError:   # another session extracted the same upload meanwhile
+    except OSError:  # another session extracted the same upload meanwhile
         shutil.rmtree(partial, ignore_errors=True)
     return final
 

@@ -50,7 +50,7 @@ class StageCache:
         self._limits = {"frame": max_frames, "register": max_pairs}
         self._scratch: dict[tuple, dict] = {}
         self._lock = threading.Lock()
-        self._tokens: dict[int, int] = {}      # id(sequence) -> token, dropped when the sequence dies
+        self._tokens: dict[int, int] = {}  # id(sequence) -> token, dropped when the sequence dies
         self._next_token = 0
         self.hits = {t: 0 for t in TABLES}
         self.misses = {t: 0 for t in TABLES}
@@ -115,5 +115,9 @@ class StageCache:
     def stats(self) -> dict[str, Any]:
         """Entries held and hits/misses per stage."""
         with self._lock:
-            return dict(frames=len(self._tables["frame"]), pairs=len(self._tables["register"]),
-                        hits=dict(self.hits), misses=dict(self.misses))
+            return dict(
+                frames=len(self._tables["frame"]),
+                pairs=len(self._tables["register"]),
+                hits=dict(self.hits),
+                misses=dict(self.misses),
+            )

@@ -14,7 +14,7 @@ from .interfaces import DecisionRule, Registrar
 from .params import PipelineParams
 from .types import CellMotion, Cloud, PairResult
 
-CELLS_PER_DIAMETER = 5.0      # the paper's x = D / 5
+CELLS_PER_DIAMETER = 5.0  # the paper's x = D / 5
 MIN_CELL_SIZE_M = 1e-4
 
 
@@ -41,17 +41,21 @@ def prealign(source: Cloud, target: Cloud, registrar: Registrar) -> np.ndarray:
     for T in (np.eye(4), shift):
         for scale in (extent / 2.5, extent / 5, extent / 10):
             reg = registrar.register(
-                transform(source.points, T), target.points,
+                transform(source.points, T),
+                target.points,
                 source_normals=None if source.normals is None else source.normals @ T[:3, :3].T,
-                target_normals=target.normals, cell_size_m=scale)
+                target_normals=target.normals,
+                cell_size_m=scale,
+            )
             T = reg.T_target_from_source @ T
         if (reg.fitness, -reg.rmse_m) > best_key:
             best, best_key = T, (reg.fitness, -reg.rmse_m)
     return best
 
 
-def register_cells(source: Cloud, target: Cloud, registrar: Registrar, *,
-                   params: PipelineParams) -> tuple[tuple[CellMotion, ...], float]:
+def register_cells(
+    source: Cloud, target: Cloud, registrar: Registrar, *, params: PipelineParams
+) -> tuple[tuple[CellMotion, ...], float]:
     """Register each cell of the pair's grid; returns the cells (no fitness check) and x (m).
 
     With ``params.prealign`` the source is first moved by the whole-cloud motion (:func:`prealign`), so
@@ -71,8 +75,12 @@ def register_cells(source: Cloud, target: Cloud, registrar: Registrar, *,
             cell.skipped = f"too few points ({len(si)} source, {len(ti)} target)"
         else:
             reg = registrar.register(
-                moved[si], target.points[ti], source_normals=None if normals is None else normals[si],
-                target_normals=None if target.normals is None else target.normals[ti], cell_size_m=x)
+                moved[si],
+                target.points[ti],
+                source_normals=None if normals is None else normals[si],
+                target_normals=None if target.normals is None else target.normals[ti],
+                cell_size_m=x,
+            )
             reg.T_target_from_source = reg.T_target_from_source @ T0
             cell.registration = reg
         cells.append(cell)
@@ -86,14 +94,30 @@ def checked_cells(cells: Iterable[CellMotion], *, min_fitness: float) -> list[Ce
     for c in cells:
         reg, skipped = c.registration, c.skipped
         if reg is not None:
-            skipped = ("no correspondence" if reg.n_correspondences == 0 else
-                       f"low fitness {reg.fitness:.2f}" if reg.fitness < min_fitness else None)
+            skipped = (
+                "no correspondence"
+                if reg.n_correspondences == 0
+                else f"low fitness {reg.fitness:.2f}"
+                if reg.fitness < min_fitness
+                else None
+            )
         out.append(dataclasses.replace(c, skipped=skipped, cluster=None, key=None))
     return out
 
 
-def decide_cells(rule: DecisionRule, i: int, j: int, cells: list[CellMotion], source: Cloud, target: Cloud,
-                 cell_size_m: float, between: tuple[Cloud | None, ...], *, alpha: float, scratch: dict) -> PairResult:
+def decide_cells(
+    rule: DecisionRule,
+    i: int,
+    j: int,
+    cells: list[CellMotion],
+    source: Cloud,
+    target: Cloud,
+    cell_size_m: float,
+    between: tuple[Cloud | None, ...],
+    *,
+    alpha: float,
+    scratch: dict,
+) -> PairResult:
     """The alpha check and ``rule`` on copies of a registered pair's cells (see
     :meth:`artclass_core.pipeline.Pipeline.decide`)."""
     cells = [dataclasses.replace(c, cluster=None, key=None) for c in cells]
@@ -107,7 +131,9 @@ def decide_cells(rule: DecisionRule, i: int, j: int, cells: list[CellMotion], so
         extra["scratch"] = scratch
     out = rule.decide(cells, source=source, target=target, **extra)
     if len(out.clusters) != len(cells):
-        raise ArtclassError(f"rule {rule.name!r} returned {len(out.clusters)} clusters for {len(cells)} cells")
+        raise ArtclassError(
+            f"rule {rule.name!r} returned {len(out.clusters)} clusters for {len(cells)} cells"
+        )
     for c, k in zip(cells, out.clusters):
         c.cluster = k
         c.key = out.keys[k] if k is not None and k < len(out.keys) else None

@@ -44,7 +44,9 @@ class _Bars:
     def __call__(self, stage: str, done: int, total: int) -> None:
         bar = self._bars.get(stage)
         if bar is None:
-            bar = self._bars[stage] = tqdm(total=total, desc=stage, unit=stage.rstrip("s"), dynamic_ncols=True)
+            bar = self._bars[stage] = tqdm(
+                total=total, desc=stage, unit=stage.rstrip("s"), dynamic_ncols=True
+            )
         bar.update(done - bar.n)
         if done >= total:
             self._bars.pop(stage).close()
@@ -58,26 +60,45 @@ def _pipeline_options(p: argparse.ArgumentParser, *, cluster: bool = False) -> N
     defaults = Config()
     p.add_argument("--reader", help="dataset reader (default: the first that recognises the path)")
     for kind in PLUGIN_KINDS:
-        p.add_argument(f"--{kind}", default=getattr(defaults, kind),
-                       help=f"{kind} plugin (default: {getattr(defaults, kind)})")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                   help="set a parameter by name or paper symbol (v, r, s, x, q_bar, t_bar, k, w, alpha); "
-                        "'auto' restores an automatic value; repeatable")
+        p.add_argument(
+            f"--{kind}",
+            default=getattr(defaults, kind),
+            help=f"{kind} plugin (default: {getattr(defaults, kind)})",
+        )
+    p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="set a parameter by name or paper symbol (v, r, s, x, q_bar, t_bar, k, w, alpha); "
+        "'auto' restores an automatic value; repeatable",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     cpus = os.cpu_count() or 1
     if not cluster:
-        p.add_argument("--workers", type=int, default=cpus,
-                       help="threads that process frames and pairs; the result is the same for any number "
-                            "(default: one per CPU, %(default)s here)")
+        p.add_argument(
+            "--workers",
+            type=int,
+            default=cpus,
+            help="threads that process frames and pairs; the result is the same for any number "
+            "(default: one per CPU, %(default)s here)",
+        )
         return
-    p.add_argument("--workers", type=int, default=None,
-                   help=f"threads that process the frames and pairs of one sequence; the result is the same for "
-                        f"any number (default: one per CPU, {cpus} here; 1 with --scheduler, where Dask runs "
-                        f"one sequence per worker thread)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="run one task per sequence on a Dask cluster: the address of its scheduler "
-                        "(tcp://host:8786), or 'local' to start one on this machine; the data must be at the "
-                        f"same path on every worker (needs {DASK_HINT})")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help=f"threads that process the frames and pairs of one sequence; the result is the same for "
+        f"any number (default: one per CPU, {cpus} here; 1 with --scheduler, where Dask runs "
+        f"one sequence per worker thread)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run one task per sequence on a Dask cluster: the address of its scheduler "
+        "(tcp://host:8786), or 'local' to start one on this machine; the data must be at the "
+        f"same path on every worker (needs {DASK_HINT})",
+    )
 
 
 def _workers(args) -> int:
@@ -104,8 +125,9 @@ def config_from_args(registry: Registry, args: argparse.Namespace) -> Config:
 def cmd_classify(registry: Registry, args) -> int:
     config = config_from_args(registry, args)
     seq = open_one_sequence(registry, args.path, reader=args.reader)
-    result, articulation = classify_with_parts(registry, config, seq, workers=args.workers,
-                                               estimator=args.joint_estimator)
+    result, articulation = classify_with_parts(
+        registry, config, seq, workers=args.workers, estimator=args.joint_estimator
+    )
     if args.json:
         out = result.to_dict(cells=not args.no_cells)
         if articulation is not None:
@@ -113,8 +135,7 @@ def cmd_classify(registry: Registry, args) -> int:
         print(json.dumps(out))
         return 0
     decisions = " ".join(p.decision if p.decision != "skipped" else "-" for p in result.pairs)
-    print(f"{seq.name}: {result.label}"
-          + (f" (ground truth: {seq.label})" if seq.label else ""))
+    print(f"{seq.name}: {result.label}" + (f" (ground truth: {seq.label})" if seq.label else ""))
     print(f"  pairs (i, i+{config.pipeline.k}): {decisions}")
     print(f"  after max-count filter (w={config.pipeline.w}): {' '.join(result.filtered)}")
     print("  fractions: " + ", ".join(f"{d} {v:.2f}" for d, v in result.fractions.items()))
@@ -133,18 +154,23 @@ def open_one_sequence(registry: Registry, path: str, *, reader: str | None = Non
     sequences = open_sequences(registry, path, reader=reader)
     if len(sequences) > 1:
         names = ", ".join(s.name for s in sequences)
-        raise ArtclassError(f"{path} holds {len(sequences)} sequences ({names}); choose one with "
-                            f"PATH#NAME, or run `artclass evaluate` over them")
+        raise ArtclassError(
+            f"{path} holds {len(sequences)} sequences ({names}); choose one with "
+            f"PATH#NAME, or run `artclass evaluate` over them"
+        )
     return sequences[0]
 
 
-def classify_with_parts(registry: Registry, config: Config, sequence, *, workers: int,
-                        estimator: str = "bic") -> tuple[RunResult, Articulation | None]:
+def classify_with_parts(
+    registry: Registry, config: Config, sequence, *, workers: int, estimator: str = "bic"
+) -> tuple[RunResult, Articulation | None]:
     """Classify ``sequence`` and find its parts and joints (None with a rule that does not label
     points by motion). The clouds a run keeps for the parts are dropped afterwards."""
     pipeline = Pipeline(registry, config)
     by_motion = pipeline.rule.needs == "motions"
-    result = pipeline.run(sequence, progress=_progress(sys.stderr.isatty()), workers=workers, keep_clouds=by_motion)
+    result = pipeline.run(
+        sequence, progress=_progress(sys.stderr.isatty()), workers=workers, keep_clouds=by_motion
+    )
     if not by_motion:
         return result, None
     articulation = find_articulation(result, estimator=registry.create("joint_estimator", estimator))
@@ -166,16 +192,32 @@ def cmd_evaluate(registry: Registry, args) -> int:
     plugins = {kind: getattr(args, kind) for kind in PLUGIN_KINDS}
     settings = grid_settings(registry, {}, params=_overrides(args), **plugins)
     if args.compare_rule:
-        settings += grid_settings(registry, {}, params=_overrides(args), **{**plugins, "rule": args.compare_rule})
+        settings += grid_settings(
+            registry, {}, params=_overrides(args), **{**plugins, "rule": args.compare_rule}
+        )
     if args.compare_paper:
-        settings += grid_settings(registry, {}, params={**_overrides(args), "prealign": "false"},
-                                  **{**plugins, "preprocessor": "paper", "rule": "paper"})
+        settings += grid_settings(
+            registry,
+            {},
+            params={**_overrides(args), "prealign": "false"},
+            **{**plugins, "preprocessor": "paper", "rule": "paper"},
+        )
     outcomes: list[dict[int, Any]] = [{} for _ in settings]
     bars = _progress(sys.stderr.isatty())
     tasks = plan_tasks(registry, sequences, settings)
     lost: list[str] = []
-    for n, (i, m, _row, outcome) in enumerate(run_tasks(registry, tasks, settings, scheduler=args.scheduler,
-                                                        workers=_workers(args), reader=args.reader, lost=lost), 1):
+    for n, (i, m, _row, outcome) in enumerate(
+        run_tasks(
+            registry,
+            tasks,
+            settings,
+            scheduler=args.scheduler,
+            workers=_workers(args),
+            reader=args.reader,
+            lost=lost,
+        ),
+        1,
+    ):
         outcomes[m][i] = outcome
         if bars:
             bars("runs", n, len(sequences) * len(settings))
@@ -193,25 +235,51 @@ def cmd_sweep(registry: Registry, args) -> int:
     grid = parse_grid(args.grid)
     out = Path(args.out)
     sequences = _labelled_sequences(registry, args)
-    settings = grid_settings(registry, grid, params=_overrides(args),
-                             **{kind: getattr(args, kind) for kind in PLUGIN_KINDS})
+    settings = grid_settings(
+        registry, grid, params=_overrides(args), **{kind: getattr(args, kind) for kind in PLUGIN_KINDS}
+    )
     lost: list[str] = []
     try:
-        table = sweep(registry, sequences, settings, out=out, scheduler=args.scheduler, workers=_workers(args),
-                      force=args.force, reader=args.reader, progress=_progress(sys.stderr.isatty()), lost=lost)
+        table = sweep(
+            registry,
+            sequences,
+            settings,
+            out=out,
+            scheduler=args.scheduler,
+            workers=_workers(args),
+            force=args.force,
+            reader=args.reader,
+            progress=_progress(sys.stderr.isatty()),
+            lost=lost,
+        )
     except KeyboardInterrupt:
-        print(f"artclass: interrupted; the finished rows are in {out}: run the same command again to resume",
-              file=sys.stderr)
+        print(
+            f"artclass: interrupted; the finished rows are in {out}: run the same command again to resume",
+            file=sys.stderr,
+        )
         raise
     html = write_figure(table, out.with_suffix(".html"))
     summ = summary(table)
     if args.json:
-        print(json.dumps(dict(table=str(out), figure=str(html), summary=summ.to_dict("records"), lost=lost),
-                         default=str))
+        print(
+            json.dumps(
+                dict(table=str(out), figure=str(html), summary=summ.to_dict("records"), lost=lost),
+                default=str,
+            )
+        )
     else:
-        print(summ.drop(columns=swept_names(table), errors="ignore").to_string(index=False, na_rep="–", formatters={
-            "accuracy": "{:.1%}".format, "pair_accuracy": "{:.1%}".format, "seconds": "{:.1f}".format,
-            **{d: "{:.3f}".format for d in DECISIONS}}))
+        print(
+            summ.drop(columns=swept_names(table), errors="ignore").to_string(
+                index=False,
+                na_rep="–",
+                formatters={
+                    "accuracy": "{:.1%}".format,
+                    "pair_accuracy": "{:.1%}".format,
+                    "seconds": "{:.1f}".format,
+                    **{d: "{:.3f}".format for d in DECISIONS},
+                },
+            )
+        )
         failed = table["error"].notna().sum()
         print(f"\n{len(table)} rows ({failed} failed, see the error column) in {out}; figure: {html}")
     for item in lost:
@@ -222,8 +290,18 @@ def cmd_sweep(registry: Registry, args) -> int:
 
 
 def _param_dicts(params_cls: type) -> list[dict[str, Any]]:
-    return [dict(name=s.name, symbol=s.symbol, unit=s.unit, default=s.default, bounds=list(s.bounds), auto=s.auto,
-                 help=s.help) for s in describe(params_cls)]
+    return [
+        dict(
+            name=s.name,
+            symbol=s.symbol,
+            unit=s.unit,
+            default=s.default,
+            bounds=list(s.bounds),
+            auto=s.auto,
+            help=s.help,
+        )
+        for s in describe(params_cls)
+    ]
 
 
 def _param_line(*, name, symbol, unit, default, auto, **_) -> str:
@@ -236,9 +314,15 @@ def plugin_table(registry: Registry) -> dict[str, Any]:
     """Every registered plugin with its parameters and origin (what ``artclass plugins`` prints)."""
     out: dict[str, Any] = {}
     for kind in KINDS:
-        out[kind] = [dict(name=info.name, description=info.cls.description, source=info.source,
-                          params=_param_dicts(info.cls.Params))
-                     for info in sorted(registry.plugins[kind].values(), key=lambda i: i.name)]
+        out[kind] = [
+            dict(
+                name=info.name,
+                description=info.cls.description,
+                source=info.source,
+                params=_param_dicts(info.cls.Params),
+            )
+            for info in sorted(registry.plugins[kind].values(), key=lambda i: i.name)
+        ]
     return out
 
 
@@ -262,8 +346,12 @@ def cmd_plugins(registry: Registry, args) -> int:
 
 
 def build_parser(registry: Registry) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="artclass", description=(
-        "Tell from an RGB-D sequence whether the handled object is articulated, rigid or static."))
+    parser = argparse.ArgumentParser(
+        prog="artclass",
+        description=(
+            "Tell from an RGB-D sequence whether the handled object is articulated, rigid or static."
+        ),
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("classify", help="classify one sequence")
     p.add_argument("path", help="sequence folder (PATH#NAME picks one of several)")
@@ -275,21 +363,39 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p.add_argument("root")
     _pipeline_options(p, cluster=True)
     p.add_argument("--compare-rule", metavar="RULE", help="also evaluate this decision rule, side by side")
-    p.add_argument("--compare-paper", action="store_true",
-                   help="also evaluate the paper's pipeline as written (paper preprocessor and rule, no prealignment)")
+    p.add_argument(
+        "--compare-paper",
+        action="store_true",
+        help="also evaluate the paper's pipeline as written (paper preprocessor and rule, no prealignment)",
+    )
     p.set_defaults(func=partial(cmd_evaluate, registry))
-    p = sub.add_parser("sweep", help="evaluate every labelled sequence under a folder for every setting of a grid, "
-                                     "into one table")
+    p = sub.add_parser(
+        "sweep",
+        help="evaluate every labelled sequence under a folder for every setting of a grid, into one table",
+    )
     p.add_argument("root", help="folder searched for labelled sequences (recursively)")
-    p.add_argument("--grid", action="append", default=[], required=True, metavar="NAME=V1,V2,...",
-                   help="a parameter (by name or paper symbol) or a plugin kind and the values to try; repeatable: "
-                        "every combination runs")
+    p.add_argument(
+        "--grid",
+        action="append",
+        default=[],
+        required=True,
+        metavar="NAME=V1,V2,...",
+        help="a parameter (by name or paper symbol) or a plugin kind and the values to try; repeatable: "
+        "every combination runs",
+    )
     _pipeline_options(p, cluster=True)
-    p.add_argument("--out", default="sweep.parquet", metavar="TABLE",
-                   help="the results table, .parquet or .csv, written as it grows; the figure goes next to it as "
-                        ".html (default: %(default)s)")
-    p.add_argument("--force", action="store_true",
-                   help="run again the rows already in the table (by default they are kept and skipped)")
+    p.add_argument(
+        "--out",
+        default="sweep.parquet",
+        metavar="TABLE",
+        help="the results table, .parquet or .csv, written as it grows; the figure goes next to it as "
+        ".html (default: %(default)s)",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="run again the rows already in the table (by default they are kept and skipped)",
+    )
     p.set_defaults(func=partial(cmd_sweep, registry))
     p = sub.add_parser("plugins", help="list the registered plugins and their parameters")
     p.add_argument("--json", action="store_true")

@@ -17,8 +17,8 @@ from .params import Params, PipelineParams, as_dict, describe, parse_value
 from .plugins import Registry
 
 PLUGIN_KINDS = ("segmenter", "preprocessor", "registrar", "rule")
-AUTO_SEGMENTER = "auto"   # the sequence's own masks when it has them, else depth_threshold
-CELL_REGISTRAR, CELL_RULE = "icp_point_to_point", "paper"   # the paper's, for a per-cell pipeline
+AUTO_SEGMENTER = "auto"  # the sequence's own masks when it has them, else depth_threshold
+CELL_REGISTRAR, CELL_RULE = "icp_point_to_point", "paper"  # the paper's, for a per-cell pipeline
 
 
 @dataclass(frozen=True)
@@ -43,7 +43,9 @@ STAGE_DEPENDENCIES: dict[str, StageDependencies] = {
     "read": StageDependencies(),
     "segment": StageDependencies(plugins=("segmenter",)),
     "preprocess": StageDependencies(plugins=("preprocessor",)),
-    "register": StageDependencies(plugins=("registrar",), params=("cell_size_m", "min_cell_points", "prealign")),
+    "register": StageDependencies(
+        plugins=("registrar",), params=("cell_size_m", "min_cell_points", "prealign")
+    ),
     "decide": StageDependencies(plugins=("rule",), params=("min_fitness", "alpha")),
 }
 STAGES = tuple(STAGE_DEPENDENCIES)
@@ -53,9 +55,11 @@ def depends_on(stage: str) -> StageDependencies:
     """Everything the output of ``stage`` depends on: its own entries and those of the stages before it."""
     if stage not in STAGE_DEPENDENCIES:
         raise ValueError(f"unknown stage {stage!r}; expected one of {', '.join(STAGES)}")
-    upto = STAGES[:STAGES.index(stage) + 1]
-    return StageDependencies(plugins=tuple(k for s in upto for k in STAGE_DEPENDENCIES[s].plugins),
-                             params=tuple(p for s in upto for p in STAGE_DEPENDENCIES[s].params))
+    upto = STAGES[: STAGES.index(stage) + 1]
+    return StageDependencies(
+        plugins=tuple(k for s in upto for k in STAGE_DEPENDENCIES[s].plugins),
+        params=tuple(p for s in upto for p in STAGE_DEPENDENCIES[s].params),
+    )
 
 
 @dataclass(frozen=True)
@@ -81,8 +85,12 @@ class Config:
     def paper(cls) -> Config:
         """The paper's pipeline as written: Algorithm 1 at D/20 and 5v, per-cell ICP from the identity,
         Algorithm 2's quantise-and-hash rule."""
-        return cls(preprocessor="paper", registrar=CELL_REGISTRAR, rule="paper",
-                   pipeline=PipelineParams(prealign=False))
+        return cls(
+            preprocessor="paper",
+            registrar=CELL_REGISTRAR,
+            rule="paper",
+            pipeline=PipelineParams(prealign=False),
+        )
 
     def plugin_params(self, registry: Registry, kind: str, name: str | None = None) -> Params:
         """The params of the chosen plugin of ``kind`` (its defaults when none were set)."""
@@ -91,13 +99,17 @@ class Config:
         cls = registry.get(kind, name).Params
         return params if isinstance(params, cls) else cls()
 
-    def record(self, registry: Registry, *, segmenter: str) -> tuple[dict[str, str], dict[str, dict[str, Any]]]:
+    def record(
+        self, registry: Registry, *, segmenter: str
+    ) -> tuple[dict[str, str], dict[str, dict[str, Any]]]:
         """The plugin of each kind (with the ``segmenter`` that ran) and every parameter, as recorded
         with a result."""
         plugins = {kind: getattr(self, kind) for kind in PLUGIN_KINDS}
         plugins["segmenter"] = segmenter
         params = {"pipeline": as_dict(self.pipeline)}
-        params.update((kind, as_dict(self.plugin_params(registry, kind, plugins[kind]))) for kind in PLUGIN_KINDS)
+        params.update(
+            (kind, as_dict(self.plugin_params(registry, kind, plugins[kind]))) for kind in PLUGIN_KINDS
+        )
         return plugins, params
 
     def with_overrides(self, registry: Registry, overrides: dict[str, str | float | int | None]) -> Config:
@@ -114,11 +126,16 @@ class Config:
             targets[kind] = self.plugin_params(registry, kind)
         changes: dict[str, dict] = {kind: {} for kind in targets}
         for key, value in overrides.items():
-            hits = [(kind, spec) for kind, p in targets.items() for spec in describe(type(p))
-                    if key in (spec.name, spec.symbol)]
+            hits = [
+                (kind, spec)
+                for kind, p in targets.items()
+                for spec in describe(type(p))
+                if key in (spec.name, spec.symbol)
+            ]
             if not hits:
-                known = sorted({n for p in targets.values() for s in describe(type(p)) for n in (s.name, s.symbol)
-                                if n})
+                known = sorted(
+                    {n for p in targets.values() for s in describe(type(p)) for n in (s.name, s.symbol) if n}
+                )
                 raise ParamError(f"unknown parameter {key!r}; known: {', '.join(known)}")
             for kind, spec in hits:
                 changes[kind][spec.name] = parse_value(spec, value) if isinstance(value, str) else value
@@ -147,8 +164,10 @@ def stage_dependencies(config: Config, registry: Registry, stage: str, *, segmen
     :func:`depends_on`; ``segmenter`` is the segmenter the sequence resolves to."""
     deps = depends_on(stage)
     names = {kind: segmenter if kind == "segmenter" else getattr(config, kind) for kind in deps.plugins}
-    return (*((kind, name, config.plugin_params(registry, kind, name)) for kind, name in names.items()),
-            *((p, getattr(config.pipeline, p)) for p in deps.params))
+    return (
+        *((kind, name, config.plugin_params(registry, kind, name)) for kind, name in names.items()),
+        *((p, getattr(config.pipeline, p)) for p in deps.params),
+    )
 
 
 def _fitting(registry: Registry, config: Config) -> Config:

@@ -25,12 +25,12 @@ class SequenceOutcome:
     object: str
     truth: str
     accepted: tuple[str, ...]
-    predicted: str | None               # None when the run failed
+    predicted: str | None  # None when the run failed
     error: str | None = None
     fractions: dict[str, float] = field(default_factory=dict)
     pair_correct: int = 0
     pair_total: int = 0
-    pair_correct_legacy: int = 0        # against the reader's earlier pair truth, where it has one
+    pair_correct_legacy: int = 0  # against the reader's earlier pair truth, where it has one
     pair_total_legacy: int = 0
     n_pairs: int = 0
     seconds: float = 0.0
@@ -80,18 +80,32 @@ class Evaluation:
             f1=f1s,
             pair_accuracy=(sum(o.pair_correct for o in outs) / pair_total) if pair_total else None,
             pair_total=pair_total,
-            pair_accuracy_legacy=(sum(o.pair_correct_legacy for o in outs) / legacy_total) if legacy_total else None,
+            pair_accuracy_legacy=(sum(o.pair_correct_legacy for o in outs) / legacy_total)
+            if legacy_total
+            else None,
             confusion=confusion,
-            per_object={obj: dict(truth=os_[0].truth, n=len(os_), accuracy=sum(o.correct for o in os_) / len(os_),
-                                  fractions={d: _mean([o.fractions.get(d, 0.0) for o in os_ if o.fractions]) for d in DECISIONS})
-                        for obj, os_ in sorted(per_object.items(), key=lambda kv: (kv[1][0].truth, kv[0]))},
+            per_object={
+                obj: dict(
+                    truth=os_[0].truth,
+                    n=len(os_),
+                    accuracy=sum(o.correct for o in os_) / len(os_),
+                    fractions={
+                        d: _mean([o.fractions.get(d, 0.0) for o in os_ if o.fractions]) for d in DECISIONS
+                    },
+                )
+                for obj, os_ in sorted(per_object.items(), key=lambda kv: (kv[1][0].truth, kv[0]))
+            },
             errors=sum(o.predicted is None for o in outs),
             joints=joint_summary(outs),
         )
 
     def to_dict(self) -> dict[str, Any]:
-        return dict(rule=self.rule, config=self.config, metrics=self.metrics(),
-                    sequences=[dict(o.__dict__, correct=o.correct) for o in self.outcomes])
+        return dict(
+            rule=self.rule,
+            config=self.config,
+            metrics=self.metrics(),
+            sequences=[dict(o.__dict__, correct=o.correct) for o in self.outcomes],
+        )
 
 
 def _mean(values: list[float]) -> float:
@@ -106,13 +120,21 @@ def _median(values: list[float]) -> float | None:
 def _joint_figures(outs: list[SequenceOutcome]) -> dict[str, Any]:
     """Joint-type accuracy and median errors over the joints found in ``outs``."""
     joints = [j for o in outs for j in o.joints["joints"] if j.get("true_type")]
-    states = {unit: _median([j.get("state_error") for j in joints if j.get("state_unit") == unit]) for unit in ("deg", "mm")}
-    return dict(n_joints=len(joints),
-                joint_type_accuracy=sum(j["type"] == j["true_type"] for j in joints) / len(joints) if joints else None,
-                axis_direction_error_deg=_median([j.get("axis_direction_error_deg") for j in joints]),
-                axis_position_error_mm=_median([j.get("axis_position_error_mm") for j in joints]),
-                state_error_deg=states["deg"], state_error_mm=states["mm"],
-                part_iou=_median([o.joints["part_iou"] for o in outs if o.joints["part_iou"] is not None]))
+    states = {
+        unit: _median([j.get("state_error") for j in joints if j.get("state_unit") == unit])
+        for unit in ("deg", "mm")
+    }
+    return dict(
+        n_joints=len(joints),
+        joint_type_accuracy=sum(j["type"] == j["true_type"] for j in joints) / len(joints)
+        if joints
+        else None,
+        axis_direction_error_deg=_median([j.get("axis_direction_error_deg") for j in joints]),
+        axis_position_error_mm=_median([j.get("axis_position_error_mm") for j in joints]),
+        state_error_deg=states["deg"],
+        state_error_mm=states["mm"],
+        part_iou=_median([o.joints["part_iou"] for o in outs if o.joints["part_iou"] is not None]),
+    )
 
 
 def joint_summary(outs: list[SequenceOutcome]) -> dict[str, Any] | None:
@@ -126,14 +148,19 @@ def joint_summary(outs: list[SequenceOutcome]) -> dict[str, Any] | None:
     by_object: dict[str, list[SequenceOutcome]] = defaultdict(list)
     for o in found:
         by_object[o.object].append(o)
-    return dict(n_articulated=len(articulated), n_with_part=len(found),
-                n_not_articulated=len(scored) - len(articulated),
-                not_articulated_with_joint=sum(bool(o.joints["joints"]) for o in scored if o.truth != "articulated"),
-                **_joint_figures(found), per_object={obj: _joint_figures(os_) for obj, os_ in sorted(by_object.items())})
+    return dict(
+        n_articulated=len(articulated),
+        n_with_part=len(found),
+        n_not_articulated=len(scored) - len(articulated),
+        not_articulated_with_joint=sum(bool(o.joints["joints"]) for o in scored if o.truth != "articulated"),
+        **_joint_figures(found),
+        per_object={obj: _joint_figures(os_) for obj, os_ in sorted(by_object.items())},
+    )
 
 
-def evaluate(registry: Registry, sequences: list[Sequence], config: Config, *, progress=None,
-             workers: int = 1) -> Evaluation:
+def evaluate(
+    registry: Registry, sequences: list[Sequence], config: Config, *, progress=None, workers: int = 1
+) -> Evaluation:
     """Run every sequence (on ``workers`` threads); a sequence that fails is recorded with its error, not fatal."""
     pipeline = Pipeline(registry, config)
     outcomes = []
@@ -144,8 +171,9 @@ def evaluate(registry: Registry, sequences: list[Sequence], config: Config, *, p
     return evaluation(config, outcomes)
 
 
-def run_outcome(pipeline: Pipeline, seq: Sequence, *, workers: int = 1,
-                cache: StageCache | None = None) -> tuple[SequenceOutcome, RunResult | None]:
+def run_outcome(
+    pipeline: Pipeline, seq: Sequence, *, workers: int = 1, cache: StageCache | None = None
+) -> tuple[SequenceOutcome, RunResult | None]:
     """Run one sequence and score it against its truth. Any failure is caught and recorded as the
     outcome's one-line ``error`` (the result is then None), so that the sequences after it still run."""
     o = SequenceOutcome(seq.name, seq.object_name, seq.label, tuple(seq.accepted_labels), None)
@@ -155,13 +183,13 @@ def run_outcome(pipeline: Pipeline, seq: Sequence, *, workers: int = 1,
     with_joints = isinstance(truth, dict) and "joints" in truth and pipeline.rule.needs == "motions"
     try:
         result = pipeline.run(seq, workers=workers, cache=cache, keep_clouds=with_joints)
-    except Exception as exc:       # bad data, or a plugin's bug: one line here, and the next sequence runs
+    except Exception as exc:  # bad data, or a plugin's bug: one line here, and the next sequence runs
         o.error = one_line(exc)
     else:
         if with_joints:
             try:
                 o.joints = _score_joints(pipeline, seq, result, truth)
-            except Exception as exc:      # the label stands; the parts are reported as failed
+            except Exception as exc:  # the label stands; the parts are reported as failed
                 o.joints = dict(part_iou=None, joints=[], error=one_line(exc))
         o.predicted, o.fractions = result.label, result.fractions
         truthful = [p for p in result.pairs if p.truth and p.decision != "skipped"]
@@ -183,7 +211,7 @@ def _score_joints(pipeline: Pipeline, seq: Sequence, result: RunResult, truth: d
         path = Path(seq.path) / "parts" / f"{result.frames[f].name}.png"
         if path.is_file():
             images[f] = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    forget_clouds(result)             # the run's clouds and evidence were kept for this only
+    forget_clouds(result)  # the run's clouds and evidence were kept for this only
     return score_articulation(articulation, truth, images)
 
 
@@ -195,15 +223,21 @@ def one_line(exc: BaseException) -> str:
 
 def evaluation(config: Config, outcomes: list[SequenceOutcome]) -> Evaluation:
     """The :class:`Evaluation` of ``config`` made of these outcomes."""
-    return Evaluation(config_label(config), outcomes, dict(plugins={k: getattr(config, k) for k in
-                                                               ("segmenter", "preprocessor", "registrar", "rule")}))
+    return Evaluation(
+        config_label(config),
+        outcomes,
+        dict(plugins={k: getattr(config, k) for k in ("segmenter", "preprocessor", "registrar", "rule")}),
+    )
 
 
 def config_label(config: Config) -> str:
     """A short column name: the rule, and what else differs from the default pipeline."""
     default = Config()
-    parts = [config.rule] + [f"{kind}={getattr(config, kind)}" for kind in ("segmenter", "preprocessor", "registrar")
-                             if getattr(config, kind) != getattr(default, kind)]
+    parts = [config.rule] + [
+        f"{kind}={getattr(config, kind)}"
+        for kind in ("segmenter", "preprocessor", "registrar")
+        if getattr(config, kind) != getattr(default, kind)
+    ]
     return ", ".join(parts + ([] if config.pipeline.prealign else ["no prealign"]))
 
 
@@ -219,27 +253,49 @@ def _joint_lines(rules: list[str], ms: list[dict[str, Any]]) -> list[str]:
     """The parts-and-joints section: overall, then per object (sequences with joint truth only)."""
     if all(m.get("joints") is None for m in ms):
         return []
-    rows = [("articulated sequences with a moving part found", lambda j: f"{j['n_with_part']} / {j['n_articulated']}"),
-            ("rigid or static sequences with a joint", lambda j: f"{j['not_articulated_with_joint']} / {j['n_not_articulated']}"),
-            ("joint type right %", lambda j: _pct(j["joint_type_accuracy"])),
-            ("median axis direction error (deg)", lambda j: _number(j["axis_direction_error_deg"])),
-            ("median axis position error at the part (mm)", lambda j: _number(j["axis_position_error_mm"])),
-            ("median state error, revolute (deg)", lambda j: _number(j["state_error_deg"])),
-            ("median state error, prismatic (mm)", lambda j: _number(j["state_error_mm"])),
-            ("median part IoU", lambda j: _number(j["part_iou"], 2))]
-    lines = ["", "## Parts and joints (over the articulated sequences where a moving part was found)", "",
-             "| metric | " + " | ".join(rules) + " |", "|---|" + "---|" * len(rules)]
+    rows = [
+        (
+            "articulated sequences with a moving part found",
+            lambda j: f"{j['n_with_part']} / {j['n_articulated']}",
+        ),
+        (
+            "rigid or static sequences with a joint",
+            lambda j: f"{j['not_articulated_with_joint']} / {j['n_not_articulated']}",
+        ),
+        ("joint type right %", lambda j: _pct(j["joint_type_accuracy"])),
+        ("median axis direction error (deg)", lambda j: _number(j["axis_direction_error_deg"])),
+        ("median axis position error at the part (mm)", lambda j: _number(j["axis_position_error_mm"])),
+        ("median state error, revolute (deg)", lambda j: _number(j["state_error_deg"])),
+        ("median state error, prismatic (mm)", lambda j: _number(j["state_error_mm"])),
+        ("median part IoU", lambda j: _number(j["part_iou"], 2)),
+    ]
+    lines = [
+        "",
+        "## Parts and joints (over the articulated sequences where a moving part was found)",
+        "",
+        "| metric | " + " | ".join(rules) + " |",
+        "|---|" + "---|" * len(rules),
+    ]
     for label, cell in rows:
-        lines.append(f"| {label} | " + " | ".join(cell(m["joints"]) if m.get("joints") else "–" for m in ms) + " |")
+        lines.append(
+            f"| {label} | " + " | ".join(cell(m["joints"]) if m.get("joints") else "–" for m in ms) + " |"
+        )
     first = ms[0].get("joints")
     if first and first["per_object"]:
-        lines += ["", f"Per object ({rules[0]}):", "",
-                  "| object | joints | type right % | axis direction (deg) | axis position (mm) | state (deg) "
-                  "| state (mm) | part IoU |", "|---|---|---|---|---|---|---|---|"]
+        lines += [
+            "",
+            f"Per object ({rules[0]}):",
+            "",
+            "| object | joints | type right % | axis direction (deg) | axis position (mm) | state (deg) "
+            "| state (mm) | part IoU |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
         for obj, j in first["per_object"].items():
-            lines.append(f"| {obj} | {j['n_joints']} | {_pct(j['joint_type_accuracy'])} | "
-                         f"{_number(j['axis_direction_error_deg'])} | {_number(j['axis_position_error_mm'])} | "
-                         f"{_number(j['state_error_deg'])} | {_number(j['state_error_mm'])} | {_number(j['part_iou'], 2)} |")
+            lines.append(
+                f"| {obj} | {j['n_joints']} | {_pct(j['joint_type_accuracy'])} | "
+                f"{_number(j['axis_direction_error_deg'])} | {_number(j['axis_position_error_mm'])} | "
+                f"{_number(j['state_error_deg'])} | {_number(j['state_error_mm'])} | {_number(j['part_iou'], 2)} |"
+            )
     return lines
 
 
@@ -248,38 +304,71 @@ def markdown(evals: list[Evaluation]) -> str:
     ms = [e.metrics() for e in evals]
     rules = [e.rule for e in evals]
     lines = ["# artclass evaluation", ""]
-    lines += ["## Sequences", "", "| sequence | object | truth | " + " | ".join(f"{r}" for r in rules) + " |",
-              "|---|---|---|" + "---|" * len(rules)]
+    lines += [
+        "## Sequences",
+        "",
+        "| sequence | object | truth | " + " | ".join(f"{r}" for r in rules) + " |",
+        "|---|---|---|" + "---|" * len(rules),
+    ]
     for row in zip(*(e.outcomes for e in evals)):
         o = row[0]
         cells = [(x.predicted or f"error: {x.error}") + ("" if x.correct else " ✗") for x in row]
         lines.append(f"| {o.name} | {o.object} | {o.truth} | " + " | ".join(cells) + " |")
-    lines += ["", "## Accuracy per object (Tables 1-2)", "",
-              "| object | truth | n | " + " | ".join(f"{r} accuracy %" for r in rules) + " |",
-              "|---|---|---|" + "---|" * len(rules)]
+    lines += [
+        "",
+        "## Accuracy per object (Tables 1-2)",
+        "",
+        "| object | truth | n | " + " | ".join(f"{r} accuracy %" for r in rules) + " |",
+        "|---|---|---|" + "---|" * len(rules),
+    ]
     for obj, info in ms[0]["per_object"].items():
-        lines.append(f"| {obj} | {info['truth']} | {info['n']} | "
-                     + " | ".join(_pct(m["per_object"][obj]["accuracy"]) for m in ms) + " |")
-    lines += ["", "## Pair fractions per object (Tables 3-4)", "",
-              "| object | " + " | ".join(f"{r} {d}" for r in rules for d in DECISIONS) + " |",
-              "|---|" + "---|" * (len(rules) * len(DECISIONS))]
+        lines.append(
+            f"| {obj} | {info['truth']} | {info['n']} | "
+            + " | ".join(_pct(m["per_object"][obj]["accuracy"]) for m in ms)
+            + " |"
+        )
+    lines += [
+        "",
+        "## Pair fractions per object (Tables 3-4)",
+        "",
+        "| object | " + " | ".join(f"{r} {d}" for r in rules for d in DECISIONS) + " |",
+        "|---|" + "---|" * (len(rules) * len(DECISIONS)),
+    ]
     for obj in ms[0]["per_object"]:
-        lines.append(f"| {obj} | " + " | ".join(f"{m['per_object'][obj]['fractions'][d]:.3f}"
-                                              for m in ms for d in DECISIONS) + " |")
+        lines.append(
+            f"| {obj} | "
+            + " | ".join(f"{m['per_object'][obj]['fractions'][d]:.3f}" for m in ms for d in DECISIONS)
+            + " |"
+        )
     lines += ["", "## Summary", "", "| metric | " + " | ".join(rules) + " |", "|---|" + "---|" * len(rules)]
-    rows = [("accuracy", "sequence accuracy %"), ("macro_f1", "macro-F1 %"), ("pair_accuracy", "pair accuracy %")]
+    rows = [
+        ("accuracy", "sequence accuracy %"),
+        ("macro_f1", "macro-F1 %"),
+        ("pair_accuracy", "pair accuracy %"),
+    ]
     if any(m["pair_accuracy_legacy"] is not None for m in ms):
         rows.append(("pair_accuracy_legacy", "pair accuracy % (earlier joint-state truth)"))
     for key, label in rows:
         lines.append(f"| {label} | " + " | ".join(_pct(m[key]) for m in ms) + " |")
     for c in LABELS:
         if c in ms[0]["per_class_accuracy"]:
-            lines.append(f"| {c} accuracy % | " + " | ".join(_pct(m["per_class_accuracy"].get(c)) for m in ms) + " |")
-    lines.append("| sequences / errors | " + " | ".join(f"{m['n_sequences']} / {m['errors']}" for m in ms) + " |")
+            lines.append(
+                f"| {c} accuracy % | " + " | ".join(_pct(m["per_class_accuracy"].get(c)) for m in ms) + " |"
+            )
+    lines.append(
+        "| sequences / errors | " + " | ".join(f"{m['n_sequences']} / {m['errors']}" for m in ms) + " |"
+    )
     lines += _joint_lines(rules, ms)
     for e, m in zip(evals, ms):
-        lines += ["", f"## Confusion matrix ({e.rule}; rows truth, columns predicted)", "",
-                  "| truth \\ predicted | " + " | ".join((*LABELS, "error")) + " |", "|---|" + "---|" * 4]
+        lines += [
+            "",
+            f"## Confusion matrix ({e.rule}; rows truth, columns predicted)",
+            "",
+            "| truth \\ predicted | " + " | ".join((*LABELS, "error")) + " |",
+            "|---|" + "---|" * 4,
+        ]
         for t in LABELS:
-            lines.append(f"| {t} | " + " | ".join(str(m["confusion"][t][p]) for p in (*LABELS, "error")) + " |")
+            lines.append(
+                f"| {t} | " + " | ".join(str(m["confusion"][t][p]) for p in (*LABELS, "error")) + " |"
+            )
     return "\n".join(lines) + "\n"

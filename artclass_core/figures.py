@@ -34,17 +34,42 @@ from plotly.subplots import make_subplots
 from artclass_core import Cloud, Frame, PairResult, RunResult
 from artclass_core.geometry import transform
 
-__all__ = ["DECISION_COLOURS", "LABEL_COLOURS", "CLUSTER_COLOURS", "decision_timeline", "class_fractions",
-           "motion_arrows", "frame_images", "cells_table", "confusion_figure", "figures_html",
-           "selected_pair_index"]
+__all__ = [
+    "DECISION_COLOURS",
+    "LABEL_COLOURS",
+    "CLUSTER_COLOURS",
+    "decision_timeline",
+    "class_fractions",
+    "motion_arrows",
+    "frame_images",
+    "cells_table",
+    "confusion_figure",
+    "figures_html",
+    "selected_pair_index",
+]
 
 DECISION_COLOURS = {"AM": "#E4572E", "RM": "#2E86AB", "NM": "#57A773", "skipped": "#B8B8B8"}
-LABEL_COLOURS = {"articulated": DECISION_COLOURS["AM"], "rigid": DECISION_COLOURS["RM"],
-                 "static": DECISION_COLOURS["NM"]}
+LABEL_COLOURS = {
+    "articulated": DECISION_COLOURS["AM"],
+    "rigid": DECISION_COLOURS["RM"],
+    "static": DECISION_COLOURS["NM"],
+}
 DECISION_NAMES = {"AM": "articulated motion", "RM": "rigid motion", "NM": "no motion", "skipped": "skipped"}
 # Distinct, colour-blind-friendly colours for motion clusters (Okabe-Ito, then Tableau).
-CLUSTER_COLOURS = ("#0072B2", "#E69F00", "#009E73", "#CC79A7", "#D55E00", "#56B4E9", "#F0E442", "#000000",
-                   "#8C564B", "#BCBD22", "#17BECF", "#7F7F7F")
+CLUSTER_COLOURS = (
+    "#0072B2",
+    "#E69F00",
+    "#009E73",
+    "#CC79A7",
+    "#D55E00",
+    "#56B4E9",
+    "#F0E442",
+    "#000000",
+    "#8C564B",
+    "#BCBD22",
+    "#17BECF",
+    "#7F7F7F",
+)
 SOURCE_COLOUR = "#5B8DB8"
 TARGET_COLOUR = "#E8A33D"
 _LEVELS = ["skipped", "NM", "RM", "AM"]
@@ -71,17 +96,33 @@ def class_fractions(result: RunResult) -> go.Figure:
     """Horizontal bars: the share of decided pairs that are AM, RM and NM (the paper's Tables 3-4)."""
     fig = go.Figure()
     _fraction_bars(fig, result)
-    return _layout(fig, title="Class fractions", xaxis=dict(range=[0, 1.15], tickformat=".0%"), height=260,
-                   showlegend=False)
+    return _layout(
+        fig,
+        title="Class fractions",
+        xaxis=dict(range=[0, 1.15], tickformat=".0%"),
+        height=260,
+        showlegend=False,
+    )
 
 
 def _fraction_bars(fig: go.Figure, result: RunResult, **where) -> None:
     names = ["NM", "RM", "AM"]
     values = [result.fractions.get(d, 0.0) for d in names]
-    fig.add_trace(go.Bar(x=values, y=names, orientation="h", marker_color=[DECISION_COLOURS[d] for d in names],
-                         text=[f"{v:.0%}" for v in values], textposition="outside", cliponaxis=False,
-                         name="fractions", showlegend=False,
-                         hovertemplate="%{y}: %{x:.1%} of decided pairs<extra></extra>"), **where)
+    fig.add_trace(
+        go.Bar(
+            x=values,
+            y=names,
+            orientation="h",
+            marker_color=[DECISION_COLOURS[d] for d in names],
+            text=[f"{v:.0%}" for v in values],
+            textposition="outside",
+            cliponaxis=False,
+            name="fractions",
+            showlegend=False,
+            hovertemplate="%{y}: %{x:.1%} of decided pairs<extra></extra>",
+        ),
+        **where,
+    )
 
 
 def decision_timeline(result: RunResult, *, selected: int | None = None) -> go.Figure:
@@ -103,52 +144,110 @@ def decision_timeline(result: RunResult, *, selected: int | None = None) -> go.F
     """
     w = result.params.get("pipeline", {}).get("w")
     k = result.params.get("pipeline", {}).get("k")
-    fig = make_subplots(rows=1, cols=2, column_widths=[0.8, 0.2], horizontal_spacing=0.06,
-                        subplot_titles=("", "Class fractions"))
+    fig = make_subplots(
+        rows=1,
+        cols=2,
+        column_widths=[0.8, 0.2],
+        horizontal_spacing=0.06,
+        subplot_titles=("", "Class fractions"),
+    )
     pairs = result.pairs
     xs = [p.i for p in pairs]
     decided = [p for p in pairs if p.decision != "skipped"]
-    filtered = dict(zip((p.i for p in decided), result.filtered)) if len(result.filtered) == len(decided) else {}
-    hover = [f"frames {p.i} → {p.j}: <b>{p.decision}</b> ({DECISION_NAMES[p.decision]})<br>{html.escape(p.reason)}"
-             + (f"<br>after the filter: {filtered[p.i]}" if p.i in filtered else "")
-             + (f"<br>truth: {p.truth}" if p.truth else "") + f"<br>{sum(c.matched for c in p.cells)} of "
-             f"{len(p.cells)} cells matched" for p in pairs]
-    fig.add_trace(go.Scatter(
-        x=xs, y=[p.decision for p in pairs], mode="markers", name="pair decision",
-        marker=dict(size=13, color=[DECISION_COLOURS[p.decision] for p in pairs], line=dict(width=1, color="white"),
-                    symbol=["x-thin-open" if p.decision == "skipped" else "circle" for p in pairs]),
-        customdata=list(range(len(pairs))), hovertext=hover, hovertemplate="%{hovertext}<extra></extra>"),
-        row=1, col=1)
+    filtered = (
+        dict(zip((p.i for p in decided), result.filtered)) if len(result.filtered) == len(decided) else {}
+    )
+    hover = [
+        f"frames {p.i} → {p.j}: <b>{p.decision}</b> ({DECISION_NAMES[p.decision]})<br>{html.escape(p.reason)}"
+        + (f"<br>after the filter: {filtered[p.i]}" if p.i in filtered else "")
+        + (f"<br>truth: {p.truth}" if p.truth else "")
+        + f"<br>{sum(c.matched for c in p.cells)} of "
+        f"{len(p.cells)} cells matched"
+        for p in pairs
+    ]
+    fig.add_trace(
+        go.Scatter(
+            x=xs,
+            y=[p.decision for p in pairs],
+            mode="markers",
+            name="pair decision",
+            marker=dict(
+                size=13,
+                color=[DECISION_COLOURS[p.decision] for p in pairs],
+                line=dict(width=1, color="white"),
+                symbol=["x-thin-open" if p.decision == "skipped" else "circle" for p in pairs],
+            ),
+            customdata=list(range(len(pairs))),
+            hovertext=hover,
+            hovertemplate="%{hovertext}<extra></extra>",
+        ),
+        row=1,
+        col=1,
+    )
     if decided and len(result.filtered) == len(decided):
-        fig.add_trace(go.Scatter(
-            x=[p.i for p in decided], y=list(result.filtered), mode="lines", line_shape="hvh",
-            name=f"filtered (w = {w})" if w else "filtered", line=dict(color="#333333", width=2, dash="dot"),
-            hoverinfo="skip"), row=1, col=1)
+        fig.add_trace(
+            go.Scatter(
+                x=[p.i for p in decided],
+                y=list(result.filtered),
+                mode="lines",
+                line_shape="hvh",
+                name=f"filtered (w = {w})" if w else "filtered",
+                line=dict(color="#333333", width=2, dash="dot"),
+                hoverinfo="skip",
+            ),
+            row=1,
+            col=1,
+        )
     truth = [p for p in pairs if p.truth]
     if truth:
-        fig.add_trace(go.Scatter(
-            x=[p.i for p in truth], y=[p.truth for p in truth], mode="markers", name="ground truth",
-            marker=dict(size=19, symbol="circle-open", color="#333333", line=dict(width=1.5)),
-            hoverinfo="skip"), row=1, col=1)
+        fig.add_trace(
+            go.Scatter(
+                x=[p.i for p in truth],
+                y=[p.truth for p in truth],
+                mode="markers",
+                name="ground truth",
+                marker=dict(size=19, symbol="circle-open", color="#333333", line=dict(width=1.5)),
+                hoverinfo="skip",
+            ),
+            row=1,
+            col=1,
+        )
     if selected is not None and 0 <= selected < len(pairs):
         fig.add_vline(x=pairs[selected].i, line=dict(color="#888888", width=1.5, dash="dash"), row=1, col=1)
     _fraction_bars(fig, result, row=1, col=2)
-    fig.update_yaxes(type="category", categoryorder="array", categoryarray=_LEVELS, range=[-0.5, 3.5],
-                     row=1, col=1)
-    fig.update_xaxes(title_text=f"pair (i, i + {k}): first frame i" if k else "first frame i of the pair", row=1, col=1,
-                     range=[min(xs, default=0) - 0.7, max(xs, default=0) + 0.7])
+    fig.update_yaxes(
+        type="category", categoryorder="array", categoryarray=_LEVELS, range=[-0.5, 3.5], row=1, col=1
+    )
+    fig.update_xaxes(
+        title_text=f"pair (i, i + {k}): first frame i" if k else "first frame i of the pair",
+        row=1,
+        col=1,
+        range=[min(xs, default=0) - 0.7, max(xs, default=0) + 0.7],
+    )
     fig.update_xaxes(range=[0, 1.3], tickformat=".0%", row=1, col=2)
     truth_text = ""
     if result.sequence.get("truth"):
         ok = result.label == result.sequence["truth"]
         truth_text = f"  ·  ground truth: {result.sequence['truth']} {'✓' if ok else '✗'}"
     colour = LABEL_COLOURS.get(result.label, "#333333")
-    return _layout(fig, height=330, title=dict(
-        text=f"{html.escape(str(result.sequence.get('name', '')))}: <b style='color:{colour}'>{result.label}</b>"
-             f"{truth_text}", x=0.01),
-        legend=dict(orientation="h", yanchor="bottom", y=1.02, xanchor="right", x=0.78), clickmode="event+select",
-        meta=dict(sequence=result.sequence, label=result.label, plugins=result.plugins, params=_jsonable(result.params)),
-        margin=dict(l=10, r=10, t=80, b=10))
+    return _layout(
+        fig,
+        height=330,
+        title=dict(
+            text=f"{html.escape(str(result.sequence.get('name', '')))}: <b style='color:{colour}'>{result.label}</b>"
+            f"{truth_text}",
+            x=0.01,
+        ),
+        legend=dict(orientation="h", yanchor="bottom", y=1.02, xanchor="right", x=0.78),
+        clickmode="event+select",
+        meta=dict(
+            sequence=result.sequence,
+            label=result.label,
+            plugins=result.plugins,
+            params=_jsonable(result.params),
+        ),
+        margin=dict(l=10, r=10, t=80, b=10),
+    )
 
 
 def _jsonable(value):
@@ -172,8 +271,9 @@ def _cell_rows(pair: PairResult) -> list[dict[str, Any]]:
     return [c.to_dict() for c in pair.cells]
 
 
-def motion_arrows(pair: PairResult, source: Cloud, target: Cloud, *, max_points: int = 6000,
-                  magnify: float | None = None) -> go.Figure:
+def motion_arrows(
+    pair: PairResult, source: Cloud, target: Cloud, *, max_points: int = 6000, magnify: float | None = None
+) -> go.Figure:
     """Both clouds of a pair and one arrow (cone) per matched cell: the motion of the cell's centre.
 
     Parameters
@@ -195,20 +295,38 @@ def motion_arrows(pair: PairResult, source: Cloud, target: Cloud, *, max_points:
     displacement (mm).
     """
     fig = go.Figure()
-    for cloud, name, colour in ((source, f"frame {pair.i}", SOURCE_COLOUR), (target, f"frame {pair.j}", TARGET_COLOUR)):
+    for cloud, name, colour in (
+        (source, f"frame {pair.i}", SOURCE_COLOUR),
+        (target, f"frame {pair.j}", TARGET_COLOUR),
+    ):
         pts = _subsample(np.asarray(cloud.points), max_points)
-        fig.add_trace(go.Scatter3d(x=pts[:, 0], y=pts[:, 1], z=pts[:, 2], mode="markers", name=name,
-                                   marker=dict(size=1.6, color=colour, opacity=0.55), hoverinfo="skip"))
+        fig.add_trace(
+            go.Scatter3d(
+                x=pts[:, 0],
+                y=pts[:, 1],
+                z=pts[:, 2],
+                mode="markers",
+                name=name,
+                marker=dict(size=1.6, color=colour, opacity=0.55),
+                hoverinfo="skip",
+            )
+        )
     rows = _cell_rows(pair)
     matched = [(c, r) for c, r in zip(pair.cells, rows) if c.matched]
     disp = np.array([r["centre_displacement_m"] for _, r in matched]).reshape(-1, 3)
     longest = float(np.linalg.norm(disp, axis=1).max()) if len(disp) else 0.0
     cell = pair.cell_size_m or 0.05
-    gain = magnify if magnify is not None else (float(np.clip(0.8 * cell / longest, 1.0, 500.0)) if longest > 0 else 1.0)
+    gain = (
+        magnify
+        if magnify is not None
+        else (float(np.clip(0.8 * cell / longest, 1.0, 500.0)) if longest > 0 else 1.0)
+    )
     clusters: dict[Any, list[int]] = {}
     for n, (c, _) in enumerate(matched):
         clusters.setdefault(c.cluster, []).append(n)
-    for order, (cluster, members) in enumerate(sorted(clusters.items(), key=lambda kv: (kv[0] is None, kv[0] or 0))):
+    for order, (cluster, members) in enumerate(
+        sorted(clusters.items(), key=lambda kv: (kv[0] is None, kv[0] or 0))
+    ):
         colour = CLUSTER_COLOURS[order % len(CLUSTER_COLOURS)] if cluster is not None else "#555555"
         cells = [matched[m][0] for m in members]
         info = [matched[m][1] for m in members]
@@ -217,34 +335,89 @@ def motion_arrows(pair: PairResult, source: Cloud, target: Cloud, *, max_points:
         name = f"{label} · {len(members)} cell{'s' if len(members) != 1 else ''}"
         centres = np.array([c.centre_m for c in cells], dtype=float).reshape(-1, 3)
         vec = disp[members] * gain
-        custom = np.array([[r["fitness"], r["rotation_deg"], 1000 * np.linalg.norm(r["translation_m"]),
-                            1000 * np.linalg.norm(r["centre_displacement_m"]), r["n_source"], r["n_target"],
-                            r["rmse_m"] * 1000] for r in info])
-        cell_text = [f"{label}<br>cell {tuple(r['cell'])}" + (f"<br>key {html.escape(key)}" if key else "")
-                     for r in info]
-        template = ("%{text}<br>fitness %{customdata[0]:.2f}, rmse %{customdata[6]:.2f} mm"
-                    "<br>rotation %{customdata[1]:.2f}°<br>translation %{customdata[2]:.1f} mm"
-                    "<br>centre moved %{customdata[3]:.1f} mm<br>points %{customdata[4]:.0f} → %{customdata[5]:.0f}"
-                    "<extra></extra>")
-        fig.add_trace(go.Cone(x=centres[:, 0], y=centres[:, 1], z=centres[:, 2], u=vec[:, 0], v=vec[:, 1], w=vec[:, 2],
-                              sizemode="raw", sizeref=1.0, anchor="tail", colorscale=[[0, colour], [1, colour]],
-                              showscale=False, name=name, legendgroup=f"c{order}", showlegend=False,
-                              customdata=custom, text=cell_text, hovertemplate=template,
-                              lighting=dict(ambient=0.8, diffuse=0.6)))
-        fig.add_trace(go.Scatter3d(x=centres[:, 0], y=centres[:, 1], z=centres[:, 2], mode="markers",
-                                   name=name, legendgroup=f"c{order}", showlegend=True,
-                                   marker=dict(size=3.5, color=colour, symbol="circle"),
-                                   customdata=custom, text=cell_text, hovertemplate=template))
+        custom = np.array(
+            [
+                [
+                    r["fitness"],
+                    r["rotation_deg"],
+                    1000 * np.linalg.norm(r["translation_m"]),
+                    1000 * np.linalg.norm(r["centre_displacement_m"]),
+                    r["n_source"],
+                    r["n_target"],
+                    r["rmse_m"] * 1000,
+                ]
+                for r in info
+            ]
+        )
+        cell_text = [
+            f"{label}<br>cell {tuple(r['cell'])}" + (f"<br>key {html.escape(key)}" if key else "")
+            for r in info
+        ]
+        template = (
+            "%{text}<br>fitness %{customdata[0]:.2f}, rmse %{customdata[6]:.2f} mm"
+            "<br>rotation %{customdata[1]:.2f}°<br>translation %{customdata[2]:.1f} mm"
+            "<br>centre moved %{customdata[3]:.1f} mm<br>points %{customdata[4]:.0f} → %{customdata[5]:.0f}"
+            "<extra></extra>"
+        )
+        fig.add_trace(
+            go.Cone(
+                x=centres[:, 0],
+                y=centres[:, 1],
+                z=centres[:, 2],
+                u=vec[:, 0],
+                v=vec[:, 1],
+                w=vec[:, 2],
+                sizemode="raw",
+                sizeref=1.0,
+                anchor="tail",
+                colorscale=[[0, colour], [1, colour]],
+                showscale=False,
+                name=name,
+                legendgroup=f"c{order}",
+                showlegend=False,
+                customdata=custom,
+                text=cell_text,
+                hovertemplate=template,
+                lighting=dict(ambient=0.8, diffuse=0.6),
+            )
+        )
+        fig.add_trace(
+            go.Scatter3d(
+                x=centres[:, 0],
+                y=centres[:, 1],
+                z=centres[:, 2],
+                mode="markers",
+                name=name,
+                legendgroup=f"c{order}",
+                showlegend=True,
+                marker=dict(size=3.5, color=colour, symbol="circle"),
+                customdata=custom,
+                text=cell_text,
+                hovertemplate=template,
+            )
+        )
     skipped = [(c, r) for c, r in zip(pair.cells, rows) if not c.matched]
     if skipped:
         centres = np.array([c.centre_m for c, _ in skipped], dtype=float).reshape(-1, 3)
-        fig.add_trace(go.Scatter3d(
-            x=centres[:, 0], y=centres[:, 1], z=centres[:, 2], mode="markers", name=f"skipped cells ({len(skipped)})",
-            marker=dict(size=2.5, color="#8A8A8A", symbol="circle", opacity=0.8),
-            text=[f"cell {tuple(r['cell'])}<br>skipped: {html.escape(str(c.skipped))}<br>points "
-                  f"{r['n_source']} → {r['n_target']}" for c, r in skipped],
-            hovertemplate="%{text}<extra></extra>"))
-    title = f"Pair {pair.i} → {pair.j}: <b style='color:{DECISION_COLOURS[pair.decision]}'>{pair.decision}</b>"
+        fig.add_trace(
+            go.Scatter3d(
+                x=centres[:, 0],
+                y=centres[:, 1],
+                z=centres[:, 2],
+                mode="markers",
+                name=f"skipped cells ({len(skipped)})",
+                marker=dict(size=2.5, color="#8A8A8A", symbol="circle", opacity=0.8),
+                text=[
+                    f"cell {tuple(r['cell'])}<br>skipped: {html.escape(str(c.skipped))}<br>points "
+                    f"{r['n_source']} → {r['n_target']}"
+                    for c, r in skipped
+                ],
+                hovertemplate="%{text}<extra></extra>",
+            )
+        )
+    title = (
+        f"Pair {pair.i} → {pair.j}: <b style='color:{DECISION_COLOURS[pair.decision]}'>{pair.decision}</b>"
+    )
     if pair.cell_size_m:
         title += f"  ·  cell size x = {1000 * pair.cell_size_m:.1f} mm"
     if len(disp):
@@ -254,18 +427,41 @@ def motion_arrows(pair: PairResult, source: Cloud, target: Cloud, *, max_points:
 
 def _scene(fig: go.Figure, title: str, pair: PairResult) -> go.Figure:
     """The 3D layout of a pair's figure: camera view, axes in metres, legend at the right."""
-    axis = dict(showbackground=True, backgroundcolor="#F4F6F8", gridcolor="#DDDDDD", zerolinecolor="#CCCCCC",
-                tickformat=".2f")
-    return _layout(fig, height=560, title=dict(text=title, x=0.01),
-                   legend=dict(itemsizing="constant", yanchor="top", y=0.98, xanchor="left", x=0.8,
-                               bgcolor="rgba(255,255,255,0.7)", maxheight=480),
-                   scene=dict(aspectmode="data", domain=dict(x=[0.0, 0.78], y=[0.0, 1.0]), xaxis=dict(title="x (m)", **axis), yaxis=dict(title="y (m)", **axis),
-                              zaxis=dict(title="z (m)", **axis),
-                              camera=dict(up=dict(x=0, y=-1, z=0), eye=dict(x=0.35, y=-0.45, z=-1.5))),
-                   uirevision=f"pair-{pair.i}-{pair.j}")
+    axis = dict(
+        showbackground=True,
+        backgroundcolor="#F4F6F8",
+        gridcolor="#DDDDDD",
+        zerolinecolor="#CCCCCC",
+        tickformat=".2f",
+    )
+    return _layout(
+        fig,
+        height=560,
+        title=dict(text=title, x=0.01),
+        legend=dict(
+            itemsizing="constant",
+            yanchor="top",
+            y=0.98,
+            xanchor="left",
+            x=0.8,
+            bgcolor="rgba(255,255,255,0.7)",
+            maxheight=480,
+        ),
+        scene=dict(
+            aspectmode="data",
+            domain=dict(x=[0.0, 0.78], y=[0.0, 1.0]),
+            xaxis=dict(title="x (m)", **axis),
+            yaxis=dict(title="y (m)", **axis),
+            zaxis=dict(title="z (m)", **axis),
+            camera=dict(up=dict(x=0, y=-1, z=0), eye=dict(x=0.35, y=-0.45, z=-1.5)),
+        ),
+        uirevision=f"pair-{pair.i}-{pair.j}",
+    )
 
 
-def motion_parts(pair: PairResult, target: Cloud, *, max_points: int = 6000, magnify: float | None = None) -> go.Figure:
+def motion_parts(
+    pair: PairResult, target: Cloud, *, max_points: int = 6000, magnify: float | None = None
+) -> go.Figure:
     """A pair decided from motions: the source points coloured by the motion that explains them, the
     target cloud in grey, and one arrow per motion (from its points' centroid, along its displacement).
 
@@ -283,38 +479,89 @@ def motion_parts(pair: PairResult, target: Cloud, *, max_points: int = 6000, mag
     """
     fig = go.Figure()
     pts = _subsample(np.asarray(target.points), max_points)
-    fig.add_trace(go.Scatter3d(x=pts[:, 0], y=pts[:, 1], z=pts[:, 2], mode="markers", name=f"frame {pair.j}",
-                               marker=dict(size=1.4, color="#B8B8B8", opacity=0.35), hoverinfo="skip"))
+    fig.add_trace(
+        go.Scatter3d(
+            x=pts[:, 0],
+            y=pts[:, 1],
+            z=pts[:, 2],
+            mode="markers",
+            name=f"frame {pair.j}",
+            marker=dict(size=1.4, color="#B8B8B8", opacity=0.35),
+            hoverinfo="skip",
+        )
+    )
     ev = pair.evidence
-    points, labels = ev.points[ev.forward], pair.labels[ev.forward]      # the source's points
+    points, labels = ev.points[ev.forward], pair.labels[ev.forward]  # the source's points
     size = float(np.linalg.norm(np.ptp(points, axis=0))) if len(points) else 0.1
     moved = [points[labels == n] for n in range(len(pair.motions))]
     centroids = [m.mean(axis=0) if len(m) else np.zeros(3) for m in moved]
     shifts = [transform(c[None], m.T_target_from_source)[0] - c for c, m in zip(centroids, pair.motions)]
     longest = max((float(np.linalg.norm(d)) for d in shifts), default=0.0)
-    gain = magnify if magnify is not None else (float(np.clip(0.2 * size / longest, 1.0, 500.0)) if longest > 0 else 1.0)
+    gain = (
+        magnify
+        if magnify is not None
+        else (float(np.clip(0.2 * size / longest, 1.0, 500.0)) if longest > 0 else 1.0)
+    )
     step = max(1, len(points) // max_points)
     for n, (motion, own, c, d) in enumerate(zip(pair.motions, moved, centroids, shifts)):
         colour = CLUSTER_COLOURS[n % len(CLUSTER_COLOURS)]
         name = f"motion {n} · {motion.n_points} points"
-        text = (f"motion {n} ({html.escape(motion.name)})<br>rotation {motion.to_dict()['rotation_deg']:.1f}°"
-                f"<br>points moved {1000 * motion.displacement_m:.1f} mm (median)")
+        text = (
+            f"motion {n} ({html.escape(motion.name)})<br>rotation {motion.to_dict()['rotation_deg']:.1f}°"
+            f"<br>points moved {1000 * motion.displacement_m:.1f} mm (median)"
+        )
         own = own[::step]
-        fig.add_trace(go.Scatter3d(x=own[:, 0], y=own[:, 1], z=own[:, 2], mode="markers", name=name,
-                                   legendgroup=f"m{n}", marker=dict(size=2.2, color=colour, opacity=0.8),
-                                   text=[text] * len(own), hovertemplate="%{text}<extra></extra>"))
+        fig.add_trace(
+            go.Scatter3d(
+                x=own[:, 0],
+                y=own[:, 1],
+                z=own[:, 2],
+                mode="markers",
+                name=name,
+                legendgroup=f"m{n}",
+                marker=dict(size=2.2, color=colour, opacity=0.8),
+                text=[text] * len(own),
+                hovertemplate="%{text}<extra></extra>",
+            )
+        )
         if len(moved[n]):
             v = d * gain
-            fig.add_trace(go.Cone(x=[c[0]], y=[c[1]], z=[c[2]], u=[v[0]], v=[v[1]], w=[v[2]], sizemode="raw",
-                                  sizeref=1.0, anchor="tail", colorscale=[[0, colour], [1, colour]], showscale=False,
-                                  name=name, legendgroup=f"m{n}", showlegend=False, text=[text],
-                                  hovertemplate="%{text}<extra></extra>"))
+            fig.add_trace(
+                go.Cone(
+                    x=[c[0]],
+                    y=[c[1]],
+                    z=[c[2]],
+                    u=[v[0]],
+                    v=[v[1]],
+                    w=[v[2]],
+                    sizemode="raw",
+                    sizeref=1.0,
+                    anchor="tail",
+                    colorscale=[[0, colour], [1, colour]],
+                    showscale=False,
+                    name=name,
+                    legendgroup=f"m{n}",
+                    showlegend=False,
+                    text=[text],
+                    hovertemplate="%{text}<extra></extra>",
+                )
+            )
     loose = points[labels < 0][::step]
     if len(loose):
-        fig.add_trace(go.Scatter3d(x=loose[:, 0], y=loose[:, 1], z=loose[:, 2], mode="markers",
-                                   name=f"no evidence ({int((labels < 0).sum())})", hoverinfo="skip",
-                                   marker=dict(size=1.6, color="#555555", opacity=0.6)))
-    title = f"Pair {pair.i} → {pair.j}: <b style='color:{DECISION_COLOURS[pair.decision]}'>{pair.decision}</b>"
+        fig.add_trace(
+            go.Scatter3d(
+                x=loose[:, 0],
+                y=loose[:, 1],
+                z=loose[:, 2],
+                mode="markers",
+                name=f"no evidence ({int((labels < 0).sum())})",
+                hoverinfo="skip",
+                marker=dict(size=1.6, color="#555555", opacity=0.6),
+            )
+        )
+    title = (
+        f"Pair {pair.i} → {pair.j}: <b style='color:{DECISION_COLOURS[pair.decision]}'>{pair.decision}</b>"
+    )
     title += f"  ·  {len(pair.motions)} motion{'s' if len(pair.motions) != 1 else ''}"
     title += f"  ·  arrows ×{gain:.0f}" if gain >= 1.5 else ""
     return _scene(fig, title, pair)
@@ -322,12 +569,16 @@ def motion_parts(pair: PairResult, target: Cloud, *, max_points: int = 6000, mag
 
 def motions_table(pair: PairResult) -> list[dict[str, Any]]:
     """One row per selected motion: where it came from, its points, rotation and displacement."""
-    return [dict(motion=n, **{k: v for k, v in m.to_dict().items() if k != "T_target_from_source"})
-            for n, m in enumerate(pair.motions)]
+    return [
+        dict(motion=n, **{k: v for k, v in m.to_dict().items() if k != "T_target_from_source"})
+        for n, m in enumerate(pair.motions)
+    ]
 
 
 # -- frames --------------------------------------------------------------------------------------------
-def _overlay(rgb: np.ndarray, mask: np.ndarray | None, *, colour=(228, 87, 46), alpha: float = 0.45) -> np.ndarray:
+def _overlay(
+    rgb: np.ndarray, mask: np.ndarray | None, *, colour=(228, 87, 46), alpha: float = 0.45
+) -> np.ndarray:
     out = np.ascontiguousarray(rgb[..., :3], dtype=np.uint8).copy()
     if mask is None or not mask.any():
         return out
@@ -345,7 +596,9 @@ def _png_uri(rgb: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(buf.tobytes()).decode("ascii")
 
 
-def frame_images(frame: Frame, mask: np.ndarray | None, *, title: str | None = None, max_width: int = 320) -> go.Figure:
+def frame_images(
+    frame: Frame, mask: np.ndarray | None, *, title: str | None = None, max_width: int = 320
+) -> go.Figure:
     """The frame's colour image with ``mask`` overlaid (tint + outline), beside its depth image.
 
     Parameters
@@ -365,20 +618,41 @@ def frame_images(frame: Frame, mask: np.ndarray | None, *, title: str | None = N
     depth = np.asarray(frame.depth_m[::step, ::step], dtype=np.float32).copy()
     depth[~(np.isfinite(depth) & (depth > 0))] = np.nan
     n_mask = int(np.count_nonzero(mask)) if mask is not None else 0
-    fig = make_subplots(rows=1, cols=2, horizontal_spacing=0.04,
-                        subplot_titles=(f"colour + mask ({n_mask} px)" if mask is not None else "colour (no mask)",
-                                        "depth (m)"))
-    fig.add_trace(go.Image(source=_png_uri(_overlay(frame.rgb, mask)), name="colour", hoverinfo="skip"), row=1, col=1)
-    fig.add_trace(go.Heatmap(z=depth, x=np.arange(depth.shape[1]) * step, y=np.arange(depth.shape[0]) * step,
-                             colorscale="Viridis", name="depth", colorbar=dict(title="m", thickness=12, len=0.9),
-                             hovertemplate="u %{x}, v %{y}: %{z:.3f} m<extra></extra>"), row=1, col=2)
+    fig = make_subplots(
+        rows=1,
+        cols=2,
+        horizontal_spacing=0.04,
+        subplot_titles=(
+            f"colour + mask ({n_mask} px)" if mask is not None else "colour (no mask)",
+            "depth (m)",
+        ),
+    )
+    fig.add_trace(
+        go.Image(source=_png_uri(_overlay(frame.rgb, mask)), name="colour", hoverinfo="skip"), row=1, col=1
+    )
+    fig.add_trace(
+        go.Heatmap(
+            z=depth,
+            x=np.arange(depth.shape[1]) * step,
+            y=np.arange(depth.shape[0]) * step,
+            colorscale="Viridis",
+            name="depth",
+            colorbar=dict(title="m", thickness=12, len=0.9),
+            hovertemplate="u %{x}, v %{y}: %{z:.3f} m<extra></extra>",
+        ),
+        row=1,
+        col=2,
+    )
     fig.update_xaxes(showticklabels=False, showgrid=False, zeroline=False)
     fig.update_yaxes(showticklabels=False, showgrid=False, zeroline=False)
     fig.update_yaxes(autorange="reversed", scaleanchor="x2", row=1, col=2)
     fig.update_xaxes(range=[0, w], row=1, col=2)
-    return _layout(fig, height=max(220, int(300 * h / max(w, 1)) + 60),
-                   title=dict(text=title or f"frame {frame.index} ({html.escape(frame.name)})", x=0.01),
-                   margin=dict(l=5, r=5, t=60, b=5))
+    return _layout(
+        fig,
+        height=max(220, int(300 * h / max(w, 1)) + 60),
+        title=dict(text=title or f"frame {frame.index} ({html.escape(frame.name)})", x=0.01),
+        margin=dict(l=5, r=5, t=60, b=5),
+    )
 
 
 # -- tables ------------------------------------------------------------------------------------------
@@ -393,20 +667,24 @@ def cells_table(pair: PairResult) -> list[dict[str, Any]]:
     out = []
     for cell, r in zip(pair.cells, _cell_rows(pair)):
         reg = "fitness" in r
-        out.append({
-            "cell": str(tuple(r["cell"])),
-            "status": "matched" if cell.matched else str(cell.skipped),
-            "cluster": r["cluster"],
-            "key": r["key"],
-            "n_source": r["n_source"],
-            "n_target": r["n_target"],
-            "fitness": round(r["fitness"], 3) if reg else None,
-            "rmse_mm": round(1000 * r["rmse_m"], 3) if reg else None,
-            "rotation_deg": round(r["rotation_deg"], 3) if reg else None,
-            "translation_mm": round(1000 * float(np.linalg.norm(r["translation_m"])), 2) if reg else None,
-            "displacement_mm": round(1000 * float(np.linalg.norm(r["centre_displacement_m"])), 2) if reg else None,
-            "centre_mm": ", ".join(f"{1000 * v:.0f}" for v in r["centre_m"]),
-        })
+        out.append(
+            {
+                "cell": str(tuple(r["cell"])),
+                "status": "matched" if cell.matched else str(cell.skipped),
+                "cluster": r["cluster"],
+                "key": r["key"],
+                "n_source": r["n_source"],
+                "n_target": r["n_target"],
+                "fitness": round(r["fitness"], 3) if reg else None,
+                "rmse_mm": round(1000 * r["rmse_m"], 3) if reg else None,
+                "rotation_deg": round(r["rotation_deg"], 3) if reg else None,
+                "translation_mm": round(1000 * float(np.linalg.norm(r["translation_m"])), 2) if reg else None,
+                "displacement_mm": round(1000 * float(np.linalg.norm(r["centre_displacement_m"])), 2)
+                if reg
+                else None,
+                "centre_mm": ", ".join(f"{1000 * v:.0f}" for v in r["centre_m"]),
+            }
+        )
     return out
 
 
@@ -421,16 +699,29 @@ def confusion_figure(metrics: Mapping[str, Any], *, title: str | None = None) ->
     truths = list(confusion)
     predicted = list(next(iter(confusion.values())))
     z = [[confusion[t][p] for p in predicted] for t in truths]
-    fig = go.Figure(go.Heatmap(z=z, x=predicted, y=truths, colorscale="Blues", showscale=False, texttemplate="%{z}",
-                               textfont=dict(size=18), xgap=3, ygap=3,
-                               hovertemplate="truth %{y}, predicted %{x}: %{z}<extra></extra>"))
+    fig = go.Figure(
+        go.Heatmap(
+            z=z,
+            x=predicted,
+            y=truths,
+            colorscale="Blues",
+            showscale=False,
+            texttemplate="%{z}",
+            textfont=dict(size=18),
+            xgap=3,
+            ygap=3,
+            hovertemplate="truth %{y}, predicted %{x}: %{z}<extra></extra>",
+        )
+    )
     fig.update_yaxes(autorange="reversed", title="ground truth")
     fig.update_xaxes(side="top", title="predicted")
     acc = metrics.get("accuracy")
     text = title or "Confusion matrix"
     if acc is not None:
         text += f"  ·  accuracy {100 * acc:.1f} % of {metrics.get('n_sequences', '?')}"
-    return _layout(fig, height=340, title=dict(text=text, x=0.01, y=0.97), margin=dict(l=10, r=10, t=90, b=10))
+    return _layout(
+        fig, height=340, title=dict(text=text, x=0.01, y=0.97), margin=dict(l=10, r=10, t=90, b=10)
+    )
 
 
 # -- export --------------------------------------------------------------------------------------------
@@ -442,12 +733,16 @@ def figures_html(figures: Mapping[str, go.Figure] | Sequence[go.Figure], *, titl
         if heading:
             parts.append(f"<h2>{html.escape(heading)}</h2>")
         parts.append(fig.to_html(full_html=False, include_plotlyjs=(n == 0)))
-    return ("<!DOCTYPE html><html><head><meta charset='utf-8'>"
-            f"<title>{html.escape(title)}</title><style>body{{font-family:sans-serif;margin:2em}}</style></head>"
-            f"<body><h1>{html.escape(title)}</h1>{''.join(parts)}</body></html>")
+    return (
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>"
+        f"<title>{html.escape(title)}</title><style>body{{font-family:sans-serif;margin:2em}}</style></head>"
+        f"<body><h1>{html.escape(title)}</h1>{''.join(parts)}</body></html>"
+    )
 
 
-def frame_images_with_hand(frame: Frame, mask: np.ndarray | None, hand: np.ndarray | None, **kwargs) -> go.Figure:
+def frame_images_with_hand(
+    frame: Frame, mask: np.ndarray | None, hand: np.ndarray | None, **kwargs
+) -> go.Figure:
     """:func:`frame_images`, with the hand or gripper mask (bool (H, W), or None) overlaid in blue on
     the colour image and its size in the subplot title."""
     fig = frame_images(frame, mask, **kwargs)
@@ -458,6 +753,7 @@ def frame_images_with_hand(frame: Frame, mask: np.ndarray | None, hand: np.ndarr
 
 
 # -- parts and joints ------------------------------------------------------------------------------------
+
 
 def _part_colour(index: int) -> str:
     return "#8C8C8C" if index == 0 else CLUSTER_COLOURS[(index - 1) % len(CLUSTER_COLOURS)]
@@ -481,9 +777,17 @@ def parts_3d(articulation, *, max_points: int = 4000) -> go.Figure:
     length = max(float(np.linalg.norm(np.ptp(extent, axis=0))) / 2, 0.05)
     for part in articulation.parts:
         pts = _subsample(np.asarray(part.points_m), max_points)
-        fig.add_trace(go.Scatter3d(x=pts[:, 0], y=pts[:, 1], z=pts[:, 2], mode="markers", name=part.name,
-                                   marker=dict(size=2.0, color=_part_colour(part.index), opacity=0.8),
-                                   hovertemplate=f"{part.name}<extra></extra>"))
+        fig.add_trace(
+            go.Scatter3d(
+                x=pts[:, 0],
+                y=pts[:, 1],
+                z=pts[:, 2],
+                mode="markers",
+                name=part.name,
+                marker=dict(size=2.0, color=_part_colour(part.index), opacity=0.8),
+                hovertemplate=f"{part.name}<extra></extra>",
+            )
+        )
     for joint in articulation.joints:
         e = joint.estimate
         if e.axis_direction is None or e.axis_point_m is None:
@@ -492,16 +796,49 @@ def parts_3d(articulation, *, max_points: int = 4000) -> go.Figure:
         tail, head = c - d * length / 2, c + d * length / 2
         colour = _part_colour(joint.child)
         text = html.escape(e.summary(up=articulation.UP))
-        fig.add_trace(go.Scatter3d(x=[tail[0], head[0]], y=[tail[1], head[1]], z=[tail[2], head[2]], mode="lines",
-                                   line=dict(color=colour, width=6), name=f"{e.type} axis", legendgroup=f"j{joint.child}",
-                                   text=[text] * 2, hovertemplate="%{text}<extra></extra>"))
+        fig.add_trace(
+            go.Scatter3d(
+                x=[tail[0], head[0]],
+                y=[tail[1], head[1]],
+                z=[tail[2], head[2]],
+                mode="lines",
+                line=dict(color=colour, width=6),
+                name=f"{e.type} axis",
+                legendgroup=f"j{joint.child}",
+                text=[text] * 2,
+                hovertemplate="%{text}<extra></extra>",
+            )
+        )
         tip = d * length / 5
-        fig.add_trace(go.Cone(x=[head[0]], y=[head[1]], z=[head[2]], u=[tip[0]], v=[tip[1]], w=[tip[2]],
-                              sizemode="raw", sizeref=1.0, anchor="tail", colorscale=[[0, colour], [1, colour]],
-                              showscale=False, name=f"{e.type} axis", legendgroup=f"j{joint.child}", showlegend=False,
-                              text=[text], hovertemplate="%{text}<extra></extra>"))
-    fig.update_layout(scene=dict(aspectmode="data", xaxis_title="x (m)", yaxis_title="y (m)", zaxis_title="z (m)",
-                                 camera=dict(up=dict(x=0, y=-1, z=0), eye=dict(x=0.0, y=-0.3, z=-2.0))))
+        fig.add_trace(
+            go.Cone(
+                x=[head[0]],
+                y=[head[1]],
+                z=[head[2]],
+                u=[tip[0]],
+                v=[tip[1]],
+                w=[tip[2]],
+                sizemode="raw",
+                sizeref=1.0,
+                anchor="tail",
+                colorscale=[[0, colour], [1, colour]],
+                showscale=False,
+                name=f"{e.type} axis",
+                legendgroup=f"j{joint.child}",
+                showlegend=False,
+                text=[text],
+                hovertemplate="%{text}<extra></extra>",
+            )
+        )
+    fig.update_layout(
+        scene=dict(
+            aspectmode="data",
+            xaxis_title="x (m)",
+            yaxis_title="y (m)",
+            zaxis_title="z (m)",
+            camera=dict(up=dict(x=0, y=-1, z=0), eye=dict(x=0.0, y=-0.3, z=-2.0)),
+        )
+    )
     return _layout(fig, title=f"Parts and joints: {articulation.summary()}", height=480)
 
 
@@ -516,25 +853,55 @@ def joint_states(articulation) -> go.Figure:
         std = (e.states_std if e.states_std is not None else np.zeros_like(e.states)) * scale
         colour = _part_colour(joint.child)
         name = f"part{joint.child} ({e.type}, {unit})"
-        fig.add_trace(go.Scatter(x=np.r_[frames, frames[::-1]], y=np.r_[q + std, (q - std)[::-1]], fill="toself",
-                                 fillcolor=colour, opacity=0.2, line=dict(width=0), hoverinfo="skip",
-                                 showlegend=False, legendgroup=name))
-        fig.add_trace(go.Scatter(x=frames, y=q, mode="lines+markers", name=name, legendgroup=name,
-                                 line=dict(color=colour), hovertemplate="frame %{x}: %{y:.1f} " + unit + "<extra></extra>"))
-    return _layout(fig, title="Joint state over the video", xaxis_title="frame", yaxis_title="state (deg or mm)",
-                   height=320)
+        fig.add_trace(
+            go.Scatter(
+                x=np.r_[frames, frames[::-1]],
+                y=np.r_[q + std, (q - std)[::-1]],
+                fill="toself",
+                fillcolor=colour,
+                opacity=0.2,
+                line=dict(width=0),
+                hoverinfo="skip",
+                showlegend=False,
+                legendgroup=name,
+            )
+        )
+        fig.add_trace(
+            go.Scatter(
+                x=frames,
+                y=q,
+                mode="lines+markers",
+                name=name,
+                legendgroup=name,
+                line=dict(color=colour),
+                hovertemplate="frame %{x}: %{y:.1f} " + unit + "<extra></extra>",
+            )
+        )
+    return _layout(
+        fig,
+        title="Joint state over the video",
+        xaxis_title="frame",
+        yaxis_title="state (deg or mm)",
+        height=320,
+    )
 
 
-def part_image(frame: Frame, labels: np.ndarray | None, *, title: str | None = None, max_width: int = 320) -> go.Figure:
+def part_image(
+    frame: Frame, labels: np.ndarray | None, *, title: str | None = None, max_width: int = 320
+) -> go.Figure:
     """The colour image with each part of ``labels`` (H, W; 0 none, 1 + part index) in its colour."""
     rgb = frame.rgb.copy()
     if labels is not None:
         for value in np.unique(labels[labels > 0]):
             colour = _part_colour(int(value) - 1).lstrip("#")
-            rgb = _overlay(rgb, labels == value, colour=tuple(int(colour[k:k + 2], 16) for k in (0, 2, 4)))
+            rgb = _overlay(rgb, labels == value, colour=tuple(int(colour[k : k + 2], 16) for k in (0, 2, 4)))
     if rgb.shape[1] > max_width:
-        rgb = cv2.resize(rgb, (max_width, round(rgb.shape[0] * max_width / rgb.shape[1])), interpolation=cv2.INTER_AREA)
+        rgb = cv2.resize(
+            rgb, (max_width, round(rgb.shape[0] * max_width / rgb.shape[1])), interpolation=cv2.INTER_AREA
+        )
     fig = go.Figure(go.Image(source=_png_uri(rgb)))
     fig.update_xaxes(visible=False)
     fig.update_yaxes(visible=False)
-    return _layout(fig, title=title or f"Frame {frame.index}: parts", height=300, margin=dict(l=0, r=0, t=40, b=0))
+    return _layout(
+        fig, title=title or f"Frame {frame.index}: parts", height=300, margin=dict(l=0, r=0, t=40, b=0)
+    )

@@ -48,11 +48,18 @@ class FrameSteps:
         with self._lock:
             if name not in self._segmenters:
                 self._segmenters[name] = self.registry.create(
-                    "segmenter", name, self.config.plugin_params(self.registry, "segmenter", name))
+                    "segmenter", name, self.config.plugin_params(self.registry, "segmenter", name)
+                )
             return self._segmenters[name]
 
-    def frame(self, sequence: Sequence, i: int, *, timing: dict[str, float] | None = None,
-              cache: StageCache | None = None) -> FrameResult:
+    def frame(
+        self,
+        sequence: Sequence,
+        i: int,
+        *,
+        timing: dict[str, float] | None = None,
+        cache: StageCache | None = None,
+    ) -> FrameResult:
         """Read, segment and preprocess frame ``i`` (taken from ``cache`` when it holds it). A frame with
         no object is returned as skipped."""
         return self._finish_frame(self._raw_frame(sequence, i, timing if timing is not None else {}, cache))
@@ -65,7 +72,9 @@ class FrameSteps:
         """What the output of ``stage`` on ``sequence`` depends on (:func:`~artclass_core.config.stage_dependencies`)."""
         return stage_dependencies(self.config, self.registry, stage, segmenter=self.segmenter_name(sequence))
 
-    def _raw_frame(self, sequence: Sequence, i: int, timing: dict[str, float], cache: StageCache | None) -> _RawFrame:
+    def _raw_frame(
+        self, sequence: Sequence, i: int, timing: dict[str, float], cache: StageCache | None
+    ) -> _RawFrame:
         key = None if cache is None else self.frame_key(sequence, i, cache)
         if (hit := None if key is None else cache.get("frame", key)) is not None:
             return hit
@@ -78,7 +87,9 @@ class FrameSteps:
         n_mask = 0 if mask is None else int(np.count_nonzero(mask))
         raw = _RawFrame(i, frame.name, None, 0)
         if n_mask:
-            raw = _RawFrame(i, frame.name, self.preprocessor.process(frame, mask, intrinsics=sequence.intrinsics), n_mask)
+            raw = _RawFrame(
+                i, frame.name, self.preprocessor.process(frame, mask, intrinsics=sequence.intrinsics), n_mask
+            )
             add_time(timing, "preprocess", time.perf_counter() - t2)
         if key is not None:
             cache.put("frame", key, raw)
@@ -89,6 +100,12 @@ class FrameSteps:
             return FrameResult(raw.index, raw.name, None, skipped="no object found")
         cloud = raw.cloud
         if len(cloud) < self.params.min_cell_points:
-            return FrameResult(raw.index, raw.name, None, skipped=f"only {len(cloud)} object points",
-                               mask_pixels=raw.mask_pixels, info=dict(cloud.info))
+            return FrameResult(
+                raw.index,
+                raw.name,
+                None,
+                skipped=f"only {len(cloud)} object points",
+                mask_pixels=raw.mask_pixels,
+                info=dict(cloud.info),
+            )
         return FrameResult(raw.index, raw.name, cloud, mask_pixels=raw.mask_pixels, info=dict(cloud.info))

@@ -17,15 +17,15 @@ def quaternion_wxyz(R: np.ndarray) -> np.ndarray:
     """
     m = np.asarray(R, dtype=np.float64)
     if m.shape != (3, 3) or not np.isfinite(m).all() or _det3(m) <= 0:
-        x, y, z, w = Rotation.from_matrix(m).as_quat()   # scipy's own checks and error messages
+        x, y, z, w = Rotation.from_matrix(m).as_quat()  # scipy's own checks and error messages
     else:
-        if not (np.abs(m @ m.T - _EYE3) <= _GRAM_TOLERANCE).all():   # np.isclose(atol=1e-12, rtol=1e-5)
+        if not (np.abs(m @ m.T - _EYE3) <= _GRAM_TOLERANCE).all():  # np.isclose(atol=1e-12, rtol=1e-5)
             u, _, vt = np.linalg.svd(m, full_matrices=False)
             m = u @ vt
         trace = m[0, 0] + m[1, 1] + m[2, 2]
         decision = (m[0, 0], m[1, 1], m[2, 2], trace)
-        choice = max(range(4), key=decision.__getitem__)   # first maximum, as numpy's argmax
-        q = np.empty(4)                                    # x, y, z, w
+        choice = max(range(4), key=decision.__getitem__)  # first maximum, as numpy's argmax
+        q = np.empty(4)  # x, y, z, w
         if choice != 3:
             i, j, k = choice, (choice + 1) % 3, (choice + 2) % 3
             q[i] = 1 - trace + 2 * m[i, i]
@@ -47,8 +47,11 @@ _GRAM_TOLERANCE = 1e-12 + 1e-5 * _EYE3
 
 
 def _det3(m: np.ndarray) -> float:
-    return float(m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-                 + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
+    return float(
+        m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
+        - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+        + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])
+    )
 
 
 def rotation_angle_rad(R: np.ndarray) -> float:
@@ -89,7 +92,7 @@ def hull_vertices(points: np.ndarray) -> np.ndarray:
         return points
     try:
         return points[ConvexHull(points).vertices]
-    except (QhullError, ValueError):   # flat or collinear cloud: the hull within its plane, or its two ends
+    except (QhullError, ValueError):  # flat or collinear cloud: the hull within its plane, or its two ends
         return _flat_hull(points)
 
 
@@ -97,14 +100,14 @@ def diameter_of_vertices(vertices: np.ndarray) -> float:
     """Largest distance between any two of ``vertices`` (N, 3); 0 for fewer than two."""
     if len(vertices) < 2:
         return 0.0
-    return float(np.sqrt(pdist(vertices, "sqeuclidean").max()))   # no (V, V, 3) temporary
+    return float(np.sqrt(pdist(vertices, "sqeuclidean").max()))  # no (V, V, 3) temporary
 
 
 def _flat_hull(points: np.ndarray) -> np.ndarray:
     """Hull vertices of a cloud that spans fewer than three dimensions (exact, like the 3-D hull)."""
     centred = points - points.mean(0)
     _, s, vt = np.linalg.svd(centred, full_matrices=False)
-    if s[0] == 0 or s[1] <= s[0] * 1e-9:            # all points on one line (or one point)
+    if s[0] == 0 or s[1] <= s[0] * 1e-9:  # all points on one line (or one point)
         along = centred @ vt[0]
         return points[[int(along.argmin()), int(along.argmax())]]
     try:
@@ -139,10 +142,12 @@ def grid_cells(source: np.ndarray, target: np.ndarray, *, cell_size_m: float):
     n_s = len(source)
     out = []
     for c, first in enumerate(starts):
-        members = order[first:bounds[c + 1]]
+        members = order[first : bounds[c + 1]]
         cell = keys[members[0]]
         centre = origin + (cell + 0.5) * cell_size_m
-        out.append((tuple(int(v) for v in cell), centre, members[members < n_s], members[members >= n_s] - n_s))
+        out.append(
+            (tuple(int(v) for v in cell), centre, members[members < n_s], members[members >= n_s] - n_s)
+        )
     return out
 
 

@@ -63,8 +63,15 @@ class Registrar(Plugin):
     #: ``"motions"`` (a :class:`MotionEvidence` for the whole pair, from :meth:`PairRegistrar.register_pair`).
     gives: ClassVar[str] = "cells"
 
-    def register(self, source: np.ndarray, target: np.ndarray, *, source_normals: np.ndarray | None,
-                 target_normals: np.ndarray | None, cell_size_m: float) -> Registration:
+    def register(
+        self,
+        source: np.ndarray,
+        target: np.ndarray,
+        *,
+        source_normals: np.ndarray | None,
+        target_normals: np.ndarray | None,
+        cell_size_m: float,
+    ) -> Registration:
         """Register the source points of one cell onto the target points, starting from identity."""
         raise NotImplementedError
 
@@ -90,7 +97,7 @@ class RuleDecision:
 
     decision: Decision
     clusters: list[int | None]
-    keys: list[str] = field(default_factory=list)   # readable name of each cluster, by cluster index
+    keys: list[str] = field(default_factory=list)  # readable name of each cluster, by cluster index
     reason: str = ""
     info: dict[str, Any] = field(default_factory=dict)
     motions: list[Motion] = field(default_factory=list)
@@ -113,8 +120,15 @@ class DecisionRule(Plugin):
     #: the entries on what they depend on besides the pair, e.g. ``("my_rule", params.max_points)``.
     uses_scratch: bool = False
 
-    def decide(self, cells: list[CellMotion], *, source: Cloud, target: Cloud,
-               between: tuple[Cloud, ...] = (), scratch: dict | None = None) -> RuleDecision:
+    def decide(
+        self,
+        cells: list[CellMotion],
+        *,
+        source: Cloud,
+        target: Cloud,
+        between: tuple[Cloud, ...] = (),
+        scratch: dict | None = None,
+    ) -> RuleDecision:
         """Decide AM / RM / NM (or skipped) for a pair from its registered cells."""
         raise NotImplementedError
 
@@ -182,8 +196,10 @@ class JointEstimate:
         if self.type == "fixed":
             return "fixed joint: the part does not move relative to its parent"
         if self.type == "free" or self.axis_direction is None:
-            return f"free motion: no single joint explains the part's motion ({int(self.inliers.sum())} of " \
-                   f"{len(self.inliers)} poses fit the best one)"
+            return (
+                f"free motion: no single joint explains the part's motion ({int(self.inliers.sum())} of "
+                f"{len(self.inliers)} poses fit the best one)"
+            )
         up = np.asarray(up, float) / np.linalg.norm(up)
         tilt = np.degrees(np.arccos(np.clip(abs(float(self.axis_direction @ up)), 0.0, 1.0)))
         word = "direction" if self.type == "prismatic" else "axis"

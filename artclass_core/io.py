@@ -39,8 +39,11 @@ def read_depth(path: Path, *, units_per_metre: float) -> np.ndarray:
     path = Path(path)
     image = _read(path, cv2.IMREAD_UNCHANGED)
     if image.dtype != np.uint16 or image.ndim != 2:
-        raise InputError(f"depth must be a single-channel 16-bit image, got {image.dtype} with "
-                         f"{1 if image.ndim == 2 else image.shape[2]} channel(s)", path=path)
+        raise InputError(
+            f"depth must be a single-channel 16-bit image, got {image.dtype} with "
+            f"{1 if image.ndim == 2 else image.shape[2]} channel(s)",
+            path=path,
+        )
     return image.astype(np.float32) / np.float32(units_per_metre)
 
 
@@ -55,8 +58,11 @@ def read_label(path: Path) -> np.ndarray:
     path = Path(path)
     image = _read(path, cv2.IMREAD_UNCHANGED)
     if image.ndim != 2 or image.dtype.kind not in "ui":
-        raise InputError(f"label image must be a single-channel integer image, got {image.dtype} with "
-                         f"{1 if image.ndim == 2 else image.shape[2]} channel(s)", path=path)
+        raise InputError(
+            f"label image must be a single-channel integer image, got {image.dtype} with "
+            f"{1 if image.ndim == 2 else image.shape[2]} channel(s)",
+            path=path,
+        )
     return image
 
 
@@ -78,7 +84,9 @@ def require_number(data: dict, key: str, *, path: Path, positive: bool = True) -
     try:
         value = float(data[key])
     except KeyError:
-        raise InputError(f"missing {key!r} (camera intrinsics and depth scale are required)", path=path) from None
+        raise InputError(
+            f"missing {key!r} (camera intrinsics and depth scale are required)", path=path
+        ) from None
     except (TypeError, ValueError):
         raise InputError(f"{key!r} is not a number: {data[key]!r}", path=path) from None
     if not np.isfinite(value) or (positive and value <= 0):

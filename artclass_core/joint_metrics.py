@@ -35,7 +35,9 @@ def axis_direction_error_rad(true_direction, estimated_direction, *, sign_invari
     return float(np.arccos(np.clip(abs(cos) if sign_invariant else cos, -1.0, 1.0)))
 
 
-def axis_position_error_m(true_point_m, true_direction, estimated_point_m, estimated_direction, *, at_m) -> float:
+def axis_position_error_m(
+    true_point_m, true_direction, estimated_point_m, estimated_direction, *, at_m
+) -> float:
     """Distance between the true and the estimated axis lines, measured at the part, metres.
 
     Parameters
@@ -47,7 +49,9 @@ def axis_position_error_m(true_point_m, true_direction, estimated_point_m, estim
         at an angle are far apart away from the crossing, so the place matters.
     """
     d_true, d_est = _unit(true_direction), _unit(estimated_direction)
-    at_on_true = np.asarray(true_point_m, float) + d_true * float((np.asarray(at_m, float) - true_point_m) @ d_true)
+    at_on_true = np.asarray(true_point_m, float) + d_true * float(
+        (np.asarray(at_m, float) - true_point_m) @ d_true
+    )
     offset = at_on_true - np.asarray(estimated_point_m, float)
     return float(np.linalg.norm(offset - d_est * float(offset @ d_est)))
 
@@ -75,7 +79,9 @@ def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
     return np.count_nonzero(a & b) / union if union else 0.0
 
 
-def part_iou(true_labels: np.ndarray, estimated_labels: np.ndarray, *, background: int = 0) -> dict[int, float]:
+def part_iou(
+    true_labels: np.ndarray, estimated_labels: np.ndarray, *, background: int = 0
+) -> dict[int, float]:
     """IoU of each true part with the estimated part matched to it, from two label images (H, W).
 
     Estimated labels are arbitrary numbers: each true part is matched one-to-one to the estimated part
@@ -119,8 +125,11 @@ def _matched_parts(articulation, true_labels: dict[int, np.ndarray]) -> tuple[di
         if not (est > 1).any():
             continue
         to_true = {e: t for e, t in match.items()}
-        per_frame += [mask_iou(truth == t + 1, np.isin(est, [e + 1 for e, tt in to_true.items() if tt == t]))
-                      for t in range(n_true) if (truth == t + 1).any()]
+        per_frame += [
+            mask_iou(truth == t + 1, np.isin(est, [e + 1 for e, tt in to_true.items() if tt == t]))
+            for t in range(n_true)
+            if (truth == t + 1).any()
+        ]
     return match, per_frame
 
 
@@ -150,7 +159,12 @@ def score_articulation(articulation, truth: dict, true_labels: dict[int, np.ndar
     for joint in articulation.joints:
         parent, child = match.get(joint.parent), match.get(joint.child)
         found = [n for n, j in enumerate(true_joints) if {j["parent"], j["child"]} == {parent, child}]
-        if not found and child is not None and child < len(true_parts) and true_parts[child].get("joint") is not None:
+        if (
+            not found
+            and child is not None
+            and child < len(true_parts)
+            and true_parts[child].get("joint") is not None
+        ):
             found = [true_parts[child]["joint"]]
         if not found:
             out["joints"].append(dict(type=joint.estimate.type, true_type=None))
@@ -165,7 +179,10 @@ def _joint_errors(est, true: dict, truth: dict, *, swapped: bool) -> dict:
     scores = dict(type=est.type, true_type=true["type"])
     if est.axis_direction is None or est.axis_point_m is None:
         return scores
-    direction, point = np.asarray(true["axis_camera0"][0], float), np.asarray(true["origin_camera0_m"][0], float)
+    direction, point = (
+        np.asarray(true["axis_camera0"][0], float),
+        np.asarray(true["origin_camera0_m"][0], float),
+    )
     moving = true["child"]
     local = np.asarray(truth["part_points_m"][0][moving], float).reshape(-1, 3)
     P = np.asarray(truth["part_poses"][0][moving], float)
@@ -173,10 +190,14 @@ def _joint_errors(est, true: dict, truth: dict, *, swapped: bool) -> dict:
     prismatic = true["type"] == "prismatic"
     same = (float(direction @ est.axis_direction) > 0) != swapped
     error = state_error(true["state"], est.states, same_direction=same)
-    scores.update(axis_direction_error_deg=float(np.degrees(axis_direction_error_rad(
-                      direction, est.axis_direction, sign_invariant=True))),
-                  axis_position_error_mm=None if prismatic else 1000 * axis_position_error_m(
-                      point, direction, est.axis_point_m, est.axis_direction, at_m=at),
-                  state_error=float(error * (1000 if prismatic else np.degrees(1.0))),
-                  state_unit="mm" if prismatic else "deg")
+    scores.update(
+        axis_direction_error_deg=float(
+            np.degrees(axis_direction_error_rad(direction, est.axis_direction, sign_invariant=True))
+        ),
+        axis_position_error_mm=None
+        if prismatic
+        else 1000 * axis_position_error_m(point, direction, est.axis_point_m, est.axis_direction, at_m=at),
+        state_error=float(error * (1000 if prismatic else np.degrees(1.0))),
+        state_unit="mm" if prismatic else "deg",
+    )
     return scores

@@ -20,7 +20,7 @@ def max_count_filter(decisions: list[str], *, w: int) -> list[str]:
     out = []
     before = (w - 1) // 2
     for t in range(len(decisions)):
-        window = decisions[max(0, t - before): t - before + w]
+        window = decisions[max(0, t - before) : t - before + w]
         counts = Counter(window)
         top = max(counts.values())
         tied = [d for d in counts if counts[d] == top]
@@ -40,20 +40,38 @@ def fractions(decided: list[str]) -> dict[str, float]:
     return {d: (decided.count(d) / n if n else 0.0) for d in DECISIONS}
 
 
-def labelled_result(sequence: dict[str, Any], frames: list[FrameResult], pairs: list[PairResult], *, w: int,
-                    params: dict[str, dict], plugins: dict[str, str], timing: dict[str, float]) -> RunResult:
+def labelled_result(
+    sequence: dict[str, Any],
+    frames: list[FrameResult],
+    pairs: list[PairResult],
+    *,
+    w: int,
+    params: dict[str, dict],
+    plugins: dict[str, str],
+    timing: dict[str, float],
+) -> RunResult:
     """The :class:`RunResult` of a sequence's pair decisions: filtered with window ``w``, the label and
     the class fractions, recorded with the ``params`` and ``plugins`` that produced them, the stage
     ``timing`` (s) and the artclass version."""
     decided = [p.decision for p in pairs if p.decision != "skipped"]
     filtered = max_count_filter(decided, w=w)
-    return RunResult(sequence=sequence, label=sequence_label(filtered), fractions=fractions(decided), pairs=pairs,
-                     filtered=filtered, frames=frames, params=params, plugins=plugins,
-                     timing_s={k: round(v, 4) for k, v in timing.items()}, version=_version())
+    return RunResult(
+        sequence=sequence,
+        label=sequence_label(filtered),
+        fractions=fractions(decided),
+        pairs=pairs,
+        filtered=filtered,
+        frames=frames,
+        params=params,
+        plugins=plugins,
+        timing_s={k: round(v, 4) for k, v in timing.items()},
+        version=_version(),
+    )
 
 
 def _version() -> str:
     from importlib.metadata import PackageNotFoundError, version
+
     try:
         return version("artclass")
     except PackageNotFoundError:

@@ -18,8 +18,16 @@ from .errors import ParamError
 DIMENSIONLESS = "1"
 
 
-def param(default: Any, *, help: str, symbol: str = "", unit: str = "", bounds: tuple = (None, None),
-          auto: str = "", choices: tuple = ()) -> Any:
+def param(
+    default: Any,
+    *,
+    help: str,
+    symbol: str = "",
+    unit: str = "",
+    bounds: tuple = (None, None),
+    auto: str = "",
+    choices: tuple = (),
+) -> Any:
     """Declare a parameter field.
 
     Parameters
@@ -33,8 +41,10 @@ def param(default: Any, *, help: str, symbol: str = "", unit: str = "", bounds: 
     auto : how the value is derived when left as ``None``
     choices : allowed values of a string parameter
     """
-    return field(default=default, metadata=dict(help=help, symbol=symbol, unit=unit, bounds=bounds,
-                                                auto=auto, choices=tuple(choices)))
+    return field(
+        default=default,
+        metadata=dict(help=help, symbol=symbol, unit=unit, bounds=bounds, auto=auto, choices=tuple(choices)),
+    )
 
 
 @dataclass(frozen=True)
@@ -49,11 +59,15 @@ class Params:
                     raise ParamError(f"parameter {spec.name} has no value and no automatic default")
                 continue
             if spec.choices and value not in spec.choices:
-                raise ParamError(f"parameter {spec.label} = {value!r} is not one of {', '.join(map(str, spec.choices))}")
+                raise ParamError(
+                    f"parameter {spec.label} = {value!r} is not one of {', '.join(map(str, spec.choices))}"
+                )
             low, high = spec.bounds
             if (low is not None and value < low) or (high is not None and value > high):
-                raise ParamError(f"parameter {spec.label} = {value} is out of bounds "
-                                 f"[{'-inf' if low is None else low}, {'inf' if high is None else high}]")
+                raise ParamError(
+                    f"parameter {spec.label} = {value} is out of bounds "
+                    f"[{'-inf' if low is None else low}, {'inf' if high is None else high}]"
+                )
 
 
 @dataclass(frozen=True)
@@ -82,9 +96,22 @@ def describe(params_cls: type) -> list[ParamSpec]:
     for f in dataclasses.fields(params_cls):
         md = f.metadata
         kind = hints[f.name]
-        base = next((t for t in (bool, int, float, str) if t == kind or t in getattr(kind, "__args__", ())), str)
-        specs.append(ParamSpec(f.name, base, f.default, md.get("help", ""), md.get("symbol", ""), md.get("unit", ""),
-                               md.get("bounds", (None, None)), md.get("auto", ""), md.get("choices", ())))
+        base = next(
+            (t for t in (bool, int, float, str) if t == kind or t in getattr(kind, "__args__", ())), str
+        )
+        specs.append(
+            ParamSpec(
+                f.name,
+                base,
+                f.default,
+                md.get("help", ""),
+                md.get("symbol", ""),
+                md.get("unit", ""),
+                md.get("bounds", (None, None)),
+                md.get("auto", ""),
+                md.get("choices", ()),
+            )
+        )
     return specs
 
 
@@ -111,22 +138,53 @@ def as_dict(params: Params) -> dict[str, Any]:
 class PipelineParams(Params):
     """Parameters of the pipeline itself, shared by every choice of plugins."""
 
-    k: int = param(5, symbol="k", unit="frames", bounds=(1, 1000),
-                   help="Frame skip: frame i is compared with frame i + k.")
-    w: int = param(3, symbol="w", unit="pairs", bounds=(1, 1001),
-                   help="Window of the moving max-count filter over the pair decisions (1 = no filtering). "
-                        "The paper leaves w open; 3 removes isolated single-pair errors.")
-    cell_size_m: float | None = param(None, symbol="x", unit="m", bounds=(1e-4, 10.0),
-                                      auto="1/5 of the largest distance between points of the pair",
-                                      help="Edge of the coarse grid cells that are registered one by one.")
-    alpha: float = param(0.3, symbol="alpha", unit="fraction", bounds=(0.0, 1.0),
-                         help="Fraction of a pair's occupied cells that must register; below it the pair is "
-                              "skipped as unreliable. The paper leaves alpha open.")
-    min_fitness: float = param(0.3, unit="fraction", bounds=(0.0, 1.0),
-                               help="A cell whose ICP fitness (share of source points with a correspondence) "
-                                    "is below this is skipped as a low-confidence match.")
-    prealign: bool = param(True, help="Move the source cloud by the whole-object motion (found with the chosen "
-                                      "registrar, coarse to fine) before the per-cell ICP, so cells of a carried "
-                                      "object register; false = the paper's per-cell ICP from the identity.")
-    min_cell_points: int = param(8, unit="points", bounds=(3, 100000),
-                                 help="A cell with fewer points than this in either frame is not registered.")
+    k: int = param(
+        5,
+        symbol="k",
+        unit="frames",
+        bounds=(1, 1000),
+        help="Frame skip: frame i is compared with frame i + k.",
+    )
+    w: int = param(
+        3,
+        symbol="w",
+        unit="pairs",
+        bounds=(1, 1001),
+        help="Window of the moving max-count filter over the pair decisions (1 = no filtering). "
+        "The paper leaves w open; 3 removes isolated single-pair errors.",
+    )
+    cell_size_m: float | None = param(
+        None,
+        symbol="x",
+        unit="m",
+        bounds=(1e-4, 10.0),
+        auto="1/5 of the largest distance between points of the pair",
+        help="Edge of the coarse grid cells that are registered one by one.",
+    )
+    alpha: float = param(
+        0.3,
+        symbol="alpha",
+        unit="fraction",
+        bounds=(0.0, 1.0),
+        help="Fraction of a pair's occupied cells that must register; below it the pair is "
+        "skipped as unreliable. The paper leaves alpha open.",
+    )
+    min_fitness: float = param(
+        0.3,
+        unit="fraction",
+        bounds=(0.0, 1.0),
+        help="A cell whose ICP fitness (share of source points with a correspondence) "
+        "is below this is skipped as a low-confidence match.",
+    )
+    prealign: bool = param(
+        True,
+        help="Move the source cloud by the whole-object motion (found with the chosen "
+        "registrar, coarse to fine) before the per-cell ICP, so cells of a carried "
+        "object register; false = the paper's per-cell ICP from the identity.",
+    )
+    min_cell_points: int = param(
+        8,
+        unit="points",
+        bounds=(3, 100000),
+        help="A cell with fewer points than this in either frame is not registered.",
+    )

@@ -46,16 +46,28 @@ from .types import RunResult
 
 @dataclass(frozen=True)
 class PartsParams(Params):
-    min_overlap: float = param(0.25, unit="fraction", bounds=(0.05, 1.0),
-                               help="Two labelled regions (of two pairs, on one frame or neighbouring frames) may be "
-                                    "one part when their intersection over union reaches this (the larger overlaps "
-                                    "are merged first, and never two motions of one pair).")
-    min_pairs: int = param(2, unit="pairs", bounds=(1, 10_000),
-                           help="A moving part must be seen moving relative to the base in at least this many pairs.")
-    smoothness: float = param(1e-3, unit="1", bounds=(1e-9, 1.0),
-                              help="Weight of the smoothness term between neighbouring frames' states, relative to a "
-                                   "pair difference: it only places the interleaved chains of pairs relative to each "
-                                   "other.")
+    min_overlap: float = param(
+        0.25,
+        unit="fraction",
+        bounds=(0.05, 1.0),
+        help="Two labelled regions (of two pairs, on one frame or neighbouring frames) may be "
+        "one part when their intersection over union reaches this (the larger overlaps "
+        "are merged first, and never two motions of one pair).",
+    )
+    min_pairs: int = param(
+        2,
+        unit="pairs",
+        bounds=(1, 10_000),
+        help="A moving part must be seen moving relative to the base in at least this many pairs.",
+    )
+    smoothness: float = param(
+        1e-3,
+        unit="1",
+        bounds=(1e-9, 1.0),
+        help="Weight of the smoothness term between neighbouring frames' states, relative to a "
+        "pair difference: it only places the interleaved chains of pairs relative to each "
+        "other.",
+    )
 
 
 @dataclass
@@ -81,8 +93,14 @@ class Part:
     n_labelled: int
 
     def to_dict(self) -> dict[str, Any]:
-        return dict(index=self.index, name=self.name, parent=self.parent, n_frames=len(self.frames),
-                    n_labelled=self.n_labelled, n_points=len(self.points_m))
+        return dict(
+            index=self.index,
+            name=self.name,
+            parent=self.parent,
+            n_frames=len(self.frames),
+            n_labelled=self.n_labelled,
+            n_points=len(self.points_m),
+        )
 
 
 @dataclass
@@ -104,13 +122,22 @@ class PartJoint:
         def num(x):
             return None if x is None or not np.isfinite(x) else round(float(x), 6)
 
-        return dict(parent=self.parent, child=self.child, type=e.type, summary=e.summary(up=up),
-                    axis_direction=vec(e.axis_direction), axis_point_m=vec(e.axis_point_m),
-                    axis_direction_std_rad=num(e.axis_direction_std_rad), axis_point_std_m=num(e.axis_point_std_m),
-                    state_unit=e.state_unit, states=[num(q) for q in e.states],
-                    states_std=[num(q) for q in (e.states_std if e.states_std is not None else e.states * np.nan)],
-                    n_pairs=self.n_pairs, scores={k: round(v, 3) for k, v in e.scores.items()},
-                    info={k: (round(v, 6) if isinstance(v, float) else v) for k, v in e.info.items()})
+        return dict(
+            parent=self.parent,
+            child=self.child,
+            type=e.type,
+            summary=e.summary(up=up),
+            axis_direction=vec(e.axis_direction),
+            axis_point_m=vec(e.axis_point_m),
+            axis_direction_std_rad=num(e.axis_direction_std_rad),
+            axis_point_std_m=num(e.axis_point_std_m),
+            state_unit=e.state_unit,
+            states=[num(q) for q in e.states],
+            states_std=[num(q) for q in (e.states_std if e.states_std is not None else e.states * np.nan)],
+            n_pairs=self.n_pairs,
+            scores={k: round(v, 3) for k, v in e.scores.items()},
+            info={k: (round(v, 6) if isinstance(v, float) else v) for k, v in e.info.items()},
+        )
 
 
 @dataclass
@@ -136,7 +163,9 @@ class Articulation:
         return "; ".join(j.estimate.summary(up=self.UP) for j in self.joints)
 
     def to_dict(self) -> dict[str, Any]:
-        return dict(parts=[p.to_dict() for p in self.parts], joints=[j.to_dict(up=self.UP) for j in self.joints])
+        return dict(
+            parts=[p.to_dict() for p in self.parts], joints=[j.to_dict(up=self.UP) for j in self.joints]
+        )
 
     @property
     def frames(self) -> list[int]:
@@ -159,6 +188,7 @@ class Articulation:
 
 
 # -- the pairs' labelled points ------------------------------------------------------------------------
+
 
 @dataclass
 class _Observation:
@@ -187,13 +217,14 @@ def _observations(result: RunResult) -> list[_Observation]:
                 out.append(_Observation(n, frame, ev.pixels[part], ev.points[part], p.labels[part], forward))
         elif p.i in clouds and clouds[p.i].pixels is not None:
             c = clouds[p.i]
-            out.append(_Observation(n, p.i, c.pixels, c.points, p.labels[:len(c.points)], True))
+            out.append(_Observation(n, p.i, c.pixels, c.points, p.labels[: len(c.points)], True))
         else:
             raise ArtclassError("finding parts needs each pair's labelled points: run with keep_clouds=True")
     return out
 
 
 # -- 1. tracks: which motions of which pairs are one part -------------------------------------------------
+
 
 def _overlaps(a: _Observation, b: _Observation, same_cloud: bool) -> list[tuple[float, tuple, tuple]]:
     """(IoU, node a, node b) of every pair of motions of two labellings of one or neighbouring frames."""
@@ -266,14 +297,20 @@ def _tracks(observations: list[_Observation], *, min_overlap: float) -> dict[tup
     for ra, fa in frames.items():
         for rb, fb in frames.items():
             if ra != rb and max(fa) < min(fb) and not members[ra] & members[rb]:
-                gaps += [e for x in by_frame[max(fa)] for y in by_frame[min(fb)]
-                         for e in _overlaps(x, y, same_cloud=False) if root(e[1]) == ra and root(e[2]) == rb]
+                gaps += [
+                    e
+                    for x in by_frame[max(fa)]
+                    for y in by_frame[min(fb)]
+                    for e in _overlaps(x, y, same_cloud=False)
+                    if root(e[1]) == ra and root(e[2]) == rb
+                ]
     merge(gaps)
     roots = sorted({root(n) for n in nodes})
     return {n: roots.index(root(n)) for n in nodes}
 
 
 # -- poses chained through pairs ---------------------------------------------------------------------------
+
 
 def chain_pair_motions(n_frames: int, pairs, *, origin_m: np.ndarray) -> np.ndarray:
     """Per-frame poses of a part from its motions between frame pairs.
@@ -320,11 +357,12 @@ def chain_pair_motions(n_frames: int, pairs, *, origin_m: np.ndarray) -> np.ndar
 
 # -- 3. base poses --------------------------------------------------------------------------------------
 
+
 def _screw(T: np.ndarray, s: float) -> np.ndarray:
     """The rigid motion T (4, 4) taken ``s`` times along its screw: ``exp(s log T)``."""
     w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
 
-    def V(w):                       # exp of the twist (w, v) moves the origin by V(w) v
+    def V(w):  # exp of the twist (w, v) moves the origin by V(w) v
         theta = np.linalg.norm(w)
         K = np.cross(np.eye(3), w)
         if theta < 1e-9:
@@ -368,14 +406,16 @@ def chain_interleaved(n_frames: int, pairs: list[tuple[int, int, np.ndarray]]) -
 
 # -- 4. joints ----------------------------------------------------------------------------------------
 
+
 def _translation(v: np.ndarray) -> np.ndarray:
     T = np.eye(4)
     T[:3, 3] = v
     return T
 
 
-def frame_states(n_frames: int, pairs: list[tuple[int, int]], deltas: np.ndarray, stds: np.ndarray, *,
-                 smoothness: float) -> tuple[np.ndarray, np.ndarray]:
+def frame_states(
+    n_frames: int, pairs: list[tuple[int, int]], deltas: np.ndarray, stds: np.ndarray, *, smoothness: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame states (n_frames,) and their standard deviations from pair differences
     ``q_j - q_i = deltas`` (with standard deviations ``stds``), by weighted least squares.
 
@@ -389,7 +429,7 @@ def frame_states(n_frames: int, pairs: list[tuple[int, int]], deltas: np.ndarray
     states, std = np.full(n_frames, np.nan), np.full(n_frames, np.nan)
     if not seen:
         return states, std
-    frames = list(range(seen[0], seen[-1] + 1))     # frames between the pairs' are tied through too
+    frames = list(range(seen[0], seen[-1] + 1))  # frames between the pairs' are tied through too
     col = {f: c for c, f in enumerate(frames)}
     weights = 1.0 / np.maximum(np.asarray(stds, float), 1e-12)
     tie = smoothness * float(weights.max())
@@ -399,7 +439,7 @@ def frame_states(n_frames: int, pairs: list[tuple[int, int]], deltas: np.ndarray
         A[r, col[j]], A[r, col[i]], y[r] = w, -w, d * w
     for r, c in enumerate(range(1, len(frames) - 1), start=len(pairs)):
         A[r, c - 1], A[r, c], A[r, c + 1] = tie, -2 * tie, tie
-    A[-1, 0] = tie                                     # the first frame's state is 0
+    A[-1, 0] = tie  # the first frame's state is 0
     q = np.linalg.lstsq(A, y, rcond=None)[0]
     cov = np.linalg.pinv(A.T @ A)
     rows = [col[f] for f in seen]
@@ -408,19 +448,31 @@ def frame_states(n_frames: int, pairs: list[tuple[int, int]], deltas: np.ndarray
     return states, std
 
 
-def _pair_joint(relative: list[tuple[int, int, np.ndarray]], centre_m: np.ndarray, n_frames: int, *,
-                estimator: JointEstimator, smoothness: float) -> tuple[JointEstimate, int]:
+def _pair_joint(
+    relative: list[tuple[int, int, np.ndarray]],
+    centre_m: np.ndarray,
+    n_frames: int,
+    *,
+    estimator: JointEstimator,
+    smoothness: float,
+) -> tuple[JointEstimate, int]:
     """The joint from a part's relative motions (i, j, motion in the base's first-frame coordinates)
     and the number of pairs it explains. The estimator sees the part's pose (origin ``centre_m``)
     moved by each relative motion and by its inverse, and unmoved: for a one-degree-of-freedom joint
     all lie on one path, ``exp(±Δq ξ)``, with independent errors."""
     start = _translation(centre_m)
-    poses = np.stack([start] + [M @ start for _, _, M in relative] + [np.linalg.inv(M) @ start for _, _, M in relative])
+    poses = np.stack(
+        [start] + [M @ start for _, _, M in relative] + [np.linalg.inv(M) @ start for _, _, M in relative]
+    )
     estimate = estimator.estimate(poses)
     n = len(relative)
     forward, backward = np.arange(1, n + 1), np.arange(n + 1, 2 * n + 1)
-    explained = estimate.inliers[forward] & estimate.inliers[backward] & np.isfinite(estimate.states[forward]) \
+    explained = (
+        estimate.inliers[forward]
+        & estimate.inliers[backward]
+        & np.isfinite(estimate.states[forward])
         & np.isfinite(estimate.states[backward])
+    )
     keep = np.flatnonzero(explained) if estimate.type not in ("fixed", "free") else np.zeros(0, int)
     states = np.full(n_frames, np.nan)
     std = np.full(n_frames, np.nan)
@@ -429,16 +481,27 @@ def _pair_joint(relative: list[tuple[int, int, np.ndarray]], centre_m: np.ndarra
         deltas = (estimate.states[forward[keep]] - estimate.states[backward[keep]]) / 2
         spread = estimate.states_std if estimate.states_std is not None else np.ones(len(poses))
         pair_std = np.nan_to_num(np.hypot(spread[forward[keep]], spread[backward[keep]]) / 2, nan=1.0)
-        states, std = frame_states(n_frames, [relative[k][:2] for k in keep], deltas, pair_std, smoothness=smoothness)
+        states, std = frame_states(
+            n_frames, [relative[k][:2] for k in keep], deltas, pair_std, smoothness=smoothness
+        )
         if states[np.nanargmax(np.abs(states))] < 0:
-            states, direction = -states, -direction          # rising states; the axis turns with them
+            states, direction = -states, -direction  # rising states; the axis turns with them
     elif estimate.type == "fixed":
         states[sorted({f for i, j, _ in relative for f in (i, j)})] = 0.0
         std = np.where(np.isfinite(states), 0.0, np.nan)
     info = dict(estimate.info, n_pairs=n, n_pairs_explained=int(explained.sum()))
-    return JointEstimate(estimate.type, direction, estimate.axis_point_m, states, np.isfinite(states),
-                         estimate.axis_direction_std_rad, estimate.axis_point_std_m, std, estimate.scores,
-                         info), int(explained.sum())
+    return JointEstimate(
+        estimate.type,
+        direction,
+        estimate.axis_point_m,
+        states,
+        np.isfinite(states),
+        estimate.axis_direction_std_rad,
+        estimate.axis_point_std_m,
+        std,
+        estimate.scores,
+        info,
+    ), int(explained.sum())
 
 
 def joint_motion(estimate: JointEstimate, state: float) -> np.ndarray:
@@ -458,8 +521,10 @@ def joint_motion(estimate: JointEstimate, state: float) -> np.ndarray:
 
 # -- the whole ---------------------------------------------------------------------------------------------
 
-def find_articulation(result: RunResult, *, estimator: JointEstimator,
-                      params: PartsParams = PartsParams()) -> Articulation:
+
+def find_articulation(
+    result: RunResult, *, estimator: JointEstimator, params: PartsParams = PartsParams()
+) -> Articulation:
     """Parts and joints over the video of a finished run (see the module docstring).
 
     Parameters
@@ -480,14 +545,24 @@ def find_articulation(result: RunResult, *, estimator: JointEstimator,
     observations = _observations(result)
     if articulated:
         track = _tracks(observations, min_overlap=params.min_overlap)
-    else:                                  # one body: each pair's first motion is the object's
-        track = {(o.pair, int(m)): 0 if m == 0 else 1 for o in observations for m in np.unique(o.labels[o.labels >= 0])}
+    else:  # one body: each pair's first motion is the object's
+        track = {
+            (o.pair, int(m)): 0 if m == 0 else 1
+            for o in observations
+            for m in np.unique(o.labels[o.labels >= 0])
+        }
     size = _track_sizes(observations, track)
     base = max(size, key=size.get) if size else 0
     motion = {node: result.pairs[node[0]].motions[node[1]].T_target_from_source for node in track}
     base_motion = {pair: T for (pair, m), T in motion.items() if track[(pair, m)] == base}
-    base_poses = chain_interleaved(n_frames, [(result.pairs[n].i, result.pairs[n].j, T) for n, T in base_motion.items()])
-    moving = _moving_tracks(result, track, base, base_motion, size, min_pairs=params.min_pairs) if articulated else {}
+    base_poses = chain_interleaved(
+        n_frames, [(result.pairs[n].i, result.pairs[n].j, T) for n, T in base_motion.items()]
+    )
+    moving = (
+        _moving_tracks(result, track, base, base_motion, size, min_pairs=params.min_pairs)
+        if articulated
+        else {}
+    )
     number = {base: 0, **{t: n + 1 for n, t in enumerate(moving)}}
     views, points = _part_points(result, observations, track, number, base_poses)
     joints = []
@@ -496,10 +571,14 @@ def find_articulation(result: RunResult, *, estimator: JointEstimator,
         own = points.get(number[t], {})
         if len(relative) >= params.min_pairs and own:
             centre = np.median(np.concatenate(list(own.values())), axis=0)
-            estimate, n_pairs = _pair_joint(relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness)
+            estimate, n_pairs = _pair_joint(
+                relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness
+            )
             joints.append(PartJoint(0, number[t], estimate, n_pairs))
-    parts = [_part(n, points.get(n, {}), next((j for j in joints if j.child == n), None), size.get(t, 0))
-             for t, n in sorted(number.items(), key=lambda kv: kv[1])]
+    parts = [
+        _part(n, points.get(n, {}), next((j for j in joints if j.child == n), None), size.get(t, 0))
+        for t, n in sorted(number.items(), key=lambda kv: kv[1])
+    ]
     return Articulation(parts, joints, base_poses, views)
 
 
@@ -513,8 +592,15 @@ def _track_sizes(observations: list[_Observation], track: dict[tuple, int]) -> d
     return size
 
 
-def _moving_tracks(result: RunResult, track: dict[tuple, int], base: int, base_motion: dict[int, np.ndarray],
-                   size: dict[int, int], *, min_pairs: int) -> dict[int, list[tuple]]:
+def _moving_tracks(
+    result: RunResult,
+    track: dict[tuple, int],
+    base: int,
+    base_motion: dict[int, np.ndarray],
+    size: dict[int, int],
+    *,
+    min_pairs: int,
+) -> dict[int, list[tuple]]:
     """The moving parts (tracks other than the base seen in at least ``min_pairs`` AM pairs that also
     see the base), largest first, each with its nodes (pair, motion)."""
     seen: dict[int, list[tuple]] = {}
@@ -524,8 +610,13 @@ def _moving_tracks(result: RunResult, track: dict[tuple, int], base: int, base_m
     return {t: seen[t] for t in sorted(seen, key=lambda t: -size[t]) if len(seen[t]) >= min_pairs}
 
 
-def _part_points(result: RunResult, observations: list[_Observation], track: dict[tuple, int],
-                 number: dict[int, int], base_poses: np.ndarray) -> tuple[dict, dict[int, dict[int, np.ndarray]]]:
+def _part_points(
+    result: RunResult,
+    observations: list[_Observation],
+    track: dict[tuple, int],
+    number: dict[int, int],
+    base_poses: np.ndarray,
+) -> tuple[dict, dict[int, dict[int, np.ndarray]]]:
     """Each frame's part labelling (one per frame: a pair's source side first) and each part's points
     per frame, in the base's first-frame coordinates."""
     points: dict[int, dict[int, np.ndarray]] = {}
@@ -535,7 +626,7 @@ def _part_points(result: RunResult, observations: list[_Observation], track: dic
             continue
         n_motions = len(result.pairs[o.pair].motions)
         lookup = np.array([number.get(track.get((o.pair, m), -1), -1) for m in range(n_motions)] + [-1])
-        part = lookup[np.where(o.labels >= 0, o.labels, n_motions)]      # -1 for points of no motion
+        part = lookup[np.where(o.labels >= 0, o.labels, n_motions)]  # -1 for points of no motion
         keep = part >= 0
         views[o.frame] = (o.pixels[keep], part[keep], _mask(result, o.frame), _stride(result, o.frame))
         local = transform(o.points, np.linalg.inv(base_poses[o.frame]))
@@ -544,8 +635,13 @@ def _part_points(result: RunResult, observations: list[_Observation], track: dic
     return views, points
 
 
-def _relative_motions(result: RunResult, nodes: list[tuple], motion: dict, base_motion: dict[int, np.ndarray],
-                      base_poses: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
+def _relative_motions(
+    result: RunResult,
+    nodes: list[tuple],
+    motion: dict,
+    base_motion: dict[int, np.ndarray],
+    base_poses: np.ndarray,
+) -> list[tuple[int, int, np.ndarray]]:
     """(i, j, the part's motion relative to the base) of each pair that saw both, in the base's
     first-frame coordinates: ``C_i^-1 B^-1 P C_i`` with B and P the pair's base and part motions and
     C_i the base's pose in frame i."""
@@ -554,7 +650,9 @@ def _relative_motions(result: RunResult, nodes: list[tuple], motion: dict, base_
         p = result.pairs[pair]
         C = base_poses[p.i]
         if np.isfinite(C).all():
-            relative.append((p.i, p.j, np.linalg.inv(C) @ np.linalg.inv(base_motion[pair]) @ motion[(pair, m)] @ C))
+            relative.append(
+                (p.i, p.j, np.linalg.inv(C) @ np.linalg.inv(base_motion[pair]) @ motion[(pair, m)] @ C)
+            )
     return relative
 
 
@@ -568,8 +666,14 @@ def _part(index: int, own: dict[int, np.ndarray], joint: PartJoint | None, n_lab
         cloud = own[f]
         if joint is not None:
             cloud = transform(cloud, np.linalg.inv(joint_motion(joint.estimate, joint.estimate.states[f])))
-    return Part(index, "base" if index == 0 else f"part{index}", -1 if index == 0 else 0, cloud, sorted(own),
-                n_labelled)
+    return Part(
+        index,
+        "base" if index == 0 else f"part{index}",
+        -1 if index == 0 else 0,
+        cloud,
+        sorted(own),
+        n_labelled,
+    )
 
 
 def forget_clouds(result: RunResult) -> None:

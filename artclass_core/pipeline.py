@@ -41,18 +41,29 @@ class Pipeline(FrameSteps):
         self.config = _fitting(registry, config or Config())
         self.params = self.config.pipeline
         for kind in ("preprocessor", "registrar", "rule"):
-            plugin = registry.create(kind, getattr(self.config, kind), self.config.plugin_params(registry, kind))
+            plugin = registry.create(
+                kind, getattr(self.config, kind), self.config.plugin_params(registry, kind)
+            )
             setattr(self, kind, plugin)
         if self.registrar.gives != self.rule.needs:
-            raise ParamError(f"rule {self.rule.name!r} decides from {self.rule.needs}, but registrar "
-                             f"{self.registrar.name!r} gives {self.registrar.gives}: choose a matching pair "
-                             f"(artclass plugins lists them)")
+            raise ParamError(
+                f"rule {self.rule.name!r} decides from {self.rule.needs}, but registrar "
+                f"{self.registrar.name!r} gives {self.registrar.gives}: choose a matching pair "
+                f"(artclass plugins lists them)"
+            )
         self._segmenters: dict[str, object] = {} if segmenters is None else segmenters
         self._lock = threading.Lock()
 
     # -- the whole sequence ---------------------------------------------------------------------
-    def run(self, sequence: Sequence, *, progress: Progress | None = None, keep_clouds: bool = False,
-            workers: int = 1, cache: StageCache | None = None) -> RunResult:
+    def run(
+        self,
+        sequence: Sequence,
+        *,
+        progress: Progress | None = None,
+        keep_clouds: bool = False,
+        workers: int = 1,
+        cache: StageCache | None = None,
+    ) -> RunResult:
         """Classify a sequence: read, segment and preprocess each frame once; register and decide each
         pair (i, i + k); filter the decisions and label the sequence.
 
@@ -85,14 +96,22 @@ class Pipeline(FrameSteps):
             if progress:
                 progress("pairs", len(pairs), n - k)
 
-        frames = stream_pairs(n, k, workers=workers, timing=timing, done=done,
-                              frame=lambda i, t: self._raw_frame(sequence, i, t, cache),      # steps 1, 2
-                              finish=self._finish_frame,
-                              pair=lambda a, b, between, t: self._pair(sequence, a, b, between, t, cache))  # 3, 4
+        frames = stream_pairs(
+            n,
+            k,
+            workers=workers,
+            timing=timing,
+            done=done,
+            frame=lambda i, t: self._raw_frame(sequence, i, t, cache),  # steps 1, 2
+            finish=self._finish_frame,
+            pair=lambda a, b, between, t: self._pair(sequence, a, b, between, t, cache),
+        )  # 3, 4
         if all(f.skipped for f in frames):
             reason = Counter(f.skipped for f in frames).most_common(1)[0][0]
-            raise InputError(f"no object in any of the {n} frames (segmenter "
-                             f"{self.segmenter_name(sequence)!r}: {reason})", path=sequence.path)
+            raise InputError(
+                f"no object in any of the {n} frames (segmenter {self.segmenter_name(sequence)!r}: {reason})",
+                path=sequence.path,
+            )
         if not keep_clouds:
             for f in frames:
                 f.cloud = None
@@ -104,13 +123,17 @@ class Pipeline(FrameSteps):
         """The cell size x (m) of the pair (:func:`artclass_core.cells.cell_size`)."""
         return _cells.cell_size(source, target, cell_size_m=self.params.cell_size_m)
 
-    def register(self, source: Cloud, target: Cloud) -> tuple[list[CellMotion] | MotionEvidence, float | None]:
+    def register(
+        self, source: Cloud, target: Cloud
+    ) -> tuple[list[CellMotion] | MotionEvidence, float | None]:
         """The pair's cells registered on one grid of size x, with the fitness check applied, and x; or a
         pair registrar's :class:`MotionEvidence` and no cell size."""
         cells, x = self._register_raw(source, target)
         return (cells, x) if isinstance(cells, MotionEvidence) else (self.checked_cells(cells), x)
 
-    def _register_raw(self, source: Cloud, target: Cloud) -> tuple[tuple[CellMotion, ...] | MotionEvidence, float | None]:
+    def _register_raw(
+        self, source: Cloud, target: Cloud
+    ) -> tuple[tuple[CellMotion, ...] | MotionEvidence, float | None]:
         """:meth:`register` without the fitness check (which depends on ``min_fitness`` only)."""
         if self.registrar.gives == "motions":
             return self.registrar.register_pair(source, target), None
@@ -126,8 +149,18 @@ class Pipeline(FrameSteps):
         return (cache.sequence_token(sequence), i, j, *self.depends(sequence, "register"))
 
     # -- step 4: registrations -> pair decision ---------------------------------------------------
-    def decide(self, i: int, j: int, cells: list[CellMotion], source: Cloud, target: Cloud,
-               cell_size_m: float, between: Iterable[Cloud | None] = (), *, scratch: dict | None = None) -> PairResult:
+    def decide(
+        self,
+        i: int,
+        j: int,
+        cells: list[CellMotion],
+        source: Cloud,
+        target: Cloud,
+        cell_size_m: float,
+        between: Iterable[Cloud | None] = (),
+        *,
+        scratch: dict | None = None,
+    ) -> PairResult:
         """Apply the alpha check and the decision rule to a registered pair.
 
         The cells are copied first (the returned pair holds the copies, with their clusters), so the
@@ -136,25 +169,55 @@ class Pipeline(FrameSteps):
         (:attr:`DecisionRule.uses_frames_between`); it gets none when one of them is missing.
         ``scratch`` is the pair's scratch dict, for a rule that keeps evidence in it.
         """
-        return _cells.decide_cells(self.rule, i, j, cells, source, target, cell_size_m, tuple(between),
-                                   alpha=self.params.alpha, scratch={} if scratch is None else scratch)
+        return _cells.decide_cells(
+            self.rule,
+            i,
+            j,
+            cells,
+            source,
+            target,
+            cell_size_m,
+            tuple(between),
+            alpha=self.params.alpha,
+            scratch={} if scratch is None else scratch,
+        )
 
-    def decide_motions(self, i: int, j: int, evidence: MotionEvidence, *, scratch: dict | None = None) -> PairResult:
+    def decide_motions(
+        self, i: int, j: int, evidence: MotionEvidence, *, scratch: dict | None = None
+    ) -> PairResult:
         """Apply the decision rule to a pair's motion evidence (from a pair registrar)."""
         scratch = {} if scratch is None else scratch
         out = self.rule.decide(evidence, **self._scratch_arg(scratch))
-        return PairResult(i, j, out.decision, out.reason, info=out.info, motions=out.motions, labels=out.labels,
-                          evidence=evidence, scratch=scratch)
+        return PairResult(
+            i,
+            j,
+            out.decision,
+            out.reason,
+            info=out.info,
+            motions=out.motions,
+            labels=out.labels,
+            evidence=evidence,
+            scratch=scratch,
+        )
 
     def _scratch_arg(self, scratch: dict) -> dict[str, dict]:
         return {"scratch": scratch} if getattr(self.rule, "uses_scratch", False) else {}
 
-    def _pair(self, sequence: Sequence, a: FrameResult, b: FrameResult, between: tuple[FrameResult, ...],
-              timing: dict[str, float], cache: StageCache | None) -> PairResult:
+    def _pair(
+        self,
+        sequence: Sequence,
+        a: FrameResult,
+        b: FrameResult,
+        between: tuple[FrameResult, ...],
+        timing: dict[str, float],
+        cache: StageCache | None,
+    ) -> PairResult:
         """Register (or take from ``cache``) and decide the pair of two frames."""
         if a.cloud is None or b.cloud is None:
             skipped = a if a.cloud is None else b
-            return PairResult(a.index, b.index, "skipped", reason=f"frame {skipped.index} skipped: {skipped.skipped}")
+            return PairResult(
+                a.index, b.index, "skipped", reason=f"frame {skipped.index} skipped: {skipped.skipped}"
+            )
         t0 = time.perf_counter()
         key = None if cache is None else self.pair_key(sequence, a.index, b.index, cache)
         if (hit := None if key is None else cache.get("register", key)) is None:
@@ -167,15 +230,29 @@ class Pipeline(FrameSteps):
         if isinstance(raw, MotionEvidence):
             pair = self.decide_motions(a.index, b.index, raw, scratch=scratch)
         else:
-            pair = self.decide(a.index, b.index, self.checked_cells(raw), a.cloud, b.cloud, x,
-                               tuple(f.cloud for f in between), scratch=scratch)
+            pair = self.decide(
+                a.index,
+                b.index,
+                self.checked_cells(raw),
+                a.cloud,
+                b.cloud,
+                x,
+                tuple(f.cloud for f in between),
+                scratch=scratch,
+            )
         add_time(timing, "register", t1 - t0)
         add_time(timing, "decide", time.perf_counter() - t1)
         return pair
 
     # -- re-deciding a finished run ---------------------------------------------------------------
-    def redecide(self, result: RunResult, *, sequence: Sequence | None = None,
-                 cache: StageCache | None = None, workers: int = 1) -> RunResult:
+    def redecide(
+        self,
+        result: RunResult,
+        *,
+        sequence: Sequence | None = None,
+        cache: StageCache | None = None,
+        workers: int = 1,
+    ) -> RunResult:
         """Decide a finished run again under this pipeline's decision settings, reusing its registrations
         (:func:`artclass_core.redecide.redecide`, which documents the parameters and errors)."""
         from .redecide import redecide
@@ -183,15 +260,28 @@ class Pipeline(FrameSteps):
         return redecide(self, result, sequence=sequence, cache=cache, workers=workers)
 
     # -- steps 5 and 6: max-count filter and label -------------------------------------------------
-    def summarise(self, sequence: Sequence, frames: list[FrameResult], pairs: list[PairResult],
-                  timing: dict[str, float]) -> RunResult:
+    def summarise(
+        self, sequence: Sequence, frames: list[FrameResult], pairs: list[PairResult], timing: dict[str, float]
+    ) -> RunResult:
         """Filter the pair decisions, label the sequence and record how it was obtained."""
-        info = dict(name=sequence.name, path=str(sequence.path), object=sequence.object_name,
-                    n_frames=len(sequence), truth=sequence.label)
+        info = dict(
+            name=sequence.name,
+            path=str(sequence.path),
+            object=sequence.object_name,
+            n_frames=len(sequence),
+            truth=sequence.label,
+        )
         return self._summarise(info, self.segmenter_name(sequence), frames, pairs, timing)
 
-    def _summarise(self, sequence_info: dict[str, Any], segmenter: str, frames: list[FrameResult],
-                   pairs: list[PairResult], timing: dict[str, float]) -> RunResult:
+    def _summarise(
+        self,
+        sequence_info: dict[str, Any],
+        segmenter: str,
+        frames: list[FrameResult],
+        pairs: list[PairResult],
+        timing: dict[str, float],
+    ) -> RunResult:
         plugins, params = self.config.record(self.registry, segmenter=segmenter)
-        return labelled_result(sequence_info, frames, pairs, w=self.params.w, params=params, plugins=plugins,
-                               timing=timing)
+        return labelled_result(
+            sequence_info, frames, pairs, w=self.params.w, params=params, plugins=plugins, timing=timing
+        )

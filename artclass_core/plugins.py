@@ -27,7 +27,7 @@ class PluginInfo:
     kind: str
     name: str
     cls: type
-    source: str            # the pluggy plugin (module) that registered it, and its distribution
+    source: str  # the pluggy plugin (module) that registered it, and its distribution
 
 
 @dataclass
@@ -36,7 +36,7 @@ class Registry:
 
     pm: pluggy.PluginManager
     plugins: dict[str, dict[str, PluginInfo]] = field(default_factory=lambda: {k: {} for k in KINDS})
-    failures: dict[str, str] = field(default_factory=dict)   # entry point -> error
+    failures: dict[str, str] = field(default_factory=dict)  # entry point -> error
 
     def names(self, kind: str) -> list[str]:
         return sorted(self.plugins[kind])
@@ -93,14 +93,19 @@ def load_registry(*, extra_plugins: tuple = (), entry_point_setting: str | None 
 
     for kind, (hook, method) in KINDS.items():
         for impl in getattr(pm.hook, hook).get_hookimpls():
+
             def register(cls, _impl=impl, _kind=kind, _method=method):
                 _check_class(cls, _kind, _method, impl_name=_impl.plugin_name)
                 known = registry.plugins[_kind].get(cls.name)
                 if known is not None and known.cls is not cls:
-                    raise PluginError(f"{_kind} name {cls.name!r} is registered twice: by {known.source} "
-                                      f"and by {sources.get(_impl.plugin_name, _impl.plugin_name)}")
-                registry.plugins[_kind][cls.name] = PluginInfo(_kind, cls.name, cls,
-                                                               sources.get(_impl.plugin_name, _impl.plugin_name))
+                    raise PluginError(
+                        f"{_kind} name {cls.name!r} is registered twice: by {known.source} "
+                        f"and by {sources.get(_impl.plugin_name, _impl.plugin_name)}"
+                    )
+                registry.plugins[_kind][cls.name] = PluginInfo(
+                    _kind, cls.name, cls, sources.get(_impl.plugin_name, _impl.plugin_name)
+                )
+
             impl.function(register=register)
     return registry
 
@@ -113,8 +118,12 @@ def _check_class(cls, kind: str, method: str, *, impl_name: str) -> None:
     if not isinstance(getattr(cls, "description", None), str) or not cls.description:
         raise PluginError(f"{where}: `description` must be a one-line string")
     params = getattr(cls, "Params", None)
-    if not (isinstance(params, type) and issubclass(params, Params) and dataclasses.is_dataclass(params)
-            and params.__dataclass_params__.frozen):
+    if not (
+        isinstance(params, type)
+        and issubclass(params, Params)
+        and dataclasses.is_dataclass(params)
+        and params.__dataclass_params__.frozen
+    ):
         raise PluginError(f"{where}: `Params` must be a frozen dataclass subclassing artclass_core.Params")
     if not callable(getattr(cls, method, None)):
         raise PluginError(f"{where}: missing method `{method}`")

@@ -17,8 +17,14 @@ if TYPE_CHECKING:
     from .pipeline import Pipeline
 
 
-def redecide(pipeline: Pipeline, result: RunResult, *, sequence: Sequence | None = None,
-             cache: StageCache | None = None, workers: int = 1) -> RunResult:
+def redecide(
+    pipeline: Pipeline,
+    result: RunResult,
+    *,
+    sequence: Sequence | None = None,
+    cache: StageCache | None = None,
+    workers: int = 1,
+) -> RunResult:
     """Decide ``result`` again under ``pipeline``'s decision settings, reusing its registrations.
 
     The decision settings are what the ``decide`` stage depends on
@@ -38,12 +44,14 @@ def redecide(pipeline: Pipeline, result: RunResult, *, sequence: Sequence | None
     check_same_registrations(pipeline, result)
     clouds = {f.index: f.cloud for f in result.frames if f.cloud is not None}
     span = (lambda p: range(p.i, p.j + 1)) if pipeline.rule.uses_frames_between else (lambda p: (p.i, p.j))
-    skipped = {f.index for f in result.frames if f.skipped}     # as in the run, a pair goes without them
+    skipped = {f.index for f in result.frames if f.skipped}  # as in the run, a pair goes without them
     needed = sorted({i for p in result.pairs if p.cells for i in span(p)} - clouds.keys() - skipped)
     cached = cache is not None and sequence is not None
     if needed and not cached:
-        raise ArtclassError(f"re-deciding needs the clouds of frames {needed[:5]}{'...' if len(needed) > 5 else ''}: "
-                            f"run with keep_clouds=True, or pass the run's StageCache and its sequence")
+        raise ArtclassError(
+            f"re-deciding needs the clouds of frames {needed[:5]}{'...' if len(needed) > 5 else ''}: "
+            f"run with keep_clouds=True, or pass the run's StageCache and its sequence"
+        )
     for i in needed:
         clouds[i] = pipeline.frame(sequence, i, cache=cache).cloud
 
@@ -55,15 +63,25 @@ def redecide(pipeline: Pipeline, result: RunResult, *, sequence: Sequence | None
         if evidence is None and p.motions and key is not None:
             evidence = (cache.get("register", key) or (None,))[0]
         if p.motions and evidence is None:
-            raise ArtclassError(f"re-deciding pair {p.i}-{p.j} needs its motion evidence: run with "
-                                f"keep_clouds=True, or pass the run's StageCache and its sequence")
+            raise ArtclassError(
+                f"re-deciding pair {p.i}-{p.j} needs its motion evidence: run with "
+                f"keep_clouds=True, or pass the run's StageCache and its sequence"
+            )
         if evidence is not None:
             new = pipeline.decide_motions(p.i, p.j, evidence, scratch=scratch)
-        elif not p.cells:   # a frame of the pair was skipped: nothing was registered
+        elif not p.cells:  # a frame of the pair was skipped: nothing was registered
             return dataclasses.replace(p), 0.0
         else:
-            new = pipeline.decide(p.i, p.j, pipeline.checked_cells(p.cells), clouds[p.i], clouds[p.j],
-                                  p.cell_size_m, tuple(clouds.get(m) for m in range(p.i + 1, p.j)), scratch=scratch)
+            new = pipeline.decide(
+                p.i,
+                p.j,
+                pipeline.checked_cells(p.cells),
+                clouds[p.i],
+                clouds[p.j],
+                p.cell_size_m,
+                tuple(clouds.get(m) for m in range(p.i + 1, p.j)),
+                scratch=scratch,
+            )
         new.truth = p.truth
         return new, time.perf_counter() - t0
 
@@ -71,8 +89,9 @@ def redecide(pipeline: Pipeline, result: RunResult, *, sequence: Sequence | None
     timing = {"decide": sum(seconds for _, seconds in done)}
     frames = [dataclasses.replace(f) for f in result.frames]
     timing["total"] = time.perf_counter() - t_start
-    return pipeline._summarise(dict(result.sequence), result.plugins["segmenter"], frames, [p for p, _ in done],
-                               timing)
+    return pipeline._summarise(
+        dict(result.sequence), result.plugins["segmenter"], frames, [p for p, _ in done], timing
+    )
 
 
 def check_same_registrations(pipeline: Pipeline, result: RunResult) -> None:
@@ -91,8 +110,14 @@ def check_same_registrations(pipeline: Pipeline, result: RunResult) -> None:
         now = as_dict(pipeline.config.plugin_params(pipeline.registry, kind, name))
         changed += [f"{kind} {n} {before.get(n)!r} -> {v!r}" for n, v in now.items() if before.get(n) != v]
     before = result.params.get("pipeline", {})
-    changed += [f"{n} {before.get(n)!r} -> {getattr(pipeline.params, n)!r}" for n in ("k", *deps.params)
-                if before.get(n) != getattr(pipeline.params, n)]
+    changed += [
+        f"{n} {before.get(n)!r} -> {getattr(pipeline.params, n)!r}"
+        for n in ("k", *deps.params)
+        if before.get(n) != getattr(pipeline.params, n)
+    ]
     if changed:
-        raise ArtclassError("cannot re-decide: the registrations depend on settings that changed ("
-                            + "; ".join(changed) + "); run the sequence again")
+        raise ArtclassError(
+            "cannot re-decide: the registrations depend on settings that changed ("
+            + "; ".join(changed)
+            + "); run the sequence again"
+        )

@@ -63,9 +63,17 @@ class Inline:
         pass
 
 
-def stream_pairs(n: int, k: int, *, frame: Callable[[int, dict], Any], finish: Callable[[Any], Any],
-                 pair: Callable[[Any, Any, tuple, dict], Any], done: Callable[[Any, Any], None],
-                 timing: dict[str, float], workers: int = 1) -> list:
+def stream_pairs(
+    n: int,
+    k: int,
+    *,
+    frame: Callable[[int, dict], Any],
+    finish: Callable[[Any], Any],
+    pair: Callable[[Any, Any, tuple, dict], Any],
+    done: Callable[[Any, Any], None],
+    timing: dict[str, float],
+    workers: int = 1,
+) -> list:
     """Compute ``n`` frames and the pairs (i, i + k), holding only what pending pairs need.
 
     Parameters
@@ -83,7 +91,7 @@ def stream_pairs(n: int, k: int, *, frame: Callable[[int, dict], Any], finish: C
     list : the finished frames, in order
     """
     pool = executor(workers)
-    ahead = 0 if workers == 1 else 2 * workers    # frames read ahead of the one being collected
+    ahead = 0 if workers == 1 else 2 * workers  # frames read ahead of the one being collected
     frame_jobs: dict[int, Future] = {}
     pair_jobs: deque[tuple[Any, Future]] = deque()
     frames, pending, submitted = [], {}, 0

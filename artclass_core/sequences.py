@@ -32,13 +32,16 @@ def open_sequences(registry: Registry, path: str | Path, *, reader: str | None =
     if wanted:
         chosen = [s for s in found if s.name == wanted or s.name.endswith(wanted)]
         if not chosen:
-            raise InputError(f"no sequence named {wanted!r}; found: {', '.join(s.name for s in found)}", path=path)
+            raise InputError(
+                f"no sequence named {wanted!r}; found: {', '.join(s.name for s in found)}", path=path
+            )
         return chosen
     return found
 
 
-def find_sequences(registry: Registry, root: str | Path, *, reader: str | None = None,
-                   labelled_only: bool = True) -> tuple[list[Sequence], list[InputError]]:
+def find_sequences(
+    registry: Registry, root: str | Path, *, reader: str | None = None, labelled_only: bool = True
+) -> tuple[list[Sequence], list[InputError]]:
     """Every sequence under ``root`` that a reader recognises (a recognised folder is not descended).
     Symbolic links to folders are followed (each real folder visited once, so a link loop ends).
 

@@ -47,7 +47,7 @@ from .types import DECISIONS, Sequence
 DASK_HINT = "pip install 'artclass[dask]'"
 KEY_COLUMNS = ("path", "sequence", "recipe")
 TABLE_SUFFIXES = (".parquet", ".csv")
-DECISION_LETTERS = {"AM": "A", "RM": "R", "NM": "N", "skipped": "-"}      # the ``decisions`` column
+DECISION_LETTERS = {"AM": "A", "RM": "R", "NM": "N", "skipped": "-"}  # the ``decisions`` column
 
 
 @dataclass(frozen=True)
@@ -74,8 +74,9 @@ class Setting:
     @property
     def recipe(self) -> str:
         """Everything that defines the setting, as canonical JSON: the key a resumed sweep matches on."""
-        return json.dumps(dict(plugins=dict(self.plugins), params=dict(self.params), grid=list(self.grid)),
-                          sort_keys=True)
+        return json.dumps(
+            dict(plugins=dict(self.plugins), params=dict(self.params), grid=list(self.grid)), sort_keys=True
+        )
 
 
 def parse_grid(items: Iterable[str]) -> dict[str, list[str]]:
@@ -96,8 +97,9 @@ def parse_grid(items: Iterable[str]) -> dict[str, list[str]]:
     return grid
 
 
-def grid_settings(registry: Registry, grid: dict[str, list[str]], *, params: dict[str, str] | None = None,
-                  **plugins: str) -> list[Setting]:
+def grid_settings(
+    registry: Registry, grid: dict[str, list[str]], *, params: dict[str, str] | None = None, **plugins: str
+) -> list[Setting]:
     """Every combination of ``grid`` (the last name varies fastest), on top of ``plugins`` and ``params``.
 
     A grid name is a parameter (by name or paper symbol) or a plugin kind (``rule=robust,paper``).
@@ -107,13 +109,16 @@ def grid_settings(registry: Registry, grid: dict[str, list[str]], *, params: dic
     out = []
     for values in itertools.product(*grid.values()):
         chosen = dict(zip(grid, values))
-        setting = Setting(plugins=tuple({**base, **{k: v for k, v in chosen.items() if k in PLUGIN_KINDS}}.items()),
-                          params=tuple({**(params or {}), **{k: v for k, v in chosen.items()
-                                                             if k not in PLUGIN_KINDS}}.items()),
-                          grid=tuple(chosen.items()))
+        setting = Setting(
+            plugins=tuple({**base, **{k: v for k, v in chosen.items() if k in PLUGIN_KINDS}}.items()),
+            params=tuple(
+                {**(params or {}), **{k: v for k, v in chosen.items() if k not in PLUGIN_KINDS}}.items()
+            ),
+            grid=tuple(chosen.items()),
+        )
         for kind, name in setting.plugins:
             if not (kind == "segmenter" and name == "auto"):
-                registry.get(kind, name)            # an unknown plugin: PluginError naming the registered ones
+                registry.get(kind, name)  # an unknown plugin: PluginError naming the registered ones
         try:
             setting.config(registry)
         except ArtclassError as exc:
@@ -123,6 +128,7 @@ def grid_settings(registry: Registry, grid: dict[str, list[str]], *, params: dic
 
 
 # -- one sequence, all its settings: the unit of work ------------------------------------------------
+
 
 @dataclass(frozen=True)
 class SequenceSource:
@@ -143,15 +149,16 @@ class SequenceSource:
         return found[0]
 
 
-def sequence_rows(registry: Registry, sequence: Sequence | SequenceSource, settings: list[Setting], *,
-                  workers: int = 1) -> Iterator[tuple[int, dict[str, Any], SequenceOutcome]]:
+def sequence_rows(
+    registry: Registry, sequence: Sequence | SequenceSource, settings: list[Setting], *, workers: int = 1
+) -> Iterator[tuple[int, dict[str, Any], SequenceOutcome]]:
     """Run one sequence under every setting, sharing its stage cache; yields ``(setting index, row,
     outcome)`` as each setting finishes. A failure is recorded in the row's ``error``, never raised."""
     source = sequence if isinstance(sequence, SequenceSource) else SequenceSource.of(sequence)
     try:
         seq = sequence.open(registry) if isinstance(sequence, SequenceSource) else sequence
         plan = _plan(registry, seq, [s.config(registry) for s in settings])
-    except Exception as exc:      # an unreadable sequence: every setting of it is a failed row
+    except Exception as exc:  # an unreadable sequence: every setting of it is a failed row
         for n, setting in enumerate(settings):
             outcome = SequenceOutcome(source.name, source.name, "", (), None, error=one_line(exc))
             yield n, _row(source, setting, outcome, None), outcome
@@ -161,7 +168,9 @@ def sequence_rows(registry: Registry, sequence: Sequence | SequenceSource, setti
         yield n, _row(source, settings[n], outcome, result), outcome
 
 
-def _plan(registry: Registry, sequence: Sequence, configs: list[Config]) -> list[tuple[int, Pipeline, StageCache]]:
+def _plan(
+    registry: Registry, sequence: Sequence, configs: list[Config]
+) -> list[tuple[int, Pipeline, StageCache]]:
     """The order to run ``configs`` in, each with its pipeline and the stage cache it uses.
 
     Settings with the same frame stages run one after another, and within them those with the same
@@ -171,16 +180,22 @@ def _plan(registry: Registry, sequence: Sequence, configs: list[Config]) -> list
     probe = StageCache()
     pipelines = [Pipeline(registry, c) for c in configs]
     frame_keys = [p.frame_key(sequence, 0, probe)[2:] for p in pipelines]
-    registrations = [stage_config(p.config, "register") for p in pipelines]   # what the registrations depend on
-    order = sorted(range(len(configs)), key=lambda n: (frame_keys.index(frame_keys[n]),
-                                                       registrations.index(registrations[n])))
+    registrations = [
+        stage_config(p.config, "register") for p in pipelines
+    ]  # what the registrations depend on
+    order = sorted(
+        range(len(configs)),
+        key=lambda n: (frame_keys.index(frame_keys[n]), registrations.index(registrations[n])),
+    )
     size = len(sequence) + 1
     caches: list[tuple[dict[tuple, Config], StageCache]] = []
     plan = []
     for n in order:
         p = pipelines[n]
         key = p.pair_key(sequence, 0, p.params.k, probe)
-        cache = next((c for seen, c in caches if seen.setdefault(key, registrations[n]) == registrations[n]), None)
+        cache = next(
+            (c for seen, c in caches if seen.setdefault(key, registrations[n]) == registrations[n]), None
+        )
         if cache is None:
             cache = StageCache(max_frames=size, max_pairs=size)
             caches.append(({key: registrations[n]}, cache))
@@ -191,23 +206,36 @@ def _plan(registry: Registry, sequence: Sequence, configs: list[Config]) -> list
 def _row(source: SequenceSource, setting: Setting, o: SequenceOutcome, result) -> dict[str, Any]:
     plugins = dict(result.plugins) if result is not None else dict(setting.plugins)
     timing = result.timing_s if result is not None else {}
-    grid = {k: v for k, v in setting.grid if k not in PLUGIN_KINDS}     # a swept plugin has its own column
+    grid = {k: v for k, v in setting.grid if k not in PLUGIN_KINDS}  # a swept plugin has its own column
     return dict(
-        sequence=o.name, object=o.object, path=source.path, setting=setting.label, **grid,
+        sequence=o.name,
+        object=o.object,
+        path=source.path,
+        setting=setting.label,
+        **grid,
         **{kind: plugins[kind] for kind in PLUGIN_KINDS},
-        label=o.predicted, truth=o.truth, accepted=",".join(o.accepted), correct=o.correct,
+        label=o.predicted,
+        truth=o.truth,
+        accepted=",".join(o.accepted),
+        correct=o.correct,
         **{d: o.fractions.get(d, float("nan")) if o.fractions else float("nan") for d in DECISIONS},
-        pair_correct=o.pair_correct, pair_total=o.pair_total,
-        pair_accuracy=o.pair_correct / o.pair_total if o.pair_total else float("nan"), n_pairs=o.n_pairs,
+        pair_correct=o.pair_correct,
+        pair_total=o.pair_total,
+        pair_accuracy=o.pair_correct / o.pair_total if o.pair_total else float("nan"),
+        n_pairs=o.n_pairs,
         skipped_pairs=sum(p.decision == "skipped" for p in result.pairs) if result is not None else 0,
         decisions="".join(DECISION_LETTERS[p.decision] for p in result.pairs) if result is not None else None,
         **{f"time_{s}_s": float(timing.get(s, float("nan"))) for s in (*STAGES, "total")},
-        seconds=o.seconds, error=o.error,
+        seconds=o.seconds,
+        error=o.error,
         params=json.dumps(result.params, sort_keys=True, default=str) if result is not None else None,
-        recipe=setting.recipe)
+        recipe=setting.recipe,
+    )
 
 
-def _task(source: SequenceSource, settings: list[Setting], workers: int) -> list[tuple[int, dict, SequenceOutcome]]:
+def _task(
+    source: SequenceSource, settings: list[Setting], workers: int
+) -> list[tuple[int, dict, SequenceOutcome]]:
     """What a Dask worker runs: one sequence, all its settings."""
     return list(sequence_rows(_worker_registry(), source, settings, workers=workers))
 
@@ -219,11 +247,16 @@ def _worker_registry() -> Registry:
 
 # -- running the tasks: here, or on a Dask cluster ----------------------------------------------------
 
-Task = tuple[int, Sequence, list[int]]          # (sequence index, sequence, indices of the settings to run)
+Task = tuple[int, Sequence, list[int]]  # (sequence index, sequence, indices of the settings to run)
 
 
-def plan_tasks(registry: Registry, sequences: list[Sequence], settings: list[Setting], *,
-               done: Collection[tuple[str, str, str]] = ()) -> list[Task]:
+def plan_tasks(
+    registry: Registry,
+    sequences: list[Sequence],
+    settings: list[Setting],
+    *,
+    done: Collection[tuple[str, str, str]] = (),
+) -> list[Task]:
     """The tasks of a sweep: one per sequence and frame stages (segmenter, preprocessor and their
     params), since settings with other frame stages share nothing; the settings of a row in ``done``
     (``(path, sequence, recipe)``) are left out."""
@@ -247,9 +280,16 @@ def _where(sequence: Sequence) -> tuple[str, str]:
     return str(Path(sequence.path).resolve()), sequence.name
 
 
-def run_tasks(registry: Registry, tasks: list[Task], settings: list[Setting], *, scheduler=None,
-              workers: int = 1, reader: str | None = None, lost: list[str] | None = None
-              ) -> Iterator[tuple[int, int, dict[str, Any], SequenceOutcome]]:
+def run_tasks(
+    registry: Registry,
+    tasks: list[Task],
+    settings: list[Setting],
+    *,
+    scheduler=None,
+    workers: int = 1,
+    reader: str | None = None,
+    lost: list[str] | None = None,
+) -> Iterator[tuple[int, int, dict[str, Any], SequenceOutcome]]:
     """Run every task, yielding ``(sequence index, setting index, row, outcome)`` as rows finish.
 
     Without ``scheduler`` the tasks run here, one after another, each on ``workers`` threads. With a
@@ -257,17 +297,28 @@ def run_tasks(registry: Registry, tasks: list[Task], settings: list[Setting], *,
     ``distributed.Client``, each task is one Dask task. A task lost to the cluster (a worker died, the
     scheduler went away) is not raised: its sequence's name and the error are appended to ``lost``.
     """
-    if not (isinstance(workers, int) and workers >= 1):     # here, not as a failed row in every task
+    if not (isinstance(workers, int) and workers >= 1):  # here, not as a failed row in every task
         raise ParamError(f"workers = {workers!r} must be a positive integer")
     if scheduler is None:
         for i, seq, chosen in tasks:
-            for n, row, outcome in sequence_rows(registry, seq, [settings[m] for m in chosen], workers=workers):
+            for n, row, outcome in sequence_rows(
+                registry, seq, [settings[m] for m in chosen], workers=workers
+            ):
                 yield i, chosen[n], row, outcome
         return
     with dask_client(scheduler) as client:
         from distributed import as_completed
-        futures = {client.submit(_task, SequenceSource.of(seq, reader=reader), [settings[m] for m in chosen],
-                                 workers, pure=False): (i, seq, chosen) for i, seq, chosen in tasks}
+
+        futures = {
+            client.submit(
+                _task,
+                SequenceSource.of(seq, reader=reader),
+                [settings[m] for m in chosen],
+                workers,
+                pure=False,
+            ): (i, seq, chosen)
+            for i, seq, chosen in tasks
+        }
         for future in as_completed(futures):
             i, seq, chosen = futures[future]
             try:
@@ -292,8 +343,15 @@ def dask_client(scheduler):
     if isinstance(scheduler, Client):
         yield scheduler
     elif scheduler == "local":
-        with LocalCluster(n_workers=os.cpu_count() or 1, threads_per_worker=1, dashboard_address=None,
-                          silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        with (
+            LocalCluster(
+                n_workers=os.cpu_count() or 1,
+                threads_per_worker=1,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            ) as cluster,
+            Client(cluster) as client,
+        ):
             yield client
     else:
         try:
@@ -306,9 +364,20 @@ def dask_client(scheduler):
 
 # -- the sweep and its table ------------------------------------------------------------------------
 
-def sweep(registry: Registry, sequences: list[Sequence], settings: list[Setting], *, out: str | Path,
-          scheduler=None, workers: int = 1, force: bool = False, reader: str | None = None,
-          progress: Progress | None = None, lost: list[str] | None = None) -> pd.DataFrame:
+
+def sweep(
+    registry: Registry,
+    sequences: list[Sequence],
+    settings: list[Setting],
+    *,
+    out: str | Path,
+    scheduler=None,
+    workers: int = 1,
+    force: bool = False,
+    reader: str | None = None,
+    progress: Progress | None = None,
+    lost: list[str] | None = None,
+) -> pd.DataFrame:
     """Run every sequence under every setting, writing the table to ``out`` (``.parquet`` or ``.csv``)
     after each row; rows already in ``out`` are kept and not run again unless ``force``.
 
@@ -322,10 +391,13 @@ def sweep(registry: Registry, sequences: list[Sequence], settings: list[Setting]
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise ArtclassError(f"{out.parent}: cannot create the folder of the table ({one_line(exc)})") from None
+        raise ArtclassError(
+            f"{out.parent}: cannot create the folder of the table ({one_line(exc)})"
+        ) from None
     table = read_table(out) if out.exists() else pd.DataFrame()
-    wanted = {(*_where(s), st.recipe): (i, m)
-              for i, s in enumerate(sequences) for m, st in enumerate(settings)}
+    wanted = {
+        (*_where(s), st.recipe): (i, m) for i, s in enumerate(sequences) for m, st in enumerate(settings)
+    }
     rows = table.to_dict("records") if len(table) else []
     if force:
         rows = [r for r in rows if _key(r) not in wanted]
@@ -333,8 +405,10 @@ def sweep(registry: Registry, sequences: list[Sequence], settings: list[Setting]
     total = sum(len(c) for _, _, c in tasks)
     if progress:
         progress("rows", 0, total)
-    for n, (_, _, row, _) in enumerate(run_tasks(registry, tasks, settings, scheduler=scheduler, workers=workers,
-                                                 reader=reader, lost=lost), 1):
+    for n, (_, _, row, _) in enumerate(
+        run_tasks(registry, tasks, settings, scheduler=scheduler, workers=workers, reader=reader, lost=lost),
+        1,
+    ):
         rows.append(row)
         write_table(_ordered(rows, wanted), out)
         if progress:
@@ -359,7 +433,7 @@ def read_table(source) -> pd.DataFrame:
     (an upload). Raises :class:`InputError` naming the file if it is not a sweep's table."""
     name = Path(getattr(source, "name", None) or source)
     try:
-        if name.suffix == ".csv":      # the swept values are text, as in the Parquet table
+        if name.suffix == ".csv":  # the swept values are text, as in the Parquet table
             names = swept_names(pd.read_csv(source, usecols=["recipe"]))
             if hasattr(source, "seek"):
                 source.seek(0)
@@ -388,6 +462,7 @@ def write_table(table: pd.DataFrame, path: str | Path) -> None:
 
 # -- summaries and the figure -----------------------------------------------------------------------
 
+
 def swept_names(table: pd.DataFrame) -> list[str]:
     """The names swept in ``table`` (from each row's recipe), in grid order."""
     names: dict[str, None] = {}
@@ -400,16 +475,18 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     """One row per setting: sequences, errors, sequence accuracy, pair accuracy, mean pair fractions and
     the time spent (seconds, summed over the sequences), in the table's order."""
     groups = table.groupby("recipe", sort=False)
-    out = pd.DataFrame({
-        "setting": groups["setting"].first(),
-        **{name: groups[name].first() for name in swept_names(table) if name in table.columns},
-        "sequences": groups.size(),
-        "errors": groups["error"].apply(lambda e: int(e.notna().sum())),
-        "accuracy": groups["correct"].mean(),
-        "pair_accuracy": groups["pair_correct"].sum() / groups["pair_total"].sum().where(lambda t: t > 0),
-        **{d: groups[d].mean() for d in DECISIONS},
-        "seconds": groups["seconds"].sum(),
-    })
+    out = pd.DataFrame(
+        {
+            "setting": groups["setting"].first(),
+            **{name: groups[name].first() for name in swept_names(table) if name in table.columns},
+            "sequences": groups.size(),
+            "errors": groups["error"].apply(lambda e: int(e.notna().sum())),
+            "accuracy": groups["correct"].mean(),
+            "pair_accuracy": groups["pair_correct"].sum() / groups["pair_total"].sum().where(lambda t: t > 0),
+            **{d: groups[d].mean() for d in DECISIONS},
+            "seconds": groups["seconds"].sum(),
+        }
+    )
     return out.reset_index(drop=True)
 
 
@@ -423,7 +500,7 @@ def figure(table: pd.DataFrame, *, title: str = "Accuracy against each swept par
     names = swept_names(table) or ["setting"]
     fig = make_subplots(rows=1, cols=len(names), subplot_titles=names, shared_yaxes=True)
     palette = ["#2E86AB", "#E4572E", "#76B041", "#F2A541", "#8E6C8A", "#17BEBB", "#4D4D4D"]
-    line = itertools.count()             # one colour per line, across the panels
+    line = itertools.count()  # one colour per line, across the panels
     for col, name in enumerate(names, 1):
         others = [n for n in names if n != name]
         values = pd.to_numeric(summ[name], errors="coerce")
@@ -435,17 +512,34 @@ def figure(table: pd.DataFrame, *, title: str = "Accuracy against each swept par
             part = part.sort_values("_x") if numeric else part
             colour = palette[next(line) % len(palette)]
             for metric, dash in (("accuracy", None), ("pair_accuracy", "dash")):
-                fig.add_trace(go.Scatter(
-                    x=part["_x"], y=part[metric], mode="lines+markers", legendgroup=label,
-                    name=f"{'sequence' if metric == 'accuracy' else 'pair'} accuracy, {label}",
-                    line=dict(color=colour, dash=dash),
-                    hovertemplate=f"{name}=%{{x}}<br>{metric.replace('_', ' ')} %{{y:.1%}}<extra>{label}</extra>"),
-                    row=1, col=col)
-        fig.update_xaxes(title_text=name, type=None if numeric else "category",
-                         tickvals=sorted(values.unique()) if numeric else None, row=1, col=col)
+                fig.add_trace(
+                    go.Scatter(
+                        x=part["_x"],
+                        y=part[metric],
+                        mode="lines+markers",
+                        legendgroup=label,
+                        name=f"{'sequence' if metric == 'accuracy' else 'pair'} accuracy, {label}",
+                        line=dict(color=colour, dash=dash),
+                        hovertemplate=f"{name}=%{{x}}<br>{metric.replace('_', ' ')} %{{y:.1%}}<extra>{label}</extra>",
+                    ),
+                    row=1,
+                    col=col,
+                )
+        fig.update_xaxes(
+            title_text=name,
+            type=None if numeric else "category",
+            tickvals=sorted(values.unique()) if numeric else None,
+            row=1,
+            col=col,
+        )
     fig.update_yaxes(range=[-0.05, 1.05], tickformat=".0%", title_text="accuracy", col=1)
-    fig.update_layout(template="plotly_white", title=title, height=420, margin=dict(t=80),
-                      legend=dict(orientation="h", y=-0.25))
+    fig.update_layout(
+        template="plotly_white",
+        title=title,
+        height=420,
+        margin=dict(t=80),
+        legend=dict(orientation="h", y=-0.25),
+    )
     return fig
 
 

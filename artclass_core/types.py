@@ -57,8 +57,10 @@ class Intrinsics:
     def pixels(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixel columns and rows (not rounded) where ``points`` (..., 3) project; inf or NaN where z <= 0."""
         with np.errstate(divide="ignore", invalid="ignore"):
-            return (self.fx * points[..., 0] / points[..., 2] + self.cx,
-                    self.fy * points[..., 1] / points[..., 2] + self.cy)
+            return (
+                self.fx * points[..., 0] / points[..., 2] + self.cx,
+                self.fy * points[..., 1] / points[..., 2] + self.cy,
+            )
 
 
 @dataclass
@@ -67,9 +69,9 @@ class Frame:
 
     index: int
     name: str
-    rgb: np.ndarray            # (H, W, 3) uint8, RGB order
-    depth_m: np.ndarray        # (H, W) float32, metres, 0 = no reading
-    mask: np.ndarray | None = None   # (H, W) bool
+    rgb: np.ndarray  # (H, W, 3) uint8, RGB order
+    depth_m: np.ndarray  # (H, W) float32, metres, 0 = no reading
+    mask: np.ndarray | None = None  # (H, W) bool
     time_s: float | None = None
 
 
@@ -82,9 +84,19 @@ class Sequence:
 
     cache_frames = 8
 
-    def __init__(self, *, name: str, path: str | Path, intrinsics: Intrinsics, n_frames: int,
-                 label: str | None = None, object_name: str | None = None, has_masks: bool = False,
-                 accepted_labels: tuple[str, ...] | None = None, meta: dict[str, Any] | None = None):
+    def __init__(
+        self,
+        *,
+        name: str,
+        path: str | Path,
+        intrinsics: Intrinsics,
+        n_frames: int,
+        label: str | None = None,
+        object_name: str | None = None,
+        has_masks: bool = False,
+        accepted_labels: tuple[str, ...] | None = None,
+        meta: dict[str, Any] | None = None,
+    ):
         self.name = name
         self.path = Path(path)
         self.intrinsics = intrinsics
@@ -127,9 +139,11 @@ class Sequence:
         shape = (self.intrinsics.height, self.intrinsics.width)
         for what, image in (("depth", frame.depth_m), ("colour", frame.rgb), ("mask", frame.mask)):
             if image is not None and image.shape[:2] != shape:
-                raise InputError(f"{what} image of frame {frame.name} is {image.shape[1]}x{image.shape[0]}, "
-                                 f"expected {shape[1]}x{shape[0]} (depth and RGB must have the same size)",
-                                 path=self.path)
+                raise InputError(
+                    f"{what} image of frame {frame.name} is {image.shape[1]}x{image.shape[0]}, "
+                    f"expected {shape[1]}x{shape[0]} (depth and RGB must have the same size)",
+                    path=self.path,
+                )
         return frame
 
 
@@ -137,12 +151,12 @@ class Sequence:
 class View:
     """The image a cloud was measured in, for image-space evidence (optical flow) between two frames."""
 
-    gray: np.ndarray                   # (H, W) uint8 intensity of the whole frame
-    depth_m: np.ndarray                # (H, W) float32, metres, 0 outside the object's (eroded) mask
+    gray: np.ndarray  # (H, W) uint8 intensity of the whole frame
+    depth_m: np.ndarray  # (H, W) float32, metres, 0 outside the object's (eroded) mask
     intrinsics: Intrinsics
     scene_depth_m: np.ndarray | None = None  # (H, W) float32, metres: the whole frame's depth (0 = none)
-    mask: np.ndarray | None = None           # (H, W) bool: the segmenter's object mask, before any erosion
-    normals: np.ndarray | None = None        # (H, W, 3) float32 unit normals of depth_m's pixels (0 = none)
+    mask: np.ndarray | None = None  # (H, W) bool: the segmenter's object mask, before any erosion
+    normals: np.ndarray | None = None  # (H, W, 3) float32 unit normals of depth_m's pixels (0 = none)
 
 
 @dataclass
@@ -150,12 +164,12 @@ class Cloud:
     """A preprocessed object point cloud of one frame."""
 
     frame_index: int
-    points: np.ndarray                 # (N, 3) float64, metres, camera frame
+    points: np.ndarray  # (N, 3) float64, metres, camera frame
     normals: np.ndarray | None = None  # (N, 3) unit vectors towards the camera
     info: dict[str, Any] = field(default_factory=dict)  # resolved v, r, diameter, counts ...
-    colors: np.ndarray | None = None   # (N, 3) float RGB in [0, 1], if the preprocessor keeps colour
-    view: View | None = None           # the frame's image, if the preprocessor keeps it
-    pixels: np.ndarray | None = None   # (N, 2) int (column, row) of each point, for an image-space cloud
+    colors: np.ndarray | None = None  # (N, 3) float RGB in [0, 1], if the preprocessor keeps colour
+    view: View | None = None  # the frame's image, if the preprocessor keeps it
+    pixels: np.ndarray | None = None  # (N, 2) int (column, row) of each point, for an image-space cloud
 
     def __len__(self) -> int:
         return len(self.points)
@@ -165,9 +179,9 @@ class Cloud:
 class Registration:
     """Result of registering one cell: ``T_target_from_source`` maps source points onto the target."""
 
-    T_target_from_source: np.ndarray   # (4, 4)
-    fitness: float                     # fraction of source points with a correspondence
-    rmse_m: float                      # RMS distance of the correspondences
+    T_target_from_source: np.ndarray  # (4, 4)
+    fitness: float  # fraction of source points with a correspondence
+    rmse_m: float  # RMS distance of the correspondences
     n_correspondences: int
 
 
@@ -176,13 +190,13 @@ class CellMotion:
     """One grid cell of a frame pair and what happened to it."""
 
     cell: tuple[int, int, int]
-    centre_m: np.ndarray               # (3,) cell centre
-    source_idx: np.ndarray             # indices into the source cloud
-    target_idx: np.ndarray             # indices into the target cloud
+    centre_m: np.ndarray  # (3,) cell centre
+    source_idx: np.ndarray  # indices into the source cloud
+    target_idx: np.ndarray  # indices into the target cloud
     registration: Registration | None = None
-    skipped: str | None = None         # why the cell does not take part, or None
-    cluster: int | None = None         # motion cluster / hash key index the rule put it in
-    key: str | None = None             # the rule's readable key of that cluster
+    skipped: str | None = None  # why the cell does not take part, or None
+    cluster: int | None = None  # motion cluster / hash key index the rule put it in
+    key: str | None = None  # the rule's readable key of that cluster
 
     @property
     def matched(self) -> bool:
@@ -190,17 +204,28 @@ class CellMotion:
 
     def to_dict(self) -> dict[str, Any]:
         from .geometry import quaternion_wxyz, rotation_angle_rad
-        d: dict[str, Any] = dict(cell=list(self.cell), centre_m=_floats(self.centre_m),
-                                 n_source=int(len(self.source_idx)), n_target=int(len(self.target_idx)),
-                                 skipped=self.skipped, cluster=self.cluster, key=self.key)
+
+        d: dict[str, Any] = dict(
+            cell=list(self.cell),
+            centre_m=_floats(self.centre_m),
+            n_source=int(len(self.source_idx)),
+            n_target=int(len(self.target_idx)),
+            skipped=self.skipped,
+            cluster=self.cluster,
+            key=self.key,
+        )
         reg = self.registration
         if reg is not None:
             T = reg.T_target_from_source
-            d.update(fitness=float(reg.fitness), rmse_m=float(reg.rmse_m),
-                     n_correspondences=int(reg.n_correspondences),
-                     quaternion_wxyz=_floats(quaternion_wxyz(T[:3, :3])), translation_m=_floats(T[:3, 3]),
-                     rotation_deg=float(np.degrees(rotation_angle_rad(T[:3, :3]))),
-                     centre_displacement_m=_floats(T[:3, :3] @ self.centre_m + T[:3, 3] - self.centre_m))
+            d.update(
+                fitness=float(reg.fitness),
+                rmse_m=float(reg.rmse_m),
+                n_correspondences=int(reg.n_correspondences),
+                quaternion_wxyz=_floats(quaternion_wxyz(T[:3, :3])),
+                translation_m=_floats(T[:3, 3]),
+                rotation_deg=float(np.degrees(rotation_angle_rad(T[:3, :3]))),
+                centre_displacement_m=_floats(T[:3, :3] @ self.centre_m + T[:3, 3] - self.centre_m),
+            )
         return d
 
 
@@ -273,17 +298,22 @@ class MotionEvidence:
 class Motion:
     """One rigid motion a rule selected for a pair, and the source points it moves."""
 
-    T_target_from_source: np.ndarray   # (4, 4)
+    T_target_from_source: np.ndarray  # (4, 4)
     name: str
     n_points: int
-    displacement_m: float              # median displacement of its points
+    displacement_m: float  # median displacement of its points
 
     def to_dict(self) -> dict[str, Any]:
         from .geometry import rotation_angle_rad
+
         T = self.T_target_from_source
-        return dict(name=self.name, n_points=self.n_points, displacement_m=round(float(self.displacement_m), 6),
-                    rotation_deg=round(float(np.degrees(rotation_angle_rad(T[:3, :3]))), 4),
-                    T_target_from_source=[_floats(row) for row in T])
+        return dict(
+            name=self.name,
+            n_points=self.n_points,
+            displacement_m=round(float(self.displacement_m), 6),
+            rotation_deg=round(float(np.degrees(rotation_angle_rad(T[:3, :3]))), 4),
+            T_target_from_source=[_floats(row) for row in T],
+        )
 
 
 @dataclass
@@ -293,21 +323,31 @@ class PairResult:
     i: int
     j: int
     decision: Decision
-    reason: str = ""                   # why a pair was skipped, or the rule's short explanation
+    reason: str = ""  # why a pair was skipped, or the rule's short explanation
     cells: list[CellMotion] = field(default_factory=list)
     cell_size_m: float | None = None
     info: dict[str, Any] = field(default_factory=dict)  # rule-specific evidence (JSON-ready)
     truth: Decision | None = None
-    motions: list[Motion] = field(default_factory=list)   # the selected motions (rules that decide from motions)
-    labels: np.ndarray | None = None   # (N,) int: each evidence point's motion (index into motions), -1 = none
-    evidence: MotionEvidence | None = field(default=None, repr=False)   # what the motions were selected from
+    motions: list[Motion] = field(
+        default_factory=list
+    )  # the selected motions (rules that decide from motions)
+    labels: np.ndarray | None = None  # (N,) int: each evidence point's motion (index into motions), -1 = none
+    evidence: MotionEvidence | None = field(default=None, repr=False)  # what the motions were selected from
     # the rule's scratch space for this pair (DecisionRule.uses_scratch); not part of the result's JSON
     scratch: dict[Any, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def to_dict(self, *, cells: bool = True) -> dict[str, Any]:
-        d = dict(i=self.i, j=self.j, decision=self.decision, reason=self.reason, truth=self.truth,
-                 cell_size_m=self.cell_size_m, n_cells=len(self.cells),
-                 n_matched=sum(c.matched for c in self.cells), info=self.info)
+        d = dict(
+            i=self.i,
+            j=self.j,
+            decision=self.decision,
+            reason=self.reason,
+            truth=self.truth,
+            cell_size_m=self.cell_size_m,
+            n_cells=len(self.cells),
+            n_matched=sum(c.matched for c in self.cells),
+            info=self.info,
+        )
         if self.motions:
             d["motions"] = [m.to_dict() for m in self.motions]
         if cells:
@@ -321,35 +361,45 @@ class FrameResult:
 
     index: int
     name: str
-    cloud: Cloud | None                # dropped after use in a streaming run; ``info`` stays
+    cloud: Cloud | None  # dropped after use in a streaming run; ``info`` stays
     skipped: str | None = None
     mask_pixels: int = 0
-    info: dict[str, Any] = field(default_factory=dict)   # the preprocessor's resolved values and counts
+    info: dict[str, Any] = field(default_factory=dict)  # the preprocessor's resolved values and counts
 
     def to_dict(self) -> dict[str, Any]:
-        return dict(index=self.index, name=self.name, skipped=self.skipped, mask_pixels=self.mask_pixels,
-                    **self.info)
+        return dict(
+            index=self.index, name=self.name, skipped=self.skipped, mask_pixels=self.mask_pixels, **self.info
+        )
 
 
 @dataclass
 class RunResult:
     """Everything one run produced, with the parameters and plugins that produced it."""
 
-    sequence: dict[str, Any]           # name, path, object, n_frames, truth label
+    sequence: dict[str, Any]  # name, path, object, n_frames, truth label
     label: Label
-    fractions: dict[str, float]        # share of decided pairs that are AM / RM / NM
+    fractions: dict[str, float]  # share of decided pairs that are AM / RM / NM
     pairs: list[PairResult]
-    filtered: list[Decision]           # decisions after the moving max-count filter (decided pairs only)
+    filtered: list[Decision]  # decisions after the moving max-count filter (decided pairs only)
     frames: list[FrameResult]
     params: dict[str, dict[str, Any]]  # kind -> {name: value}
-    plugins: dict[str, str]            # kind -> plugin name
+    plugins: dict[str, str]  # kind -> plugin name
     timing_s: dict[str, float]
     version: str = ""
 
     def to_dict(self, *, cells: bool = True) -> dict[str, Any]:
-        return dict(version=self.version, sequence=self.sequence, label=self.label, fractions=self.fractions,
-                    filtered=self.filtered, params=self.params, plugins=self.plugins, timing_s=self.timing_s,
-                    frames=[f.to_dict() for f in self.frames], pairs=[p.to_dict(cells=cells) for p in self.pairs])
+        return dict(
+            version=self.version,
+            sequence=self.sequence,
+            label=self.label,
+            fractions=self.fractions,
+            filtered=self.filtered,
+            params=self.params,
+            plugins=self.plugins,
+            timing_s=self.timing_s,
+            frames=[f.to_dict() for f in self.frames],
+            pairs=[p.to_dict(cells=cells) for p in self.pairs],
+        )
 
 
 def _floats(a) -> list[float]:

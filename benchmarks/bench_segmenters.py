@@ -47,8 +47,13 @@ class Preloaded(Sequence):
     """A sequence held in memory (frames copied from a reader's sequence)."""
 
     def __init__(self, source: Sequence):
-        super().__init__(name=source.name, path=source.path, intrinsics=source.intrinsics, n_frames=len(source),
-                         has_masks=source.has_masks)
+        super().__init__(
+            name=source.name,
+            path=source.path,
+            intrinsics=source.intrinsics,
+            n_frames=len(source),
+            has_masks=source.has_masks,
+        )
         self.frames = [source[i] for i in range(len(source))]
         self.cache_frames = len(source)
 
@@ -77,8 +82,9 @@ def parse_overrides(items: list[str]) -> dict:
     return out
 
 
-def time_segmenter(registry, name: str, sequences: list[Sequence], *, repeat: int, overrides
-                   ) -> tuple[list[float], list[float]]:
+def time_segmenter(
+    registry, name: str, sequences: list[Sequence], *, repeat: int, overrides
+) -> tuple[list[float], list[float]]:
     """Wall and CPU (all threads) ms per frame of each repeat (fresh segmenter each time, all frames
     of all sequences)."""
     wall, cpu = [], []
@@ -99,7 +105,7 @@ def with_drawn_hand(frame: Frame, fx: float, *, depth_m: float = 0.45) -> tuple[
     right border at ``depth_m`` from the camera (in front of the tables and objects of these scenes);
     and the drawn mask. ``fx``: focal length, pixels."""
     h, w = frame.depth_m.shape
-    px = fx / depth_m                            # pixels per metre at the hand's depth
+    px = fx / depth_m  # pixels per metre at the hand's depth
     palm = (int(0.7 * w), h // 2)
     shape = np.zeros((h, w), np.uint8)
     cv2.line(shape, (w - 1, h // 2 + h // 8), palm, 1, int(0.07 * px))
@@ -156,8 +162,10 @@ def ycbv_quality(registry, name: str, scenes: dict[str, list[Sequence]], overrid
                 continue
             union.append(mask_iou(mask, np.any(labelled, axis=0)))
             best.append(max(mask_iou(mask, m) for m in labelled))
-        parts.append(f"ycbv/{scene}: IoU union {np.mean(union):.3f} (min {np.min(union):.3f}), "
-                     f"best single {np.mean(best):.3f}")
+        parts.append(
+            f"ycbv/{scene}: IoU union {np.mean(union):.3f} (min {np.min(union):.3f}), "
+            f"best single {np.mean(best):.3f}"
+        )
     return "; ".join(parts)
 
 
@@ -180,11 +188,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--maskrcnn-model", help="a MaskRCNN-10/12 ONNX file: also benchmark maskrcnn")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-quality", action="store_true", help="timings only")
-    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                    help="segmenter parameter (applied where the segmenter has it)")
+    ap.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="segmenter parameter (applied where the segmenter has it)",
+    )
     args = ap.parse_args(argv)
     if not YCBV.is_dir():
-        print(f"bench_segmenters: {YCBV} is absent; it holds the 640x480 frames this benchmark times", file=sys.stderr)
+        print(
+            f"bench_segmenters: {YCBV} is absent; it holds the 640x480 frames this benchmark times",
+            file=sys.stderr,
+        )
         return 1
     overrides = parse_overrides(args.param)
     names = [n for n in args.segmenters.split(",") if n]
@@ -192,24 +208,33 @@ def main(argv: list[str] | None = None) -> int:
         names.append("maskrcnn")
         overrides["model_path"] = args.maskrcnn_model
     registry = load_registry()
-    scenes = {scene: [Preloaded(s) for s in open_sequences(registry, YCBV / scene, reader="ycbv")]
-              for scene in ("0000", "0001")}
+    scenes = {
+        scene: [Preloaded(s) for s in open_sequences(registry, YCBV / scene, reader="ycbv")]
+        for scene in ("0000", "0001")
+    }
     timed = [seqs[0] for seqs in scenes.values()]
     n = sum(len(s) for s in timed)
     w, h = timed[0].intrinsics.width, timed[0].intrinsics.height
-    synthetic = sorted(p for p in (ROOT / "sample_data").iterdir() if (p / "meta.json").is_file()) \
-        if (ROOT / "sample_data").is_dir() else []
+    synthetic = (
+        sorted(p for p in (ROOT / "sample_data").iterdir() if (p / "meta.json").is_file())
+        if (ROOT / "sample_data").is_dir()
+        else []
+    )
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    print(f"segmenters on {n} YCB-Video frames of {w}x{h} (in memory), best / median of {args.repeat} runs; "
-          f"{os.cpu_count()} CPUs, load average {load:.1f} at the start")
+    print(
+        f"segmenters on {n} YCB-Video frames of {w}x{h} (in memory), best / median of {args.repeat} runs; "
+        f"{os.cpu_count()} CPUs, load average {load:.1f} at the start"
+    )
     for name in names:
         try:
             runs, cpu = time_segmenter(registry, name, timed, repeat=args.repeat, overrides=overrides)
         except ArtclassError as exc:
             print(f"  {name:<16} error: {exc}")
             continue
-        line = (f"  {name:<16} {min(runs):8.1f} ms/frame (median {statistics.median(runs):.1f}; "
-                f"CPU {min(cpu):.1f} ms/frame over all threads)")
+        line = (
+            f"  {name:<16} {min(runs):8.1f} ms/frame (median {statistics.median(runs):.1f}; "
+            f"CPU {min(cpu):.1f} ms/frame over all threads)"
+        )
         print(line, flush=True)
         if name == "depth_threshold":
             print(f"  {'':<16} {time_hands(timed, repeat=args.repeat)}", flush=True)

@@ -29,9 +29,9 @@ def errors(pipe: Pipeline, seq, poses: list[np.ndarray], k: int):
     clouds = [pipe.frame(seq, i).cloud for i in range(len(seq))]
     for i in range(len(seq) - k):
         src, tgt = clouds[i], clouds[i + k]
-        if src is None or tgt is None or None in clouds[i + 1:i + k]:
+        if src is None or tgt is None or None in clouds[i + 1 : i + k]:
             continue
-        ev = flow_targets(src, tgt, src.points, between=tuple(clouds[i + 1:i + k]))
+        ev = flow_targets(src, tgt, src.points, between=tuple(clouds[i + 1 : i + k]))
         K, depth = src.view.intrinsics, tgt.view.depth_m
         true = transform(src.points, poses[i + k] @ np.linalg.inv(poses[i]))
         ut, vt = K.pixels(true)
@@ -42,7 +42,12 @@ def errors(pipe: Pipeline, seq, poses: list[np.ndarray], k: int):
         seen[inside] = np.abs(depth[vi[inside], ui[inside]] - true[inside, 2]) < 0.01
         err = offset_px(ev.pixel[:, 0] - ut, ev.pixel[:, 1] - vt, ev.normal)
         use = seen & np.isfinite(ev.pixel[:, 0])
-        yield (err[use], np.hypot(ut - u0, vt - v0)[use], (ev.tol * K.fx / src.points[:, 2])[use], ev.edge[use])
+        yield (
+            err[use],
+            np.hypot(ut - u0, vt - v0)[use],
+            (ev.tol * K.fx / src.points[:, 2])[use],
+            ev.edge[use],
+        )
 
 
 def main() -> None:
@@ -65,13 +70,17 @@ def main() -> None:
         for name, kind in (("2-D texture", ~edge), ("edge, across", edge)):
             e, s, t = err[kind], shift[kind], tol[kind]
             pct = " / ".join(f"{x:.2f}" for x in np.percentile(e, [50, 90, 95, 99]))
-            print(f"{noise} noise, {name}: {len(e)} points, error px p50/p90/p95/p99 {pct}, "
-                  f"beyond tolerance {np.mean(e > t):.1%}")
+            print(
+                f"{noise} noise, {name}: {len(e)} points, error px p50/p90/p95/p99 {pct}, "
+                f"beyond tolerance {np.mean(e > t):.1%}"
+            )
             for lo, hi in ((0, 5), (5, 15), (15, 40), (40, np.inf)):
                 sel = (s >= lo) & (s < hi)
                 if sel.sum() >= 20:
-                    print(f"    moved {lo}-{hi} px: {sel.sum()} points, error p90 {np.percentile(e[sel], 90):.2f} px, "
-                          f"tolerance median {np.median(t[sel]):.2f} px, beyond it {np.mean(e[sel] > t[sel]):.1%}")
+                    print(
+                        f"    moved {lo}-{hi} px: {sel.sum()} points, error p90 {np.percentile(e[sel], 90):.2f} px, "
+                        f"tolerance median {np.median(t[sel]):.2f} px, beyond it {np.mean(e[sel] > t[sel]):.1%}"
+                    )
 
 
 if __name__ == "__main__":

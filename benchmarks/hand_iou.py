@@ -75,8 +75,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("folder", type=Path, help="a folder of labelled sequences with hand/ and mask/ truth")
     ap.add_argument("--segmenters", default="depth_threshold,u2net")
     ap.add_argument("--every", type=int, default=1, help="score every N-th frame")
-    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                    help="segmenter parameter (applied where the segmenter has it)")
+    ap.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="segmenter parameter (applied where the segmenter has it)",
+    )
     args = ap.parse_args(argv)
     overrides = parse_overrides(args.param)
     registry = load_registry()
@@ -87,8 +92,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(f"{len(sequences)} sequences in {args.folder}, every {args.every}. frame scored")
     for name in [n for n in args.segmenters.split(",") if n]:
-        totals: dict[str, dict] = defaultdict(lambda: dict(inter=0, union=0, hand_ious=[], border_ious=[], alarms=0,
-                                                          empty=0, object_ious=[]))
+        totals: dict[str, dict] = defaultdict(
+            lambda: dict(inter=0, union=0, hand_ious=[], border_ious=[], alarms=0, empty=0, object_ious=[])
+        )
         t0, c0 = time.perf_counter(), time.process_time()
         try:
             for seq in sequences:
@@ -102,14 +108,21 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {name} ({time.perf_counter() - t0:.0f} s, CPU {time.process_time() - c0:.0f} s)")
         for key in sorted(totals, key=lambda k: (k == "all", k)):
             t = totals[key]
-            hand = (f"hand IoU pooled {t['inter'] / t['union']:.3f}, mean {np.mean(t['hand_ious']):.3f} "
-                    f"({len(t['hand_ious'])} frames), mean {np.mean(t['border_ious']):.3f} where it reaches the "
-                    f"border ({len(t['border_ious'])} frames)" if t["border_ious"] else
-                    "no hand in the truth" if not t["union"] else
-                    f"hand IoU pooled {t['inter'] / t['union']:.3f}, mean {np.mean(t['hand_ious']):.3f}")
+            hand = (
+                f"hand IoU pooled {t['inter'] / t['union']:.3f}, mean {np.mean(t['hand_ious']):.3f} "
+                f"({len(t['hand_ious'])} frames), mean {np.mean(t['border_ious']):.3f} where it reaches the "
+                f"border ({len(t['border_ious'])} frames)"
+                if t["border_ious"]
+                else "no hand in the truth"
+                if not t["union"]
+                else f"hand IoU pooled {t['inter'] / t['union']:.3f}, mean {np.mean(t['hand_ious']):.3f}"
+            )
             alarms = f"hand found in {t['alarms']} of {t['empty']} frames without" if t["empty"] else ""
-            print(f"    {key:<8} object IoU {np.mean(t['object_ious']):.3f} ({len(t['object_ious'])} frames); "
-                  f"{hand}; {alarms}".rstrip("; "), flush=True)
+            print(
+                f"    {key:<8} object IoU {np.mean(t['object_ious']):.3f} ({len(t['object_ious'])} frames); "
+                f"{hand}; {alarms}".rstrip("; "),
+                flush=True,
+            )
     return 0
 
 

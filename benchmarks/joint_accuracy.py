@@ -18,7 +18,7 @@ from artclass_core.joint_metrics import axis_direction_error_rad, axis_position_
 from artclass_plugins.joints import fit_joint
 from artclass_plugins.joints.synthetic import synthetic_joint
 
-NOISE = [(0.0005, 0.25), (0.001, 0.5), (0.002, 1.0), (0.005, 2.0)]     # (metres, degrees) per axis
+NOISE = [(0.0005, 0.25), (0.001, 0.5), (0.002, 1.0), (0.005, 2.0)]  # (metres, degrees) per axis
 TRAVEL = {"revolute": np.radians(74), "prismatic": 0.3, "fixed": 0.0}
 
 
@@ -29,15 +29,24 @@ def main() -> None:
     parser.add_argument("--outliers", type=int, default=3, help="wrong poses per sequence")
     args = parser.parse_args()
     print(f"{args.frames} frames, {args.outliers} wrong poses, {args.seeds} seeds per row\n")
-    print("| noise (mm / deg) | joint | type right | axis direction (deg) | axis position (mm) | state "
-          "| CPU per fit (ms) |")
+    print(
+        "| noise (mm / deg) | joint | type right | axis direction (deg) | axis position (mm) | state "
+        "| CPU per fit (ms) |"
+    )
     print("|---|---|---|---|---|---|---|")
     for noise_m, noise_deg in NOISE:
         for kind, travel in TRAVEL.items():
             right, direction, position, state, cpu = [], [], [], [], []
             for seed in range(args.seeds):
-                truth = synthetic_joint(kind, n_frames=args.frames, travel=travel, noise_m=noise_m,
-                                        noise_rad=np.radians(noise_deg), n_outliers=args.outliers, seed=seed)
+                truth = synthetic_joint(
+                    kind,
+                    n_frames=args.frames,
+                    travel=travel,
+                    noise_m=noise_m,
+                    noise_rad=np.radians(noise_deg),
+                    n_outliers=args.outliers,
+                    seed=seed,
+                )
                 start = time.process_time()
                 est = fit_joint(truth.poses)
                 cpu.append(1000 * (time.process_time() - start))
@@ -49,13 +58,25 @@ def main() -> None:
                 error = state_error(truth.states, est.states, same_direction=same)
                 state.append(np.degrees(error) if kind == "revolute" else 1000 * error)
                 if kind == "revolute":
-                    position.append(1000 * axis_position_error_m(truth.point_m, truth.direction, est.axis_point_m,
-                                                                 est.axis_direction, at_m=truth.poses[0, :3, 3]))
+                    position.append(
+                        1000
+                        * axis_position_error_m(
+                            truth.point_m,
+                            truth.direction,
+                            est.axis_point_m,
+                            est.axis_direction,
+                            at_m=truth.poses[0, :3, 3],
+                        )
+                    )
             unit = {"revolute": "deg", "prismatic": "mm"}.get(kind, "")
+
             def cell(v, u=""):
                 return f"{np.median(v):.2f}{' ' + u if u else ''}" if v else "-"
-            print(f"| {1000 * noise_m:g} / {noise_deg:g} | {kind} | {np.mean(right):.0%} | {cell(direction)} | "
-                  f"{cell(position)} | {cell(state, unit)} | {np.median(cpu):.0f} |")
+
+            print(
+                f"| {1000 * noise_m:g} / {noise_deg:g} | {kind} | {np.mean(right):.0%} | {cell(direction)} | "
+                f"{cell(position)} | {cell(state, unit)} | {np.median(cpu):.0f} |"
+            )
 
 
 if __name__ == "__main__":

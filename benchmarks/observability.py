@@ -30,8 +30,10 @@ from artclass_plugins.rules import robust as R
 
 def observable(ev, truth: dict, i: int, j: int, tau: float, p) -> bool:
     """Whether the rule's cover, given only the true object and part motions, finds two motions."""
-    motions = [np.asarray(truth[key][j]) @ np.linalg.inv(np.asarray(truth[key][i]))
-               for key in ("object_poses", "moving_part_poses")]
+    motions = [
+        np.asarray(truth[key][j]) @ np.linalg.inv(np.asarray(truth[key][i]))
+        for key in ("object_poses", "moving_part_poses")
+    ]
     score = R._per_cell(ev.residuals(motions) <= tau, ev.owner, ev.counts)
     best = np.maximum(score.max(0), R._per_cell(ev.geo <= tau, ev.owner, ev.counts).max(0))
     informative = best >= p.min_cell_score
@@ -63,7 +65,7 @@ def main(argv=None) -> None:
         run = pipe.run(seq, keep_clouds=scored, workers=2)
         counts = np.zeros(4, int)
         for pair in run.pairs:
-            if pair.truth is not None and pair.decision != "skipped":     # as artclass evaluate counts
+            if pair.truth is not None and pair.decision != "skipped":  # as artclass evaluate counts
                 n_truth += 1
                 n_right += pair.decision == pair.truth
             if not scored or pair.truth != "AM" or "tau_m" not in pair.info:
@@ -76,9 +78,11 @@ def main(argv=None) -> None:
         if scored:
             print(f"{seq.name:36s} {counts[0]:8d} {counts[1]:9d} {counts[2]:10d} {counts[3]:11d}")
     print(f"{'total':36s} {totals[0]:8d} {totals[1]:9d} {totals[2]:10d} {totals[3]:11d}")
-    print(f"pairs right (decided pairs with truth, every sequence): {n_right}/{n_truth} = "
-          f"{100 * n_right / max(n_truth, 1):.1f}%; finding every observable AM pair as well: "
-          f"{100 * (n_right + totals[3]) / max(n_truth, 1):.1f}%")
+    print(
+        f"pairs right (decided pairs with truth, every sequence): {n_right}/{n_truth} = "
+        f"{100 * n_right / max(n_truth, 1):.1f}%; finding every observable AM pair as well: "
+        f"{100 * (n_right + totals[3]) / max(n_truth, 1):.1f}%"
+    )
 
 
 if __name__ == "__main__":

@@ -30,8 +30,13 @@ def main() -> None:
     args = p.parse_args()
     registry = load_registry()
     seq = open_sequences(registry, args.sequence or bench_sequence())[0]
-    chosen = {k: v for k, v in dict(segmenter=args.segmenter, preprocessor=args.preprocessor,
-                                     registrar=args.registrar, rule=args.rule).items() if v}
+    chosen = {
+        k: v
+        for k, v in dict(
+            segmenter=args.segmenter, preprocessor=args.preprocessor, registrar=args.registrar, rule=args.rule
+        ).items()
+        if v
+    }
     pipe = Pipeline(registry, Config(**chosen))
     profile = cProfile.Profile(time.process_time)
     cpu0, wall0 = time.process_time(), time.perf_counter()
@@ -39,8 +44,10 @@ def main() -> None:
     result = pipe.run(seq, workers=args.workers)
     profile.disable()
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
-    print(f"{seq.name}: {len(seq)} frames, {len(result.pairs)} pairs, label {result.label}; "
-          f"wall {wall:.2f} s, CPU {cpu:.2f} s; stage wall times {result.timing_s}")
+    print(
+        f"{seq.name}: {len(seq)} frames, {len(result.pairs)} pairs, label {result.label}; "
+        f"wall {wall:.2f} s, CPU {cpu:.2f} s; stage wall times {result.timing_s}"
+    )
     print(f"plugins {result.plugins}")
     pstats.Stats(profile).sort_stats("tottime").print_stats(args.top)
 

@@ -45,8 +45,9 @@ from artclass_core import Frame, Sequence, hookimpl
 
 STAGES = ("read", "segment", "preprocess", "register", "decide")
 FRAME_STAGES = ("read", "segment", "preprocess")
-DEFAULT_SEQUENCE = dict(object_name="drawer", motion="carry_articulate", noise="low", n_frames=60, seed=0,
-                        width=640, height=480)
+DEFAULT_SEQUENCE = dict(
+    object_name="drawer", motion="carry_articulate", noise="low", n_frames=60, seed=0, width=640, height=480
+)
 
 
 # -- the benchmark sequence ------------------------------------------------------------------------
@@ -74,8 +75,10 @@ def bench_sequence(*, cache_dir: Path | None = None, **spec: Any) -> Path:
 
     spec = {**DEFAULT_SEQUENCE, **spec}
     digest = hashlib.sha256(json.dumps(dict(spec, generator=GENERATOR_VERSION), sort_keys=True).encode())
-    name = (f"{spec['object_name']}_{spec['motion']}_{spec['width']}x{spec['height']}_{spec['n_frames']}f_"
-            f"{digest.hexdigest()[:10]}")
+    name = (
+        f"{spec['object_name']}_{spec['motion']}_{spec['width']}x{spec['height']}_{spec['n_frames']}f_"
+        f"{digest.hexdigest()[:10]}"
+    )
     root = Path(cache_dir) if cache_dir else cache_root()
     out = root / name
     if (out / "meta.json").is_file():
@@ -84,7 +87,7 @@ def bench_sequence(*, cache_dir: Path | None = None, **spec: Any) -> Path:
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=root))
     try:
         generate_sequence(tmp / name, **spec)
-        os.replace(tmp / name, out)   # atomic: a half-rendered sequence is never taken from the cache
+        os.replace(tmp / name, out)  # atomic: a half-rendered sequence is never taken from the cache
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return out
@@ -99,9 +102,17 @@ class CycledSequence(Sequence):
     """
 
     def __init__(self, base: Sequence, n_frames: int):
-        super().__init__(name=f"{base.name}_x{n_frames}", path=base.path, intrinsics=base.intrinsics,
-                         n_frames=n_frames, label=base.label, object_name=base.object_name,
-                         has_masks=base.has_masks, accepted_labels=base.accepted_labels, meta=base.meta)
+        super().__init__(
+            name=f"{base.name}_x{n_frames}",
+            path=base.path,
+            intrinsics=base.intrinsics,
+            n_frames=n_frames,
+            label=base.label,
+            object_name=base.object_name,
+            has_masks=base.has_masks,
+            accepted_labels=base.accepted_labels,
+            meta=base.meta,
+        )
         self.base = base
 
     def base_index(self, i: int) -> int:
@@ -113,8 +124,9 @@ class CycledSequence(Sequence):
 
     def load(self, i: int) -> Frame:
         f = self.base[self.base_index(i)]
-        return Frame(i, f"{i:06d}", f.rgb.copy(), f.depth_m.copy(), None if f.mask is None else f.mask.copy(),
-                     f.time_s)
+        return Frame(
+            i, f"{i:06d}", f.rgb.copy(), f.depth_m.copy(), None if f.mask is None else f.mask.copy(), f.time_s
+        )
 
     def pair_truth(self, i: int, j: int):
         return self.base.pair_truth(self.base_index(i), self.base_index(j))
@@ -143,15 +155,20 @@ def _supports(fn, name: str) -> bool:
 
 def _config(registry, spec: dict):
     from artclass_core import Config
+
     base = Config.paper() if spec.get("paper") else Config()
-    cfg = dataclasses.replace(base, segmenter=spec["segmenter"],
-                              **{kind: spec[kind] for kind in ("preprocessor", "registrar", "rule") if spec.get(kind)})
+    cfg = dataclasses.replace(
+        base,
+        segmenter=spec["segmenter"],
+        **{kind: spec[kind] for kind in ("preprocessor", "registrar", "rule") if spec.get(kind)},
+    )
     overrides = dict(spec.get("params") or {})
     return cfg.with_overrides(registry, overrides) if overrides else cfg
 
 
 def _open(registry, spec: dict) -> Sequence:
     from artclass_core import open_sequences
+
     seq = open_sequences(registry, spec["path"])[0]
     if spec.get("long_frames"):
         seq = CycledSequence(seq, spec["long_frames"])
@@ -189,11 +206,21 @@ def measure_run(spec: dict) -> dict:
     result = pipe.run(seq, progress=progress, **kw)
     wall = time.perf_counter() - t0
     cpu = time.process_time() - cpu0
-    return dict(spec=spec, n_frames=len(seq), n_pairs=len(result.pairs),
-                n_decided=sum(p.decision != "skipped" for p in result.pairs), label=result.label,
-                timing_s=dict(result.timing_s), wall_s=wall, cpu_s=cpu, rss_base_mb=rss_base,
-                rss_samples_mb={str(k): v for k, v in sorted(samples.items())}, peak_rss_mb=peak_rss_mb(),
-                run_kwargs=kw, load=os.getloadavg()[0])
+    return dict(
+        spec=spec,
+        n_frames=len(seq),
+        n_pairs=len(result.pairs),
+        n_decided=sum(p.decision != "skipped" for p in result.pairs),
+        label=result.label,
+        timing_s=dict(result.timing_s),
+        wall_s=wall,
+        cpu_s=cpu,
+        rss_base_mb=rss_base,
+        rss_samples_mb={str(k): v for k, v in sorted(samples.items())},
+        peak_rss_mb=peak_rss_mb(),
+        run_kwargs=kw,
+        load=os.getloadavg()[0],
+    )
 
 
 def measure_parts(spec: dict) -> dict:
@@ -211,24 +238,36 @@ def measure_parts(spec: dict) -> dict:
     t1, c1 = time.perf_counter(), time.process_time()
     articulation = find_articulation(result, estimator=estimator)
     t2, c2 = time.perf_counter(), time.process_time()
-    return dict(spec=spec, n_frames=len(seq), label=result.label, run_s=t1 - t0, parts_s=t2 - t1,
-                run_cpu_s=c1 - c0, parts_cpu_s=c2 - c1, summary=articulation.summary(), peak_rss_mb=peak_rss_mb(),
-                load=os.getloadavg()[0])
+    return dict(
+        spec=spec,
+        n_frames=len(seq),
+        label=result.label,
+        run_s=t1 - t0,
+        parts_s=t2 - t1,
+        run_cpu_s=c1 - c0,
+        parts_cpu_s=c2 - c1,
+        summary=articulation.summary(),
+        peak_rss_mb=peak_rss_mb(),
+        load=os.getloadavg()[0],
+    )
 
 
 def format_parts(m: dict) -> str:
     if "error" in m:
         return f"parts and joints: error: {m['error']}\n"
-    return (f"parts and joints ({m['n_frames']} frames, segmenter={m['spec']['segmenter']}, "
-            f"workers={m['spec'].get('workers', 1)}): {m['parts_s']:.2f} s on top of the run's {m['run_s']:.2f} s "
-            f"= {m['parts_s'] / m['run_s']:.1%} of the classification's wall time ({m['parts_cpu_s']:.2f} / "
-            f"{m['run_cpu_s']:.2f} s = {m['parts_cpu_s'] / m['run_cpu_s']:.1%} of its CPU time; peak RSS "
-            f"{m['peak_rss_mb']:.0f} MB with the clouds kept, load {m['load']:.1f}); label {m['label']}; {m['summary']}\n")
+    return (
+        f"parts and joints ({m['n_frames']} frames, segmenter={m['spec']['segmenter']}, "
+        f"workers={m['spec'].get('workers', 1)}): {m['parts_s']:.2f} s on top of the run's {m['run_s']:.2f} s "
+        f"= {m['parts_s'] / m['run_s']:.1%} of the classification's wall time ({m['parts_cpu_s']:.2f} / "
+        f"{m['run_cpu_s']:.2f} s = {m['parts_cpu_s'] / m['run_cpu_s']:.1%} of its CPU time; peak RSS "
+        f"{m['peak_rss_mb']:.0f} MB with the clouds kept, load {m['load']:.1f}); label {m['label']}; {m['summary']}\n"
+    )
 
 
 def _nudged_rule_params(registry, config, factor: float = 1.1):
     """The rule's params with its first float parameter multiplied by ``factor`` (within bounds)."""
     from artclass_core import describe
+
     params = config.plugin_params(registry, "rule")
     for spec in describe(type(params)):
         value = getattr(params, spec.name)
@@ -274,12 +313,17 @@ def measure_redecide(spec: dict) -> dict:
         out["cache_stats"] = cache.stats()
         if hasattr(Pipeline, "redecide"):
             t0 = time.perf_counter()
-            more = {"workers": kw["workers"]} if "workers" in kw and _supports(Pipeline.redecide, "workers") else {}
+            more = (
+                {"workers": kw["workers"]}
+                if "workers" in kw and _supports(Pipeline.redecide, "workers")
+                else {}
+            )
             redecided = Pipeline(registry, other_config).redecide(first, sequence=seq, cache=cache, **more)
             out["redecide_s"] = time.perf_counter() - t0
             again = Pipeline(registry, other_config).run(seq, cache=cache, **kw)
-            out["redecide_equals_cached_rerun"] = (
-                [p.decision for p in redecided.pairs] == [p.decision for p in again.pairs])
+            out["redecide_equals_cached_rerun"] = [p.decision for p in redecided.pairs] == [
+                p.decision for p in again.pairs
+            ]
     t0 = time.perf_counter()
     full = Pipeline(registry, new_config).run(_open(registry, spec), **kw)
     out["full_rerun_s"] = time.perf_counter() - t0
@@ -326,8 +370,16 @@ def stage_rows(m: dict) -> list[tuple[str, float, float | None, float | None, fl
         s = m["wall_s"] if stage == "total" else m["timing_s"].get(stage, 0.0)
         per_frame = stage in FRAME_STAGES or stage == "total"
         per_pair = stage not in FRAME_STAGES
-        rows.append((stage, s, (n_f / s if s and per_frame else None), (n_p / s if s and per_pair else None),
-                     (1e3 * s / n_f if per_frame else None), (1e3 * s / n_p if per_pair else None)))
+        rows.append(
+            (
+                stage,
+                s,
+                (n_f / s if s and per_frame else None),
+                (n_p / s if s and per_pair else None),
+                (1e3 * s / n_f if per_frame else None),
+                (1e3 * s / n_p if per_pair else None),
+            )
+        )
     return rows
 
 
@@ -341,18 +393,24 @@ def _pipeline_name(spec: dict) -> str:
 
 def format_run(m: dict) -> str:
     spec = m["spec"]
-    head = (f"{_pipeline_name(spec)}: segmenter={spec['segmenter']} workers={spec.get('workers', 1)}"
-            + "".join(f" {kind}={spec[kind]}" for kind in ("preprocessor", "registrar", "rule") if spec.get(kind)))
+    head = (
+        f"{_pipeline_name(spec)}: segmenter={spec['segmenter']} workers={spec.get('workers', 1)}"
+        + "".join(f" {kind}={spec[kind]}" for kind in ("preprocessor", "registrar", "rule") if spec.get(kind))
+    )
     if "error" in m:
         return f"{head}\n  error: {m['error']}\n"
-    lines = [f"{head}: {m['n_frames']} frames, {m['n_pairs']} pairs ({m['n_decided']} decided), "
-             f"label {m['label']}; wall {m['wall_s']:.2f} s, CPU {m['cpu_s']:.2f} s "
-             f"({m['n_pairs'] / m['cpu_s']:.1f} pairs per CPU-second), "
-             f"peak RSS {m['peak_rss_mb']:.0f} MB (after imports {m['rss_base_mb']:.0f} MB), load {m['load']:.1f}",
-             f"  {'stage':<11}{'seconds':>9}{'frames/s':>10}{'pairs/s':>10}{'ms/frame':>10}{'ms/pair':>10}"]
+    lines = [
+        f"{head}: {m['n_frames']} frames, {m['n_pairs']} pairs ({m['n_decided']} decided), "
+        f"label {m['label']}; wall {m['wall_s']:.2f} s, CPU {m['cpu_s']:.2f} s "
+        f"({m['n_pairs'] / m['cpu_s']:.1f} pairs per CPU-second), "
+        f"peak RSS {m['peak_rss_mb']:.0f} MB (after imports {m['rss_base_mb']:.0f} MB), load {m['load']:.1f}",
+        f"  {'stage':<11}{'seconds':>9}{'frames/s':>10}{'pairs/s':>10}{'ms/frame':>10}{'ms/pair':>10}",
+    ]
     for stage, s, fps, pps, mspf, mspp in stage_rows(m):
-        lines.append(f"  {stage:<11}{s:>9.3f}{_f(fps):>10}{_f(pps):>10}{_f(mspf, '{:.2f}'):>10}"
-                     f"{_f(mspp, '{:.2f}'):>10}")
+        lines.append(
+            f"  {stage:<11}{s:>9.3f}{_f(fps):>10}{_f(pps):>10}{_f(mspf, '{:.2f}'):>10}"
+            f"{_f(mspp, '{:.2f}'):>10}"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -360,28 +418,38 @@ def format_long(m: dict) -> str:
     if "error" in m:
         return f"long sequence: error: {m['error']}\n"
     samples = ", ".join(f"after {k} pairs {v:.0f} MB" for k, v in m["rss_samples_mb"].items())
-    return (f"long sequence ({m['n_frames']} frames, {_pipeline_name(m['spec'])}, segmenter={m['spec']['segmenter']}, "
-            f"workers={m['spec'].get('workers', 1)}, "
-            f"options {m['run_kwargs']}): peak RSS {m['peak_rss_mb']:.0f} MB (after imports "
-            f"{m['rss_base_mb']:.0f} MB); RSS {samples}; {m['n_pairs'] / m['wall_s']:.1f} pairs/s, "
-            f"wall {m['wall_s']:.1f} s, load {m['load']:.1f}\n")
+    return (
+        f"long sequence ({m['n_frames']} frames, {_pipeline_name(m['spec'])}, segmenter={m['spec']['segmenter']}, "
+        f"workers={m['spec'].get('workers', 1)}, "
+        f"options {m['run_kwargs']}): peak RSS {m['peak_rss_mb']:.0f} MB (after imports "
+        f"{m['rss_base_mb']:.0f} MB); RSS {samples}; {m['n_pairs'] / m['wall_s']:.1f} pairs/s, "
+        f"wall {m['wall_s']:.1f} s, load {m['load']:.1f}\n"
+    )
 
 
 def format_redecide(m: dict) -> str:
     if "error" in m:
         return f"re-decide: error: {m['error']}\n"
-    lines = [f"re-decide after a rule change ({m['n_frames']} frames, {_pipeline_name(m['spec'])}, "
-             f"segmenter={m['spec']['segmenter']}, workers={m['spec'].get('workers', 1)}):"]
+    lines = [
+        f"re-decide after a rule change ({m['n_frames']} frames, {_pipeline_name(m['spec'])}, "
+        f"segmenter={m['spec']['segmenter']}, workers={m['spec'].get('workers', 1)}):"
+    ]
     if "cached_rerun_s" in m:
-        lines.append(f"  run() with a StageCache holding the clouds and registrations ({m['change']}): "
-                     f"{m['cached_rerun_s']:.3f} s (cache {m['cache_stats']})")
+        lines.append(
+            f"  run() with a StageCache holding the clouds and registrations ({m['change']}): "
+            f"{m['cached_rerun_s']:.3f} s (cache {m['cache_stats']})"
+        )
     if "redecide_s" in m:
-        lines.append(f"  Pipeline.redecide(result) ({m.get('other_change', m['change'])}): {m['redecide_s']:.3f} s "
-                     f"(same decisions as the cached run: {m['redecide_equals_cached_rerun']})")
+        lines.append(
+            f"  Pipeline.redecide(result) ({m.get('other_change', m['change'])}): {m['redecide_s']:.3f} s "
+            f"(same decisions as the cached run: {m['redecide_equals_cached_rerun']})"
+        )
     if "cached_rerun_s" not in m:
         lines.append("  no StageCache in this version: a change means a full re-run")
-    lines.append(f"  full re-run: {m['full_rerun_s']:.3f} s (first run {m['first_run_s']:.3f} s); "
-                 f"label {m['label_before']} -> {m['label_after']}")
+    lines.append(
+        f"  full re-run: {m['full_rerun_s']:.3f} s (first run {m['first_run_s']:.3f} s); "
+        f"label {m['label_before']} -> {m['label_after']}"
+    )
     return "\n".join(lines) + "\n"
 
 
@@ -391,9 +459,11 @@ def format_ratio(ours: dict, paper: dict) -> str:
         return "time per pair against the paper's pipeline: not measured (a run failed)"
     mine, theirs = ours["wall_s"] / max(ours["n_pairs"], 1), paper["wall_s"] / max(paper["n_pairs"], 1)
     cpu = (ours["cpu_s"] / max(ours["n_pairs"], 1)) / (paper["cpu_s"] / max(paper["n_pairs"], 1))
-    return (f"time per pair against the paper's pipeline (segmenter={ours['spec']['segmenter']}, "
-            f"workers={ours['spec'].get('workers', 1)}): {1e3 * mine:.1f} ms / {1e3 * theirs:.1f} ms = "
-            f"{mine / theirs:.2f} of its wall time ({cpu:.2f} of its CPU time)")
+    return (
+        f"time per pair against the paper's pipeline (segmenter={ours['spec']['segmenter']}, "
+        f"workers={ours['spec'].get('workers', 1)}): {1e3 * mine:.1f} ms / {1e3 * theirs:.1f} ms = "
+        f"{mine / theirs:.2f} of its wall time ({cpu:.2f} of its CPU time)"
+    )
 
 
 def _csv(text: str) -> list[str]:
@@ -412,25 +482,47 @@ def run_bench(args) -> int:
     else:
         t0 = time.perf_counter()
         try:
-            path = str(bench_sequence(cache_dir=args.cache_dir, width=args.width, height=args.height,
-                                      n_frames=args.frames, seed=args.seed))
+            path = str(
+                bench_sequence(
+                    cache_dir=args.cache_dir,
+                    width=args.width,
+                    height=args.height,
+                    n_frames=args.frames,
+                    seed=args.seed,
+                )
+            )
         except ImportError as exc:
-            print(f"artclass bench: the synthetic generator is not available ({exc}); "
-                  f"pass --sequence PATH", file=sys.stderr)
+            print(
+                f"artclass bench: the synthetic generator is not available ({exc}); pass --sequence PATH",
+                file=sys.stderr,
+            )
             return 2
         out.write(f"benchmark sequence: {path} (ready in {time.perf_counter() - t0:.1f} s)\n")
     segmenters = [s for s in _csv(args.segmenters) if s in registry.names("segmenter")]
     missing = [s for s in _csv(args.segmenters) if s not in registry.names("segmenter")]
     workers = [int(w) for w in _csv(args.workers)]
-    rev = os.popen(f"git -C {Path(__file__).resolve().parent} rev-parse --short HEAD 2>/dev/null").read().strip()
+    rev = (
+        os.popen(f"git -C {Path(__file__).resolve().parent} rev-parse --short HEAD 2>/dev/null")
+        .read()
+        .strip()
+    )
     import artclass_core
-    out.write(f"artclass bench: commit {rev or 'unknown'} (core from {Path(artclass_core.__file__).parent}), "
-              f"{os.cpu_count()} CPUs, Python {sys.version.split()[0]}, load average {os.getloadavg()[0]:.1f}\n\n")
+
+    out.write(
+        f"artclass bench: commit {rev or 'unknown'} (core from {Path(artclass_core.__file__).parent}), "
+        f"{os.cpu_count()} CPUs, Python {sys.version.split()[0]}, load average {os.getloadavg()[0]:.1f}\n\n"
+    )
     for name in missing:
         out.write(f"segmenter {name!r} is not registered: skipped\n\n")
     results: dict[str, Any] = dict(sequence=path, runs=[], commit=rev)
-    base = dict(path=path, preprocessor=args.preprocessor, registrar=args.registrar, rule=args.rule, paper=args.paper,
-                params=dict(p.split("=", 1) for p in args.param))
+    base = dict(
+        path=path,
+        preprocessor=args.preprocessor,
+        registrar=args.registrar,
+        rule=args.rule,
+        paper=args.paper,
+        params=dict(p.split("=", 1) for p in args.param),
+    )
     for seg in segmenters:
         for w in workers:
             m = in_child("run", dict(base, segmenter=seg, workers=w))
@@ -454,7 +546,9 @@ def run_bench(args) -> int:
         out.write(format_parts(m) + "\n")
         out.flush()
     if args.long_frames and segmenters:
-        m = in_child("run", dict(base, segmenter=segmenters[0], workers=max(workers), long_frames=args.long_frames))
+        m = in_child(
+            "run", dict(base, segmenter=segmenters[0], workers=max(workers), long_frames=args.long_frames)
+        )
         results["long"] = m
         out.write(format_long(m))
     if args.json:
@@ -465,36 +559,68 @@ def run_bench(args) -> int:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequence", help="benchmark this sequence instead of the rendered synthetic one")
-    p.add_argument("--frames", type=int, default=DEFAULT_SEQUENCE["n_frames"],
-                   help="frames of the synthetic sequence (default 60)")
+    p.add_argument(
+        "--frames",
+        type=int,
+        default=DEFAULT_SEQUENCE["n_frames"],
+        help="frames of the synthetic sequence (default 60)",
+    )
     p.add_argument("--width", type=int, default=DEFAULT_SEQUENCE["width"])
     p.add_argument("--height", type=int, default=DEFAULT_SEQUENCE["height"])
     p.add_argument("--seed", type=int, default=DEFAULT_SEQUENCE["seed"])
-    p.add_argument("--cache-dir", type=Path, help=f"where rendered sequences are kept (default {cache_root()})")
-    p.add_argument("--segmenters", default="mask,depth_threshold", help="comma-separated (default mask,depth_threshold)")
+    p.add_argument(
+        "--cache-dir", type=Path, help=f"where rendered sequences are kept (default {cache_root()})"
+    )
+    p.add_argument(
+        "--segmenters", default="mask,depth_threshold", help="comma-separated (default mask,depth_threshold)"
+    )
     p.add_argument("--preprocessor", help="preprocessor (default: the pipeline's default)")
     p.add_argument("--registrar", help="registrar (default: the pipeline's default)")
     p.add_argument("--rule", help="decision rule (default: the pipeline's default)")
-    p.add_argument("--skip-paper", action="store_true",
-                   help="do not time the paper's pipeline as written on the same sequence")
-    p.add_argument("--paper", action="store_true",
-                   help="start from Config.paper() (the paper's pipeline as written) instead of the defaults")
-    p.add_argument("--workers", default=f"1,{max(os.cpu_count() or 1, 1)}" if (os.cpu_count() or 1) > 1 else "1",
-                   help="comma-separated worker counts to measure (default 1 and the number of CPUs)")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                   help="set a parameter by name or paper symbol, as in `artclass classify`")
-    p.add_argument("--long-frames", type=int, default=1000,
-                   help="length of the memory test sequence (0 = skip; default 1000)")
+    p.add_argument(
+        "--skip-paper",
+        action="store_true",
+        help="do not time the paper's pipeline as written on the same sequence",
+    )
+    p.add_argument(
+        "--paper",
+        action="store_true",
+        help="start from Config.paper() (the paper's pipeline as written) instead of the defaults",
+    )
+    p.add_argument(
+        "--workers",
+        default=f"1,{max(os.cpu_count() or 1, 1)}" if (os.cpu_count() or 1) > 1 else "1",
+        help="comma-separated worker counts to measure (default 1 and the number of CPUs)",
+    )
+    p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="set a parameter by name or paper symbol, as in `artclass classify`",
+    )
+    p.add_argument(
+        "--long-frames",
+        type=int,
+        default=1000,
+        help="length of the memory test sequence (0 = skip; default 1000)",
+    )
     p.add_argument("--skip-redecide", action="store_true", help="skip the re-decide measurement")
     p.add_argument("--skip-parts", action="store_true", help="skip the parts-and-joints measurement")
-    p.add_argument("--quick", action="store_true",
-                   help="a short check: the mask segmenter, the default registrar, 1 worker, no long sequence")
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="a short check: the mask segmenter, the default registrar, 1 worker, no long sequence",
+    )
     p.add_argument("--json", metavar="FILE", help="also write every number to this JSON file")
 
 
 @hookimpl
 def register_commands(subparsers):
-    p = subparsers.add_parser("bench", help="measure throughput and memory (prints numbers, never fails)",
-                              description=__doc__.split("\n\n")[0])
+    p = subparsers.add_parser(
+        "bench",
+        help="measure throughput and memory (prints numbers, never fails)",
+        description=__doc__.split("\n\n")[0],
+    )
     add_arguments(p)
     p.set_defaults(func=run_bench)

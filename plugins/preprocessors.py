@@ -47,23 +47,42 @@ def camera_facing_normals(points: np.ndarray, *, radius_m: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PaperPreprocessParams(Params):
-    std_ratio: float = param(0.5, symbol="s", unit="sigma", bounds=(0.05, 10.0),
-                             help="Statistical outlier removal: drop points whose mean neighbour distance is "
-                                  "more than s standard deviations above the average.")
-    sor_neighbours: int = param(20, unit="points", bounds=(2, 500),
-                                help="Neighbours used by the outlier removal. The paper uses 0.1 x the cloud's "
-                                     "size; a fixed count gives the same result on dense clouds at a fraction "
-                                     "of the cost.")
-    voxel_size_m: float | None = param(None, symbol="v", unit="m", bounds=(1e-4, 1.0),
-                                       auto="the object diameter / voxels_per_diameter (paper: 1/20)",
-                                       help="Voxel size of the downsampling.")
-    smoothing_radius_m: float | None = param(None, symbol="r", unit="m", bounds=(0.0, 1.0),
-                                             auto="smoothing_voxels x v (paper: 5 v)",
-                                             help="Radius of the mean smoothing (0 = no smoothing).")
-    voxels_per_diameter: float = param(20.0, unit="1", bounds=(2.0, 500.0),
-                                       help="The automatic v is the object diameter divided by this.")
-    smoothing_voxels: float = param(5.0, unit="v", bounds=(0.0, 20.0),
-                                    help="The automatic r is this many v.")
+    std_ratio: float = param(
+        0.5,
+        symbol="s",
+        unit="sigma",
+        bounds=(0.05, 10.0),
+        help="Statistical outlier removal: drop points whose mean neighbour distance is "
+        "more than s standard deviations above the average.",
+    )
+    sor_neighbours: int = param(
+        20,
+        unit="points",
+        bounds=(2, 500),
+        help="Neighbours used by the outlier removal. The paper uses 0.1 x the cloud's "
+        "size; a fixed count gives the same result on dense clouds at a fraction "
+        "of the cost.",
+    )
+    voxel_size_m: float | None = param(
+        None,
+        symbol="v",
+        unit="m",
+        bounds=(1e-4, 1.0),
+        auto="the object diameter / voxels_per_diameter (paper: 1/20)",
+        help="Voxel size of the downsampling.",
+    )
+    smoothing_radius_m: float | None = param(
+        None,
+        symbol="r",
+        unit="m",
+        bounds=(0.0, 1.0),
+        auto="smoothing_voxels x v (paper: 5 v)",
+        help="Radius of the mean smoothing (0 = no smoothing).",
+    )
+    voxels_per_diameter: float = param(
+        20.0, unit="1", bounds=(2.0, 500.0), help="The automatic v is the object diameter divided by this."
+    )
+    smoothing_voxels: float = param(5.0, unit="v", bounds=(0.0, 20.0), help="The automatic r is this many v.")
 
 
 class PaperPreprocessor(Preprocessor):
@@ -87,13 +106,15 @@ class PaperPreprocessor(Preprocessor):
         info = dict(n_raw=len(points))
         if len(points) < MIN_POINTS:
             return Cloud(frame.index, np.zeros((0, 3)), np.zeros((0, 3)), info, colors=np.zeros((0, 3)))
-        keep = statistical_inliers(points, neighbours=min(p.sor_neighbours, len(points) - 1), std_ratio=p.std_ratio)
+        keep = statistical_inliers(
+            points, neighbours=min(p.sor_neighbours, len(points) - 1), std_ratio=p.std_ratio
+        )
         pcd = to_o3d(points[keep])
         pcd.colors = o3d.utility.Vector3dVector(frame.rgb[used][keep].astype(np.float64) / 255.0)
         diameter = largest_distance(np.asarray(pcd.points))
         v = p.voxel_size_m if p.voxel_size_m is not None else max(diameter / p.voxels_per_diameter, 1e-4)
         r = p.smoothing_radius_m if p.smoothing_radius_m is not None else p.smoothing_voxels * v
-        down = pcd.voxel_down_sample(v)   # averages the colours of each voxel too
+        down = pcd.voxel_down_sample(v)  # averages the colours of each voxel too
         points = np.asarray(down.points)
         if r > 0 and len(points) > 1:
             points = mean_smooth(points, radius_m=r)
@@ -110,18 +131,27 @@ class PaperPreprocessor(Preprocessor):
 
 @dataclass(frozen=True)
 class FinePreprocessParams(PaperPreprocessParams):
-    voxels_per_diameter: float = param(40.0, unit="1", bounds=(2.0, 500.0),
-                                       help="The automatic v is the object diameter divided by this.")
-    smoothing_voxels: float = param(2.0, unit="v", bounds=(0.0, 20.0),
-                                    help="The automatic r is this many v.")
-    edge_px: int | None = param(None, unit="px", bounds=(0, 50), auto="image width / 160 (4 px at 640x480)",
-                                help="Erode the mask by this many pixels first: edge pixels mix the object's "
-                                     "depth with the background's, and a silhouette slides over the surface "
-                                     "when the view changes, which reads as motion.")
-    pixel_stride: int = param(1, unit="px", bounds=(1, 16),
-                              help="Use every n-th pixel of every n-th row. 2 makes preprocessing ~3x faster at "
-                                   "640x480 (outlier removal is most of its time) but lost 1 of 48 sequences on "
-                                   "the 640x480 benchmark (drawers: fewer points on a part seen at a grazing angle).")
+    voxels_per_diameter: float = param(
+        40.0, unit="1", bounds=(2.0, 500.0), help="The automatic v is the object diameter divided by this."
+    )
+    smoothing_voxels: float = param(2.0, unit="v", bounds=(0.0, 20.0), help="The automatic r is this many v.")
+    edge_px: int | None = param(
+        None,
+        unit="px",
+        bounds=(0, 50),
+        auto="image width / 160 (4 px at 640x480)",
+        help="Erode the mask by this many pixels first: edge pixels mix the object's "
+        "depth with the background's, and a silhouette slides over the surface "
+        "when the view changes, which reads as motion.",
+    )
+    pixel_stride: int = param(
+        1,
+        unit="px",
+        bounds=(1, 16),
+        help="Use every n-th pixel of every n-th row. 2 makes preprocessing ~3x faster at "
+        "640x480 (outlier removal is most of its time) but lost 1 of 48 sequences on "
+        "the 640x480 benchmark (drawers: fewer points on a part seen at a grazing angle).",
+    )
 
 
 class FinePreprocessor(PaperPreprocessor):
@@ -142,7 +172,7 @@ class FinePreprocessor(PaperPreprocessor):
 
     def sample(self, valid: np.ndarray) -> np.ndarray:
         grid = np.zeros_like(valid)
-        grid[::self.params.pixel_stride, ::self.params.pixel_stride] = True
+        grid[:: self.params.pixel_stride, :: self.params.pixel_stride] = True
         return valid & grid
 
     name = "fine"

@@ -54,6 +54,7 @@ def array(value) -> list:
     """A trace's data array as plotted: a list, or Plotly's typed-array form {dtype, bdata[, shape]}."""
     if isinstance(value, dict) and "bdata" in value:
         import base64
+
         out = np.frombuffer(base64.b64decode(value["bdata"]), dtype=np.dtype(value["dtype"]))
         return out.reshape(value["shape"]).tolist() if "shape" in value else out.tolist()
     return list(value)
@@ -70,8 +71,11 @@ def assert_matches_pipeline(at: AppTest, registry, folder: Path) -> None:
     meta = chart(at, "pair decision")["layout"]["meta"]
     plugins, params = meta["plugins"], meta["params"]
     kinds = ("segmenter", "preprocessor", "registrar", "rule")
-    config = Config(**{k: plugins[k] for k in kinds}, pipeline=PipelineParams(**params["pipeline"]),
-                    **{f"{k}_params": registry.get(k, plugins[k]).Params(**params[k]) for k in kinds})
+    config = Config(
+        **{k: plugins[k] for k in kinds},
+        pipeline=PipelineParams(**params["pipeline"]),
+        **{f"{k}_params": registry.get(k, plugins[k]).Params(**params[k]) for k in kinds},
+    )
     expected = Pipeline(registry, config).run(open_sequences(registry, folder)[0])
     assert timeline_decisions(at) == [p.decision for p in expected.pairs]
     assert metric(at, "Label") == expected.label
@@ -121,11 +125,9 @@ class CallCounter:
         monkeypatch.setattr(Pipeline, "decide", counted_decide)
 
 
-
 def copy_sequence(data_root: Path, name: str, dest: Path) -> Path:
     shutil.copytree(data_root / name, dest)
     return dest
-
 
 
 def zip_folder(folder: Path, *, prefix: str = "") -> bytes:

@@ -18,16 +18,16 @@ import pytest
 from artclass_core import Frame, Intrinsics, Sequence, load_registry
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:    # the app folder is not installed: it imports as app.*, from the project root
+if str(ROOT) not in sys.path:  # the app folder is not installed: it imports as app.*, from the project root
     sys.path.insert(0, str(ROOT))
 SHARED_DATA = (Path(__file__).parents[1] / ".." / "shared" / "data").resolve()
 SAMPLE_DATA = ROOT / "sample_data"
 
 WIDTH, HEIGHT = 160, 120
 INTRINSICS = Intrinsics(fx=160.0, fy=160.0, cx=79.5, cy=59.5, width=WIDTH, height=HEIGHT)
-OBJECT_DEPTH_M = 0.6          # the panels' plane
-BACKGROUND_DEPTH_M = 0.9      # a wall behind them, outside the mask
-PANEL_SIZE_M = (0.10, 0.15)   # width (x), height (y) of one panel
+OBJECT_DEPTH_M = 0.6  # the panels' plane
+BACKGROUND_DEPTH_M = 0.9  # a wall behind them, outside the mask
+PANEL_SIZE_M = (0.10, 0.15)  # width (x), height (y) of one panel
 
 
 @pytest.fixture(scope="session")
@@ -40,8 +40,10 @@ def registry():
 def shared_data() -> Path:
     """``../shared/data`` next to the repository; skips (with the reason) only when it is absent."""
     if not SHARED_DATA.is_dir():
-        pytest.skip(f"real data folder {SHARED_DATA} is absent (it sits next to the repository in the "
-                    f"development and CI set-up)")
+        pytest.skip(
+            f"real data folder {SHARED_DATA} is absent (it sits next to the repository in the "
+            f"development and CI set-up)"
+        )
     return SHARED_DATA
 
 
@@ -60,13 +62,28 @@ def rendered(tmp_path_factory):
     root = tmp_path_factory.mktemp("rendered")
     done: dict[tuple, Path] = {}
 
-    def render_once(object_name: str, motion: str, *, n_frames: int = 8, seed: int = 0, width: int = 320,
-                    height: int = 240) -> Path:
+    def render_once(
+        object_name: str,
+        motion: str,
+        *,
+        n_frames: int = 8,
+        seed: int = 0,
+        width: int = 320,
+        height: int = 240,
+    ) -> Path:
         key = (object_name, motion, n_frames, seed, width, height)
         if key not in done:
             folder = root / "_".join(map(str, key))
-            generate_sequence(folder, object_name=object_name, motion=motion, noise="low", n_frames=n_frames,
-                              seed=seed, width=width, height=height)
+            generate_sequence(
+                folder,
+                object_name=object_name,
+                motion=motion,
+                noise="low",
+                n_frames=n_frames,
+                seed=seed,
+                width=width,
+                height=height,
+            )
             done[key] = folder
         return done[key]
 
@@ -94,6 +111,7 @@ def sample_sequences() -> list[Path]:
 
 
 # -- the in-memory sequence -------------------------------------------------------------------------
+
 
 def panel_points(width_m: float, height_m: float, *, spacing_m: float = 0.0015) -> np.ndarray:
     """A regular sampling of a flat rectangle in the z = 0 plane, its left edge on x = 0, centred in y.
@@ -127,13 +145,15 @@ def render(parts: list[tuple[np.ndarray, int]], intrinsics: Intrinsics) -> tuple
     v = np.round(intrinsics.fy * pts[:, 1] / z + intrinsics.cy).astype(int)
     ok = (z > 0) & (u >= 0) & (u < intrinsics.width) & (v >= 0) & (v < intrinsics.height)
     pix, z, ident = (v * intrinsics.width + u)[ok], z[ok], ident[ok]
-    order = np.lexsort((z, pix))                       # nearest first within each pixel
+    order = np.lexsort((z, pix))  # nearest first within each pixel
     first = np.unique(pix[order], return_index=True)[1]
     depth = np.zeros(intrinsics.height * intrinsics.width, np.float32)
     ids = np.zeros(intrinsics.height * intrinsics.width, int)
     depth[pix[order][first]] = z[order][first]
     ids[pix[order][first]] = ident[order][first]
-    return depth.reshape(intrinsics.height, intrinsics.width), ids.reshape(intrinsics.height, intrinsics.width)
+    return depth.reshape(intrinsics.height, intrinsics.width), ids.reshape(
+        intrinsics.height, intrinsics.width
+    )
 
 
 def rot_y(angle_rad: float) -> np.ndarray:
@@ -144,19 +164,40 @@ def rot_y(angle_rad: float) -> np.ndarray:
 class ArraySequence(Sequence):
     """A sequence whose frames are held in memory (tests only)."""
 
-    def __init__(self, frames: list[Frame], *, name: str, intrinsics: Intrinsics = INTRINSICS,
-                 label: str | None = None, path: str | Path | None = None):
-        super().__init__(name=name, path=path or f"/in-memory/{name}", intrinsics=intrinsics, n_frames=len(frames), label=label,
-                         has_masks=frames[0].mask is not None)
+    def __init__(
+        self,
+        frames: list[Frame],
+        *,
+        name: str,
+        intrinsics: Intrinsics = INTRINSICS,
+        label: str | None = None,
+        path: str | Path | None = None,
+    ):
+        super().__init__(
+            name=name,
+            path=path or f"/in-memory/{name}",
+            intrinsics=intrinsics,
+            n_frames=len(frames),
+            label=label,
+            has_masks=frames[0].mask is not None,
+        )
         self._frames = frames
 
     def load(self, i: int) -> Frame:
         return self._frames[i]
 
 
-def make_sequence(motion: str = "static", *, n_frames: int = 6, step: float | None = None,
-                  empty_frames: tuple[int, ...] = (), masks: bool = True, background: bool = True,
-                  noise_m: float = 0.0, seed: int = 0) -> ArraySequence:
+def make_sequence(
+    motion: str = "static",
+    *,
+    n_frames: int = 6,
+    step: float | None = None,
+    empty_frames: tuple[int, ...] = (),
+    masks: bool = True,
+    background: bool = True,
+    noise_m: float = 0.0,
+    seed: int = 0,
+) -> ArraySequence:
     """Render a small sequence of two 10 x 15 cm panels side by side, 0.6 m in front of the camera.
 
     Parameters
@@ -171,8 +212,8 @@ def make_sequence(motion: str = "static", *, n_frames: int = 6, step: float | No
     noise_m : standard deviation of Gaussian depth noise (seeded by ``seed``)
     """
     rng = np.random.default_rng(seed)
-    left = panel_points(*PANEL_SIZE_M) - [PANEL_SIZE_M[0], 0.0, 0.0]   # left edge at x = -0.1
-    right = panel_points(*PANEL_SIZE_M)                                  # hinge at x = 0
+    left = panel_points(*PANEL_SIZE_M) - [PANEL_SIZE_M[0], 0.0, 0.0]  # left edge at x = -0.1
+    right = panel_points(*PANEL_SIZE_M)  # hinge at x = 0
     hinge = np.array([0.0, 0.0, OBJECT_DEPTH_M])
     frames = []
     for i in range(n_frames):
@@ -191,8 +232,11 @@ def make_sequence(motion: str = "static", *, n_frames: int = 6, step: float | No
         if background:
             wall = panel_points(1.2, 0.9, spacing_m=0.004) - [0.6, 0.0, -BACKGROUND_DEPTH_M]
             parts.append((wall, 9))
-        depth, ids = render(parts, INTRINSICS) if parts else (np.zeros((HEIGHT, WIDTH), np.float32),
-                                                              np.zeros((HEIGHT, WIDTH), int))
+        depth, ids = (
+            render(parts, INTRINSICS)
+            if parts
+            else (np.zeros((HEIGHT, WIDTH), np.float32), np.zeros((HEIGHT, WIDTH), int))
+        )
         if noise_m:
             depth = np.where(depth > 0, depth + rng.normal(0.0, noise_m, depth.shape), 0).astype(np.float32)
         rgb = np.full((HEIGHT, WIDTH, 3), 90, np.uint8)
@@ -200,8 +244,11 @@ def make_sequence(motion: str = "static", *, n_frames: int = 6, step: float | No
         rgb[ids == 2] = (40, 40, 200)
         mask = ((ids == 1) | (ids == 2)) if masks else None
         frames.append(Frame(i, f"{i:06d}", rgb, depth, mask, time_s=i / 30.0))
-    return ArraySequence(frames, name=f"memory_{motion}", label={"static": "static", "rigid": "rigid",
-                                                                 "hinge": "articulated"}[motion])
+    return ArraySequence(
+        frames,
+        name=f"memory_{motion}",
+        label={"static": "static", "rigid": "rigid", "hinge": "articulated"}[motion],
+    )
 
 
 @pytest.fixture(scope="session")

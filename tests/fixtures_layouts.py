@@ -23,15 +23,15 @@ WIDTH, HEIGHT = 64, 48
 FX = FY = 60.0
 CX, CY = 31.5, 23.5
 WALL_M, BOX_M, FLAP_LENGTH_M = 1.0, 0.8, 0.12
-BOX_U, BOX_V = (14, 38), (12, 36)          # pixel ranges [start, stop) of the box's front face
+BOX_U, BOX_V = (14, 38), (12, 36)  # pixel ranges [start, stop) of the box's front face
 
 
 @dataclass
 class Render:
-    rgb: np.ndarray        # (H, W, 3) uint8, RGB order
-    depth_m: np.ndarray    # (H, W) float64, metres
-    box: np.ndarray        # (H, W) bool
-    flap: np.ndarray       # (H, W) bool
+    rgb: np.ndarray  # (H, W, 3) uint8, RGB order
+    depth_m: np.ndarray  # (H, W) float64, metres
+    box: np.ndarray  # (H, W) bool
+    flap: np.ndarray  # (H, W) bool
 
     @property
     def mask(self) -> np.ndarray:
@@ -76,8 +76,16 @@ def write_png(path: Path, image: np.ndarray) -> None:
 
 
 # -- the native folder format -----------------------------------------------------------------------
-def write_folder(root: Path, name: str = "folder_seq", *, n_frames: int = 8, masks: bool = True,
-                 label: str | None = "articulated", depth_scale: float = 1000.0, moving: bool = True) -> Path:
+def write_folder(
+    root: Path,
+    name: str = "folder_seq",
+    *,
+    n_frames: int = 8,
+    masks: bool = True,
+    label: str | None = "articulated",
+    depth_scale: float = 1000.0,
+    moving: bool = True,
+) -> Path:
     """meta.json + rgb/, depth/ (uint16, ``depth_scale`` units per metre), mask/ and truth.json."""
     seq = Path(root) / name
     a = angles(n_frames, moving=moving)
@@ -96,9 +104,9 @@ def write_folder(root: Path, name: str = "folder_seq", *, n_frames: int = 8, mas
 
 
 # -- YCB-Video ----------------------------------------------------------------------------------------
-YCBV_IDS = (14, 21)                 # 025_mug on the box, 061_foam_brick on the flap
+YCBV_IDS = (14, 21)  # 025_mug on the box, 061_foam_brick on the flap
 YCBV_FACTOR = 10000
-CAMERA_STEP_M = 0.0006              # the camera moves this far along x per frame
+CAMERA_STEP_M = 0.0006  # the camera moves this far along x per frame
 
 
 def ycbv_pose(i: int, k: int) -> np.ndarray:
@@ -109,8 +117,9 @@ def ycbv_pose(i: int, k: int) -> np.ndarray:
     return T
 
 
-def write_ycbv(root: Path, name: str = "0000", *, n_frames: int = 8, drop: tuple[str, ...] = (),
-               n_objects: int = 2) -> Path:
+def write_ycbv(
+    root: Path, name: str = "0000", *, n_frames: int = 8, drop: tuple[str, ...] = (), n_objects: int = 2
+) -> Path:
     """A YCB-Video scene folder: NNNNNN-{color,depth,label}.png, -meta.mat, -box.txt.
 
     ``drop`` names meta.mat variables to leave out (e.g. ``("intrinsic_matrix",)``); with
@@ -129,10 +138,13 @@ def write_ycbv(root: Path, name: str = "0000", *, n_frames: int = 8, drop: tuple
         if n_objects > 1:
             label[r.flap] = YCBV_IDS[1]
         write_png(Path(f"{stem}-label.png"), label)
-        meta = dict(intrinsic_matrix=K, factor_depth=np.array([[YCBV_FACTOR]], np.uint16),
-                    cls_indexes=np.array(YCBV_IDS[:n_objects], np.uint8).reshape(-1, 1),
-                    poses=np.stack([ycbv_pose(i, k) for k in range(n_objects)], axis=2),
-                    rotation_translation_matrix=np.hstack([np.eye(3), [[CAMERA_STEP_M * i], [0], [0]]]))
+        meta = dict(
+            intrinsic_matrix=K,
+            factor_depth=np.array([[YCBV_FACTOR]], np.uint16),
+            cls_indexes=np.array(YCBV_IDS[:n_objects], np.uint8).reshape(-1, 1),
+            poses=np.stack([ycbv_pose(i, k) for k in range(n_objects)], axis=2),
+            rotation_translation_matrix=np.hstack([np.eye(3), [[CAMERA_STEP_M * i], [0], [0]]]),
+        )
         for key in drop:
             meta.pop(key)
         scipy.io.savemat(f"{stem}-meta.mat", meta)
@@ -143,11 +155,18 @@ def write_ycbv(root: Path, name: str = "0000", *, n_frames: int = 8, drop: tuple
 # -- RBO ----------------------------------------------------------------------------------------------
 RBO_T0 = 1500000000.0
 RBO_RATE_HZ = 30.0
-RBO_DEPTH_OFFSET_S = 0.004          # depth stamps lag the colour stamps a little, as in a real recording
+RBO_DEPTH_OFFSET_S = 0.004  # depth stamps lag the colour stamps a little, as in a real recording
 
 
-def write_rbo(root: Path, name: str = "flapbox01_o", *, n_frames: int = 8, moving: bool = True,
-              camera_info: bool = True, depth_unit_per_metre: float = 1.0) -> Path:
+def write_rbo(
+    root: Path,
+    name: str = "flapbox01_o",
+    *,
+    n_frames: int = 8,
+    moving: bool = True,
+    camera_info: bool = True,
+    depth_unit_per_metre: float = 1.0,
+) -> Path:
     """An RBO interaction folder: camera_rgb/, camera_depth_registered/ (text matrices, metres, NaN holes),
     camera_rgb_camera_info.csv and flapbox_joint_states.csv (100 Hz, nanoseconds, one revolute joint)."""
     seq = Path(root) / name
@@ -158,8 +177,10 @@ def write_rbo(root: Path, name: str = "flapbox01_o", *, n_frames: int = 8, movin
         r = render(angle, seed=i)
         write_png(seq / "camera_rgb" / f"{i:06d}-{t:.6f}.png", r.rgb)
         depth = r.depth_m * depth_unit_per_metre
-        depth[:2, :2] = np.nan                      # the sensor's holes
-        np.savetxt(seq / "camera_depth_registered" / f"{i:06d}-{t + RBO_DEPTH_OFFSET_S:.6f}.txt", depth, fmt="%.6f")
+        depth[:2, :2] = np.nan  # the sensor's holes
+        np.savetxt(
+            seq / "camera_depth_registered" / f"{i:06d}-{t + RBO_DEPTH_OFFSET_S:.6f}.txt", depth, fmt="%.6f"
+        )
     # One extra colour frame at the end without a depth matrix: a reader must drop it.
     t_extra = RBO_T0 + n_frames / RBO_RATE_HZ + 0.5
     write_png(seq / "camera_rgb" / f"{n_frames:06d}-{t_extra:.6f}.png", render(a[-1]).rgb)
@@ -168,11 +189,23 @@ def write_rbo(root: Path, name: str = "flapbox01_o", *, n_frames: int = 8, movin
     t_end = RBO_T0 + (n_frames - 1) / RBO_RATE_HZ
     stamps = np.arange(RBO_T0 - 0.05, t_end + 0.05, 0.01)
     # The joint turns at a constant rate (or stands still), sampled before, between and after the frames.
-    position = np.polyval(np.polyfit(RBO_T0 + np.arange(n_frames) / RBO_RATE_HZ - RBO_T0, a, 1), stamps - RBO_T0)
+    position = np.polyval(
+        np.polyfit(RBO_T0 + np.arange(n_frames) / RBO_RATE_HZ - RBO_T0, a, 1), stamps - RBO_T0
+    )
     with (seq / "flapbox_joint_states.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["%time", "field.header.seq", "field.header.stamp", "field.header.frame_id", "field.name0",
-                    "field.position0", "field.velocity0", "field.effort0"])
+        w.writerow(
+            [
+                "%time",
+                "field.header.seq",
+                "field.header.stamp",
+                "field.header.frame_id",
+                "field.name0",
+                "field.position0",
+                "field.velocity0",
+                "field.effort0",
+            ]
+        )
         for n, (t, p) in enumerate(zip(stamps, position)):
             ns = int(round(t * 1e9))
             w.writerow([ns, n, ns, "", "j_0_1", f"{p:.6f}", 0.0, 0.0])
@@ -183,12 +216,28 @@ def write_camera_info(path: Path, *, fx: float = FX) -> None:
     """A ROS CameraInfo CSV export (the columns rostopic echo -p writes)."""
     K = [fx, 0, CX, 0, FY, CY, 0, 0, 1]
     P = [fx, 0, CX, 0, 0, FY, CY, 0, 0, 0, 1, 0]
-    header = (["%time", "field.header.seq", "field.header.stamp", "field.header.frame_id", "field.height",
-               "field.width", "field.distortion_model"] + [f"field.D{i}" for i in range(5)]
-              + [f"field.K{i}" for i in range(9)] + [f"field.R{i}" for i in range(9)]
-              + [f"field.P{i}" for i in range(12)])
-    row = ([int(RBO_T0 * 1e9), 0, int(RBO_T0 * 1e9), "camera_rgb_optical_frame", HEIGHT, WIDTH, "plumb_bob"]
-           + [0.0] * 5 + K + [1, 0, 0, 0, 1, 0, 0, 0, 1] + P)
+    header = (
+        [
+            "%time",
+            "field.header.seq",
+            "field.header.stamp",
+            "field.header.frame_id",
+            "field.height",
+            "field.width",
+            "field.distortion_model",
+        ]
+        + [f"field.D{i}" for i in range(5)]
+        + [f"field.K{i}" for i in range(9)]
+        + [f"field.R{i}" for i in range(9)]
+        + [f"field.P{i}" for i in range(12)]
+    )
+    row = (
+        [int(RBO_T0 * 1e9), 0, int(RBO_T0 * 1e9), "camera_rgb_optical_frame", HEIGHT, WIDTH, "plumb_bob"]
+        + [0.0] * 5
+        + K
+        + [1, 0, 0, 0, 1, 0, 0, 0, 1]
+        + P
+    )
     with path.open("w", newline="") as fh:
         csv.writer(fh).writerows([header, row])
 
@@ -198,8 +247,14 @@ TUM_T0 = 1305031102.0
 TUM_SCALE = 5000
 
 
-def write_tum(root: Path, name: str = "rgbd_dataset_freiburg1_flapbox", *, n_frames: int = 8,
-              config: dict | None = None, groundtruth: bool = True) -> Path:
+def write_tum(
+    root: Path,
+    name: str = "rgbd_dataset_freiburg1_flapbox",
+    *,
+    n_frames: int = 8,
+    config: dict | None = None,
+    groundtruth: bool = True,
+) -> Path:
     """A TUM RGB-D folder: rgb.txt, depth.txt (with comments), rgb/, depth/ (1/5000 m) and groundtruth.txt.
 
     Colour at 30 Hz; depth 10 ms later, plus one unpaired depth frame. ``config`` is written as meta.json.
@@ -232,8 +287,12 @@ def write_tum(root: Path, name: str = "rgbd_dataset_freiburg1_flapbox", *, n_fra
 def layout_root(root: Path) -> dict[str, Path]:
     """One fixture of each layout under ``root`` (in sub-folders); returns reader name -> folder."""
     root = Path(root)
-    return dict(folder=write_folder(root / "native"), ycbv=write_ycbv(root / "ycbv"),
-                rbo=write_rbo(root / "rbo"), tum=write_tum(root / "tum"))
+    return dict(
+        folder=write_folder(root / "native"),
+        ycbv=write_ycbv(root / "ycbv"),
+        rbo=write_rbo(root / "rbo"),
+        tum=write_tum(root / "tum"),
+    )
 
 
 def snapshot(folder: Path) -> dict[str, bytes]:

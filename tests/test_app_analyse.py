@@ -34,7 +34,7 @@ from app_helpers import (
     zip_folder,
 )
 
-pytestmark = pytest.mark.slow      # the app's page runs (AppTest), each a whole sequence
+pytestmark = pytest.mark.slow  # the app's page runs (AppTest), each a whole sequence
 
 
 # -- the analyse page ------------------------------------------------------------------------------------
@@ -44,10 +44,12 @@ def test_opens_on_the_bundled_samples_with_no_configuration(monkeypatch):
     samples = ROOT / "sample_data"
     assert samples.is_dir(), f"{samples} is missing: the bundled samples are part of the repository"
     folders = sorted(p for p in samples.iterdir() if (p / "meta.json").is_file())
-    first = next(p for p in folders if json.loads((p / "meta.json").read_text()).get("label") == "articulated")
+    first = next(
+        p for p in folders if json.loads((p / "meta.json").read_text()).get("label") == "articulated"
+    )
     at = ok(AppTest.from_file(APP, default_timeout=TIMEOUT).run())
     assert [t.value for t in at.title] == [first.name]
-    options = at.selectbox(key="an_sample").options          # shown as "name  (label)"
+    options = at.selectbox(key="an_sample").options  # shown as "name  (label)"
     assert [o.split()[0] for o in options] == [p.name for p in folders]
     assert timeline_decisions(at)
     # With no data root configured, typed-in paths are confined to the bundled samples.
@@ -73,8 +75,12 @@ def test_opens_on_first_articulated_sample_and_matches_the_pipeline(app, data_ro
     spec = chart(app, f"frame {pair.j}")
     names = [t.get("name", "") for t in spec["data"] if t["type"] == "scatter3d"]
     assert len([n for n in names if n.startswith("motion ")]) == len(pair.motions) >= 1, names
-    assert sum(len(array(t["x"])) for t in spec["data"] if t["type"] == "cone") == sum(m.n_points > 0 for m in pair.motions)
-    assert len([e for e in app.get("plotly_chart") if not e.key.startswith("an_joints_")]) == 4   # timeline, 3D, two frames
+    assert sum(len(array(t["x"])) for t in spec["data"] if t["type"] == "cone") == sum(
+        m.n_points > 0 for m in pair.motions
+    )
+    assert (
+        len([e for e in app.get("plotly_chart") if not e.key.startswith("an_joints_")]) == 4
+    )  # timeline, 3D, two frames
     assert any(d.label.startswith("Run result") for d in app.get("download_button"))
 
 
@@ -122,13 +128,13 @@ def test_k_changes_the_pairs_and_w_only_the_filter(app, monkeypatch):
     app.select_slider(key="cfg_p:pipeline:core:k").set_value(3)
     ok(app.run())
     assert len(timeline_decisions(app)) == N_FRAMES - 3
-    assert counter.calls["frame"] == 0          # the frames are cached; only new pairs are registered
+    assert counter.calls["frame"] == 0  # the frames are cached; only new pairs are registered
     app.select_slider(key="cfg_p:pipeline:core:w").set_value(1)
     registered = counter.calls["register"]
     ok(app.run())
     filtered = next(t for t in chart(app, "pair decision")["data"] if t["name"].startswith("filtered"))
     decided = [d for d in timeline_decisions(app) if d != "skipped"]
-    assert array(filtered["y"]) == decided             # w = 1: the filter changes nothing
+    assert array(filtered["y"]) == decided  # w = 1: the filter changes nothing
     assert counter.calls["register"] == registered
 
 
@@ -147,7 +153,7 @@ def test_bad_folder_is_an_error_message_and_the_app_keeps_working(app, data_root
     open_folder(app, data_root / "no_such_sequence")
     assert not app.exception
     assert any("no such file or folder" in e for e in errors(app)), errors(app)
-    open_folder(app, data_root)   # holds two sequences but is not one: no reader recognises it
+    open_folder(app, data_root)  # holds two sequences but is not one: no reader recognises it
     assert any("not a sequence that any reader recognises" in e for e in errors(app)), errors(app)
     open_folder(app, data_root / "mug_carry")
     ok(app)
@@ -189,7 +195,7 @@ def test_data_roots_from_the_environment(app, data_root, tmp_path, monkeypatch):
     monkeypatch.setenv("ARTCLASS_DATA_ROOTS", str(other))
     open_folder(ok(app.run()), other / "mug_carry")
     ok(app)
-    open_folder(app, data_root / "mug_carry")   # the samples are not a root any more
+    open_folder(app, data_root / "mug_carry")  # the samples are not a root any more
     assert any("outside the data folders" in e for e in errors(app)), errors(app)
 
 
@@ -222,6 +228,7 @@ def test_missing_intrinsics_is_reported_with_the_file(app, data_root, tmp_path, 
 def test_no_object_found_is_an_error_message(app, data_root, tmp_path, monkeypatch):
     seq = copy_sequence(data_root, "mug_carry", tmp_path / "roots" / "empty_masks")
     import cv2
+
     for mask in sorted((seq / "mask").iterdir()):
         image = cv2.imread(str(mask), cv2.IMREAD_UNCHANGED)
         cv2.imwrite(str(mask), np.zeros_like(image))
@@ -255,8 +262,6 @@ def test_upload_a_zip_and_a_bad_zip(app, data_root, tmp_path):
     app.run()
     assert not app.exception
     assert any("broken.zip" in e and "not a readable zip file" in e for e in errors(app)), errors(app)
-
-
 
 
 def test_analyse_offers_hand_exclusion_with_a_mask_free_segmenter(app):

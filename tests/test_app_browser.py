@@ -22,8 +22,14 @@ ROOT = Path(__file__).resolve().parents[1]
 APP = ROOT / "app" / "streamlit_app.py"
 ARTEFACTS = ROOT / "artefacts"
 CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                 "--disable-sync", "--disable-quic"]
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-quic",
+]
 
 pytestmark = pytest.mark.browser
 
@@ -56,7 +62,9 @@ def first_articulated_sample() -> tuple[str, int]:
 def server(tmp_path_factory):
     """``streamlit run app/streamlit_app.py`` on a free port, as a user starts it (no configuration:
     it opens on the bundled samples); always stopped at the end."""
-    assert Path(CHROMIUM).exists(), f"{CHROMIUM} is missing: install the Debian package chromium (make test does)"
+    assert Path(CHROMIUM).exists(), (
+        f"{CHROMIUM} is missing: install the Debian package chromium (make test does)"
+    )
     port = _free_port()
     log = tmp_path_factory.mktemp("streamlit") / "server.log"
     env = dict(os.environ, ARTCLASS_UPLOAD_DIR=str(log.parent / "uploads"))
@@ -64,9 +72,28 @@ def server(tmp_path_factory):
         env.pop(name, None)
     with open(log, "w") as out:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "streamlit", "run", str(APP), "--server.headless", "true", "--server.port", str(port),
-             "--server.address", "127.0.0.1", "--browser.gatherUsageStats", "false",
-             "--server.fileWatcherType", "none"], cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT)
+            [
+                sys.executable,
+                "-m",
+                "streamlit",
+                "run",
+                str(APP),
+                "--server.headless",
+                "true",
+                "--server.port",
+                str(port),
+                "--server.address",
+                "127.0.0.1",
+                "--browser.gatherUsageStats",
+                "false",
+                "--server.fileWatcherType",
+                "none",
+            ],
+            cwd=ROOT,
+            env=env,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+        )
     try:
         url = f"http://127.0.0.1:{port}"
         deadline = time.monotonic() + 90
@@ -93,6 +120,7 @@ def server(tmp_path_factory):
 @pytest.fixture
 def page(server):
     from playwright.sync_api import sync_playwright
+
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
@@ -112,8 +140,10 @@ PARAMS_JS = """() => {
 
 def _wait_for_new_params(page, old: str) -> None:
     """Wait until the timeline is redrawn for other parameters (its layout.meta records them)."""
-    page.wait_for_function(f"() => {{ const p = ({PARAMS_JS})(); return p !== null && p !== {json.dumps(old)}; }}",
-                           timeout=60_000)
+    page.wait_for_function(
+        f"() => {{ const p = ({PARAMS_JS})(); return p !== null && p !== {json.dumps(old)}; }}",
+        timeout=60_000,
+    )
 
 
 def _no_errors(page) -> None:
@@ -124,8 +154,9 @@ def _no_errors(page) -> None:
 
 def test_app_renders_3d_and_follows_a_slider(server, page):
     from artclass_core import PipelineParams
+
     name, n_frames = first_articulated_sample()
-    k = PipelineParams().k                      # the default frame skip; the test moves it to k - 1
+    k = PipelineParams().k  # the default frame skip; the test moves it to k - 1
     ARTEFACTS.mkdir(exist_ok=True)
     t0 = time.perf_counter()
     page.goto(server)
@@ -136,11 +167,11 @@ def test_app_renders_3d_and_follows_a_slider(server, page):
     _no_errors(page)
     assert page.get_by_role("heading", name=name).count() == 1
     before = page.evaluate(TIMELINE_JS)
-    assert len(before) == n_frames - k          # pairs (i, i + k)
+    assert len(before) == n_frames - k  # pairs (i, i + k)
     assert page.locator(".js-plotly-plot").count() >= 4
     # the parts and joints: the joint's one line above a 3D scene of the parts and the axis arrow
     assert page.get_by_role("heading", name="Parts and joints").count() == 1
-    page.wait_for_timeout(1000)                 # let the WebGL scene draw before the screenshot
+    page.wait_for_timeout(1000)  # let the WebGL scene draw before the screenshot
     page.screenshot(path=str(ARTEFACTS / "app_browser_start.png"), full_page=True)
 
     # Move k one step down with the keyboard on the slider's thumb.
@@ -150,8 +181,10 @@ def test_app_renders_3d_and_follows_a_slider(server, page):
     thumb.focus()
     t1 = time.perf_counter()
     thumb.press("ArrowLeft")
-    page.wait_for_function(f"() => {{ const y = ({TIMELINE_JS})(); return y && y.length === {n_frames - (k - 1)}; }}",
-                           timeout=60_000)
+    page.wait_for_function(
+        f"() => {{ const y = ({TIMELINE_JS})(); return y && y.length === {n_frames - (k - 1)}; }}",
+        timeout=60_000,
+    )
     t_rerun = time.perf_counter() - t1
     assert thumb.get_attribute("aria-valuetext") == f"{k - 1} frames"
     page.wait_for_selector(".js-plotly-plot .gl-container canvas", timeout=60_000)
@@ -163,10 +196,16 @@ def test_app_renders_3d_and_follows_a_slider(server, page):
     box = markers.nth(2).bounding_box()
     page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
     page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
-    pair_thumb = page.locator('[data-testid="stSlider"]').filter(has=page.get_by_text("Pair", exact=True)) \
+    pair_thumb = (
+        page.locator('[data-testid="stSlider"]')
+        .filter(has=page.get_by_text("Pair", exact=True))
         .get_by_role("slider")
-    page.wait_for_function(f"(el) => el.getAttribute('aria-valuetext') === '2 → {k + 1}'",
-                           arg=pair_thumb.element_handle(), timeout=60_000)
+    )
+    page.wait_for_function(
+        f"(el) => el.getAttribute('aria-valuetext') === '2 → {k + 1}'",
+        arg=pair_thumb.element_handle(),
+        timeout=60_000,
+    )
     page.get_by_text(f"Pair 2 → {k + 1}:").wait_for(timeout=60_000)
     _no_errors(page)
 
@@ -186,8 +225,11 @@ def test_app_renders_3d_and_follows_a_slider(server, page):
     # Exactly one title for the chosen pair once the rerun has settled (Streamlit keeps the stale
     # element in the page until the new one replaces it, so wait rather than count at once).
     from playwright.sync_api import expect
+
     expect(page.get_by_text(f"Pair 2 → {k + 1}:")).to_have_count(1, timeout=30_000)
     page.wait_for_timeout(1000)
     page.screenshot(path=str(ARTEFACTS / "app_browser.png"), full_page=True)
-    print(f"\nbrowser: first page with 3D plot {t_first:.2f} s; k slider -> new timeline {t_rerun:.2f} s; "
-          f"decision-rule slider -> timeline redrawn {t_decide:.2f} s")
+    print(
+        f"\nbrowser: first page with 3D plot {t_first:.2f} s; k slider -> new timeline {t_rerun:.2f} s; "
+        f"decision-rule slider -> timeline redrawn {t_decide:.2f} s"
+    )

@@ -10,8 +10,11 @@ from artclass_core import PipelineParams, describe
 
 # -- controls.py: sliders from the metadata ----------------------------------------------------------------
 def test_slider_options_hold_every_default_within_bounds(registry):
-    classes = [PipelineParams] + [registry.get(kind, name).Params for kind in ("segmenter", "preprocessor", "registrar",
-                                                                               "rule") for name in registry.names(kind)]
+    classes = [PipelineParams] + [
+        registry.get(kind, name).Params
+        for kind in ("segmenter", "preprocessor", "registrar", "rule")
+        for name in registry.names(kind)
+    ]
     n_sliders = 0
     for cls in classes:
         for spec in describe(cls):
@@ -31,9 +34,9 @@ def test_slider_options_hold_every_default_within_bounds(registry):
 
 def test_slider_options_shapes():
     specs = {s.name: s for s in describe(PipelineParams)}
-    x = controls.slider_options(specs["cell_size_m"])         # 0.1 mm .. 10 m: logarithmic
+    x = controls.slider_options(specs["cell_size_m"])  # 0.1 mm .. 10 m: logarithmic
     assert x[0] == pytest.approx(1e-4) and x[-1] == 10.0 and 0.03 in x and 40 < len(x) < 80
-    alpha = controls.slider_options(specs["alpha"])          # a fraction: even steps of 0.01
+    alpha = controls.slider_options(specs["alpha"])  # a fraction: even steps of 0.01
     assert alpha[:3] == [0.0, 0.01, 0.02] and alpha[-1] == 1.0 and 0.3 in alpha
     k = controls.slider_options(specs["k"])
     assert k[:21] == list(range(1, 22)) and k[-1] == 1000

@@ -10,7 +10,7 @@ import pytest
 from artclass_core import Config, figures
 from artclass_core.evaluate import evaluate
 
-pytestmark = pytest.mark.slow      # renders the app's sequences and runs the pipeline on them
+pytestmark = pytest.mark.slow  # renders the app's sequences and runs the pipeline on them
 
 
 # -- figures.py ----------------------------------------------------------------------------------------------
@@ -36,7 +36,7 @@ def test_motion_arrows_one_cone_per_matched_cell(laptop_run):
     cones = [t for t in fig.data if t.type == "cone"]
     matched = [c for c in pair.cells if c.matched]
     assert sum(len(t.x) for t in cones) == len(matched)
-    assert len(cones) == len({c.cluster for c in matched})      # one colour (trace) per cluster
+    assert len(cones) == len({c.cluster for c in matched})  # one colour (trace) per cluster
     # With magnify=1 each cone is the true displacement of its cell centre, and hover has the numbers.
     by_centre = {tuple(np.round(c.centre_m, 9)): c.to_dict() for c in matched}
     for t in cones:
@@ -66,11 +66,13 @@ def test_frame_images_and_cells_table(laptop, laptop_run):
         assert row["status"] == ("matched" if cell.matched else cell.skipped)
         if cell.registration is not None:
             d = cell.to_dict()
-            assert row["displacement_mm"] == pytest.approx(1000 * np.linalg.norm(d["centre_displacement_m"]), abs=0.01)
+            assert row["displacement_mm"] == pytest.approx(
+                1000 * np.linalg.norm(d["centre_displacement_m"]), abs=0.01
+            )
             assert row["rotation_deg"] == pytest.approx(d["rotation_deg"], abs=1e-3)
         else:
             assert row["fitness"] is None
-    json.dumps(rows)   # JSON-ready
+    json.dumps(rows)  # JSON-ready
 
 
 def test_frame_images_with_hand_overlays_the_hand(laptop):
@@ -91,6 +93,10 @@ def test_confusion_figure_and_html_export(registry, laptop, laptop_run):
     assert list(heat.y) == list(metrics["confusion"])
     assert [list(r) for r in heat.z] == [list(metrics["confusion"][t].values()) for t in metrics["confusion"]]
     assert sum(map(sum, heat.z)) == 1
-    page = figures.figures_html({"timeline": figures.decision_timeline(laptop_run), "confusion": fig}, title="t")
+    page = figures.figures_html(
+        {"timeline": figures.decision_timeline(laptop_run), "confusion": fig}, title="t"
+    )
     assert page.count("<h2>") == 2 and page.count('class="plotly-graph-div"') == 2
-    assert page.count("* plotly.js v") == 1 and 'src="https://' not in page   # plotly.js embedded once: offline
+    assert (
+        page.count("* plotly.js v") == 1 and 'src="https://' not in page
+    )  # plotly.js embedded once: offline

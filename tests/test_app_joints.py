@@ -31,6 +31,7 @@ def _values(value) -> np.ndarray:
     """A trace's data array as plotted: a list, or Plotly's typed-array form {dtype, bdata}."""
     if isinstance(value, dict) and "bdata" in value:
         import base64
+
         return np.frombuffer(base64.b64decode(value["bdata"]), dtype=np.dtype(value["dtype"]))
     return np.array([np.nan if v is None else v for v in value], float)
 
@@ -38,6 +39,7 @@ def _values(value) -> np.ndarray:
 @pytest.fixture(scope="module")
 def laptop_page():
     import os
+
     old = os.environ.get("ARTCLASS_SAMPLE_DATA")
     os.environ["ARTCLASS_SAMPLE_DATA"] = str(ROOT / "sample_data")
     try:
@@ -75,7 +77,7 @@ def test_parts_in_colour_and_the_axis_as_an_arrow(laptop_page, expected):
     (cone,) = [t for t in spec["data"] if t["type"] == "cone"]
     arrow = np.array([_values(cone[c])[0] for c in "uvw"])
     direction = expected.joints[0].estimate.axis_direction
-    assert abs(arrow @ direction) / np.linalg.norm(arrow) == pytest.approx(1.0, abs=1e-6)   # along the axis
+    assert abs(arrow @ direction) / np.linalg.norm(arrow) == pytest.approx(1.0, abs=1e-6)  # along the axis
     image = _spec(laptop_page, "an_joints_image")
     assert image["data"][0]["type"] == "image"
 
@@ -86,4 +88,4 @@ def test_the_joint_state_over_the_video(laptop_page, expected):
     plotted = _values(line["y"])
     states = np.degrees(expected.joints[0].estimate.states)
     np.testing.assert_allclose(plotted, states, atol=1e-6)
-    assert np.nanmax(plotted) > 10        # the lid opens by tens of degrees
+    assert np.nanmax(plotted) > 10  # the lid opens by tens of degrees

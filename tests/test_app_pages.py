@@ -11,7 +11,7 @@ from artclass_core.evaluate import evaluate
 
 from app_helpers import N_FRAMES, SEQUENCES, array, errors, metric, ok, timeline_decisions
 
-pytestmark = pytest.mark.slow      # the app's page runs (AppTest)
+pytestmark = pytest.mark.slow  # the app's page runs (AppTest)
 
 
 # -- the other pages -------------------------------------------------------------------------------------
@@ -36,7 +36,9 @@ def test_evaluate_page(app, data_root, registry):
     seqs = [open_sequences(registry, data_root / n)[0] for n in sorted(SEQUENCES)]
     expected = evaluate(registry, seqs, Config()).metrics()
     z = array(confusions[0]["data"][0]["z"])
-    assert z == [[expected["confusion"][t][p] for p in expected["confusion"][t]] for t in expected["confusion"]]
+    assert z == [
+        [expected["confusion"][t][p] for p in expected["confusion"][t]] for t in expected["confusion"]
+    ]
     # A folder outside the roots is refused, with a message.
     app.text_input(key="ev_folder").set_value("/etc").run()
     assert not app.exception

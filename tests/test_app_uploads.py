@@ -33,14 +33,17 @@ def test_extract_zip_extracts_inside_the_folder(tmp_path):
     assert (dest / "seq" / "rgb" / "0.png").stat().st_size == 10
 
 
-@pytest.mark.parametrize("entries, symlinks, problem", [
-    ({"../evil.txt": b"x"}, None, "points outside the folder"),
-    ({"seq/../../evil.txt": b"x"}, None, "points outside the folder"),
-    ({"/etc/evil.txt": b"x"}, None, "absolute path"),
-    ({"C:/evil.txt": b"x"}, None, "absolute path"),
-    ({"..\\evil.txt": b"x"}, None, "points outside the folder"),
-    ({"ok.txt": b"x"}, {"seq/link": "/etc/passwd"}, "symbolic link"),
-])
+@pytest.mark.parametrize(
+    "entries, symlinks, problem",
+    [
+        ({"../evil.txt": b"x"}, None, "points outside the folder"),
+        ({"seq/../../evil.txt": b"x"}, None, "points outside the folder"),
+        ({"/etc/evil.txt": b"x"}, None, "absolute path"),
+        ({"C:/evil.txt": b"x"}, None, "absolute path"),
+        ({"..\\evil.txt": b"x"}, None, "points outside the folder"),
+        ({"ok.txt": b"x"}, {"seq/link": "/etc/passwd"}, "symbolic link"),
+    ],
+)
 def test_extract_zip_refuses_escaping_entries(tmp_path, entries, symlinks, problem):
     with pytest.raises(InputError, match=problem) as err:
         uploads.extract_zip(_zip(entries, symlinks=symlinks), tmp_path / "out", name="upload.zip")
@@ -53,14 +56,14 @@ def test_extract_zip_limits(tmp_path):
     many = _zip({f"f{i}.txt": b"x" for i in range(11)})
     with pytest.raises(InputError, match="holds 11 entries; the limit is 10"):
         uploads.extract_zip(many, tmp_path / "a", max_files=10)
-    big = _zip({"big.bin": b"\0" * 2_000_000})     # compresses to a few kB
+    big = _zip({"big.bin": b"\0" * 2_000_000})  # compresses to a few kB
     assert len(big) < 50_000
     with pytest.raises(InputError, match="the limit is 1.0 MB"):
         uploads.extract_zip(big, tmp_path / "b", max_total_bytes=1_000_000)
     with pytest.raises(InputError, match="not a readable zip file"):
         uploads.extract_zip(b"PK\x03\x04 truncated", tmp_path / "c")
     assert not any((tmp_path / d).exists() for d in "abc")
-    uploads.extract_zip(many, tmp_path / "d", max_files=11)   # at the limit: fine
+    uploads.extract_zip(many, tmp_path / "d", max_files=11)  # at the limit: fine
     assert len(list((tmp_path / "d").iterdir())) == 11
 
 

@@ -38,7 +38,9 @@ def run(capfd, argv: list[str], *, watch: Path) -> tuple[int, str, str]:
     code = main([str(a) for a in argv])
     out, err = capfd.readouterr()
     assert snapshot(watch) == before, "the run changed files in the input folder"
-    assert sorted(p.relative_to(watch) for p in watch.rglob("*")) == listing, "the run created files or folders"
+    assert sorted(p.relative_to(watch) for p in watch.rglob("*")) == listing, (
+        "the run created files or folders"
+    )
     return code, out, err
 
 
@@ -52,7 +54,7 @@ def assert_error(code: int, out: str, err: str, *, path: Path | None, problem: s
     line = lines[0]
     prefix = "artclass: error: " + (f"{path}: " if path is not None else "")
     assert line.startswith(prefix), f"{line!r} does not start with {prefix!r}"
-    assert re.search(problem, line[len(prefix):]), f"{line!r} does not say {problem!r}"
+    assert re.search(problem, line[len(prefix) :]), f"{line!r} does not say {problem!r}"
     return line
 
 
@@ -83,7 +85,9 @@ def edit_json(path: Path, **changes) -> None:
 # -- the path itself ------------------------------------------------------------------------------------
 def test_missing_path(tmp_path, capfd):
     missing = tmp_path / "no_such_sequence"
-    assert_error(*run(capfd, ["classify", missing], watch=tmp_path), path=missing, problem="no such file or folder")
+    assert_error(
+        *run(capfd, ["classify", missing], watch=tmp_path), path=missing, problem="no such file or folder"
+    )
 
 
 def test_missing_root_for_evaluate(tmp_path, capfd):
@@ -95,40 +99,56 @@ def test_folder_no_reader_recognises(tmp_path, capfd):
     (tmp_path / "notes.txt").write_text("some text, no images\n")
     (tmp_path / "frames").mkdir()
     write_png(tmp_path / "frames" / "0.png", np.zeros((8, 8, 3), np.uint8))
-    assert_error(*run(capfd, ["classify", tmp_path], watch=tmp_path), path=tmp_path,
-                 problem=r"not a sequence that any reader recognises \(tried: folder, .*rbo.*tum.*ycbv")
+    assert_error(
+        *run(capfd, ["classify", tmp_path], watch=tmp_path),
+        path=tmp_path,
+        problem=r"not a sequence that any reader recognises \(tried: folder, .*rbo.*tum.*ycbv",
+    )
 
 
 def test_unknown_sequence_name(tmp_path, capfd):
     scene = write_ycbv(tmp_path, n_frames=3)
-    assert_error(*run(capfd, ["classify", f"{scene}#banana"], watch=tmp_path), path=scene,
-                 problem="no sequence named 'banana'; found: 0000/025_mug, 0000/061_foam_brick")
+    assert_error(
+        *run(capfd, ["classify", f"{scene}#banana"], watch=tmp_path),
+        path=scene,
+        problem="no sequence named 'banana'; found: 0000/025_mug, 0000/061_foam_brick",
+    )
 
 
 # -- intrinsics -----------------------------------------------------------------------------------------
 def test_meta_json_without_fx(tmp_path, capfd):
     seq = write_folder(tmp_path)
     edit_json(seq / "meta.json", fx=None)
-    assert_error(*run(capfd, ["classify", seq], watch=tmp_path), path=seq / "meta.json", problem="missing 'fx'")
+    assert_error(
+        *run(capfd, ["classify", seq], watch=tmp_path), path=seq / "meta.json", problem="missing 'fx'"
+    )
 
 
 def test_meta_json_fx_zero(tmp_path, capfd):
     seq = write_folder(tmp_path)
     edit_json(seq / "meta.json", fx=0)
-    assert_error(*run(capfd, ["classify", seq], watch=tmp_path), path=seq / "meta.json",
-                 problem=r"'fx' must be a positive finite number, got 0(\.0)?$")
+    assert_error(
+        *run(capfd, ["classify", seq], watch=tmp_path),
+        path=seq / "meta.json",
+        problem=r"'fx' must be a positive finite number, got 0(\.0)?$",
+    )
 
 
 def test_meta_json_not_json(tmp_path, capfd):
     seq = write_folder(tmp_path)
     (seq / "meta.json").write_text('{"fx": 60, "fy": ')
-    assert_error(*run(capfd, ["classify", seq], watch=tmp_path), path=seq / "meta.json", problem="not valid JSON")
+    assert_error(
+        *run(capfd, ["classify", seq], watch=tmp_path), path=seq / "meta.json", problem="not valid JSON"
+    )
 
 
 def test_meta_mat_without_intrinsic_matrix(tmp_path, capfd):
     scene = write_ycbv(tmp_path, n_frames=3, drop=("intrinsic_matrix",))
-    assert_error(*run(capfd, ["classify", f"{scene}#025_mug"], watch=tmp_path), path=scene / "000001-meta.mat",
-                 problem="missing 'intrinsic_matrix'")
+    assert_error(
+        *run(capfd, ["classify", f"{scene}#025_mug"], watch=tmp_path),
+        path=scene / "000001-meta.mat",
+        problem="missing 'intrinsic_matrix'",
+    )
 
 
 def test_meta_mat_with_zero_focal_length(tmp_path, capfd):
@@ -136,27 +156,39 @@ def test_meta_mat_with_zero_focal_length(tmp_path, capfd):
     meta = scipy.io.loadmat(scene / "000001-meta.mat")
     meta["intrinsic_matrix"][0, 0] = 0.0
     scipy.io.savemat(scene / "000001-meta.mat", {k: v for k, v in meta.items() if not k.startswith("__")})
-    assert_error(*run(capfd, ["classify", f"{scene}#025_mug"], watch=tmp_path), path=scene / "000001-meta.mat",
-                 problem="fx=0, .*focal lengths must be positive")
+    assert_error(
+        *run(capfd, ["classify", f"{scene}#025_mug"], watch=tmp_path),
+        path=scene / "000001-meta.mat",
+        problem="fx=0, .*focal lengths must be positive",
+    )
 
 
 def test_rbo_without_camera_info(tmp_path, capfd):
     seq = write_rbo(tmp_path, camera_info=False)
-    assert_error(*run(capfd, ["classify", seq], watch=tmp_path), path=seq,
-                 problem="no camera intrinsics: expected camera_rgb_camera_info.csv")
+    assert_error(
+        *run(capfd, ["classify", seq], watch=tmp_path),
+        path=seq,
+        problem="no camera intrinsics: expected camera_rgb_camera_info.csv",
+    )
 
 
 def test_rbo_camera_info_fx_zero(tmp_path, capfd):
     seq = write_rbo(tmp_path)
     write_camera_info(seq / "camera_rgb_camera_info.csv", fx=0.0)
-    assert_error(*run(capfd, ["classify", seq], watch=tmp_path), path=seq / "camera_rgb_camera_info.csv",
-                 problem="'field.K0' must be a positive finite number")
+    assert_error(
+        *run(capfd, ["classify", seq], watch=tmp_path),
+        path=seq / "camera_rgb_camera_info.csv",
+        problem="'field.K0' must be a positive finite number",
+    )
 
 
 def test_tum_meta_json_fx_zero(tmp_path, capfd):
     seq = write_tum(tmp_path, config=dict(fx=0, fy=60, cx=31.5, cy=23.5))
-    assert_error(*run(capfd, ["classify", seq], watch=tmp_path), path=seq / "meta.json",
-                 problem="'fx' must be a positive finite number")
+    assert_error(
+        *run(capfd, ["classify", seq], watch=tmp_path),
+        path=seq / "meta.json",
+        problem="'fx' must be a positive finite number",
+    )
 
 
 # -- images -------------------------------------------------------------------------------------------
@@ -182,8 +214,11 @@ def test_depth_and_rgb_of_different_sizes(layout, tmp_path, capfd):
         bad = sorted((seq / "camera_depth_registered").glob("*.txt"))[0]
         np.savetxt(bad, np.ones((24, 32)))
         target = seq
-    line = assert_error(*run(capfd, ["classify", target], watch=tmp_path), path=bad,
-                        problem=r"is 32x24 but .* is 64x48|is 64x48 but .* is 32x24")
+    line = assert_error(
+        *run(capfd, ["classify", target], watch=tmp_path),
+        path=bad,
+        problem=r"is 32x24 but .* is 64x48|is 64x48 but .* is 32x24",
+    )
     assert "32x24" in line and "64x48" in line
 
 
@@ -192,7 +227,9 @@ def test_truncated_png_in_folder_format(which, tmp_path, capfd):
     seq = write_folder(tmp_path)
     bad = seq / which / "000000.png"
     truncate(bad)
-    assert_error(*run(capfd, ["classify", seq], watch=tmp_path), path=bad, problem="unreadable or truncated image")
+    assert_error(
+        *run(capfd, ["classify", seq], watch=tmp_path), path=bad, problem="unreadable or truncated image"
+    )
 
 
 @pytest.mark.parametrize("layout", ["ycbv", "tum", "rbo"])
@@ -207,7 +244,9 @@ def test_truncated_png_in_dataset_layouts(layout, tmp_path, capfd):
         seq = write_rbo(tmp_path)
         bad, target = sorted((seq / "camera_rgb").glob("*.png"))[0], seq
     truncate(bad)
-    assert_error(*run(capfd, ["classify", target], watch=tmp_path), path=bad, problem="unreadable or truncated image")
+    assert_error(
+        *run(capfd, ["classify", target], watch=tmp_path), path=bad, problem="unreadable or truncated image"
+    )
 
 
 @pytest.mark.parametrize("layout", ["folder", "ycbv", "tum"])
@@ -222,16 +261,20 @@ def test_depth_that_is_not_16_bit(layout, tmp_path, capfd):
         seq = write_tum(tmp_path)
         bad, target = sorted((seq / "depth").glob("*.png"))[0], seq
     eight_bit(bad)
-    assert_error(*run(capfd, ["classify", target], watch=tmp_path), path=bad,
-                 problem="depth must be a single-channel 16-bit image, got uint8")
+    assert_error(
+        *run(capfd, ["classify", target], watch=tmp_path),
+        path=bad,
+        problem="depth must be a single-channel 16-bit image, got uint8",
+    )
 
 
 def test_rbo_depth_that_is_not_a_matrix(tmp_path, capfd):
     seq = write_rbo(tmp_path)
     bad = sorted((seq / "camera_depth_registered").glob("*.txt"))[0]
     bad.write_text("0.8 0.8 0.8\n0.8 oops 0.8\n")
-    assert_error(*run(capfd, ["classify", seq], watch=tmp_path), path=bad,
-                 problem="not a numeric depth matrix")
+    assert_error(
+        *run(capfd, ["classify", seq], watch=tmp_path), path=bad, problem="not a numeric depth matrix"
+    )
 
 
 def test_rbo_joint_states_not_numbers(tmp_path, capfd):
@@ -240,14 +283,19 @@ def test_rbo_joint_states_not_numbers(tmp_path, capfd):
     lines = csv_path.read_text().splitlines()
     lines[3] = lines[3].replace("j_0_1,", "j_0_1,open,")
     csv_path.write_text("\n".join(lines) + "\n")
-    assert_error(*run(capfd, ["classify", seq], watch=tmp_path), path=csv_path, problem="line 4: .* not a number")
+    assert_error(
+        *run(capfd, ["classify", seq], watch=tmp_path), path=csv_path, problem="line 4: .* not a number"
+    )
 
 
 def test_tum_list_line_without_timestamp(tmp_path, capfd):
     seq = write_tum(tmp_path)
     (seq / "depth.txt").write_text("# depth\ndepth/a.png 1305031102.0\n")
-    assert_error(*run(capfd, ["classify", seq], watch=tmp_path), path=seq / "depth.txt",
-                 problem="line 2 is not 'timestamp filename'")
+    assert_error(
+        *run(capfd, ["classify", seq], watch=tmp_path),
+        path=seq / "depth.txt",
+        problem="line 2 is not 'timestamp filename'",
+    )
 
 
 # -- sequences the pipeline cannot use --------------------------------------------------------------
@@ -255,50 +303,80 @@ def test_empty_masks_on_every_frame(tmp_path, capfd):
     seq = write_folder(tmp_path)
     for mask in (seq / "mask").glob("*.png"):
         write_png(mask, np.zeros((48, 64), np.uint8))
-    assert_error(*run(capfd, ["classify", seq, "--segmenter", "mask"], watch=tmp_path), path=seq,
-                 problem=r"no object in any of the 8 frames \(segmenter 'mask'")
+    assert_error(
+        *run(capfd, ["classify", seq, "--segmenter", "mask"], watch=tmp_path),
+        path=seq,
+        problem=r"no object in any of the 8 frames \(segmenter 'mask'",
+    )
 
 
 def test_sequence_shorter_than_k_plus_one(tmp_path, capfd):
     seq = write_folder(tmp_path, n_frames=3)
-    assert_error(*run(capfd, ["classify", seq], watch=tmp_path), path=seq,
-                 problem="sequence has 3 frames; k = 5 needs at least 6")
-    assert_error(*run(capfd, ["classify", seq, "--param", "k=4"], watch=tmp_path), path=seq,
-                 problem="sequence has 3 frames; k = 4 needs at least 5")
+    assert_error(
+        *run(capfd, ["classify", seq], watch=tmp_path),
+        path=seq,
+        problem="sequence has 3 frames; k = 5 needs at least 6",
+    )
+    assert_error(
+        *run(capfd, ["classify", seq, "--param", "k=4"], watch=tmp_path),
+        path=seq,
+        problem="sequence has 3 frames; k = 4 needs at least 5",
+    )
 
 
 # -- plugins and parameters ---------------------------------------------------------------------------
-@pytest.mark.parametrize("option,kind", [("--rule", "rule"), ("--segmenter", "segmenter"),
-                                         ("--registrar", "registrar"), ("--preprocessor", "preprocessor"),
-                                         ("--reader", "reader")])
+@pytest.mark.parametrize(
+    "option,kind",
+    [
+        ("--rule", "rule"),
+        ("--segmenter", "segmenter"),
+        ("--registrar", "registrar"),
+        ("--preprocessor", "preprocessor"),
+        ("--reader", "reader"),
+    ],
+)
 def test_unknown_plugin_name(option, kind, tmp_path, capfd):
     seq = write_folder(tmp_path)
-    line = assert_error(*run(capfd, ["classify", seq, option, "nosuch"], watch=tmp_path), path=None,
-                        problem=f"unknown {kind} 'nosuch'; registered: ")
+    line = assert_error(
+        *run(capfd, ["classify", seq, option, "nosuch"], watch=tmp_path),
+        path=None,
+        problem=f"unknown {kind} 'nosuch'; registered: ",
+    )
     if kind == "reader":
         assert "folder" in line and "ycbv" in line
 
 
 def test_unknown_parameter_name(tmp_path, capfd):
     seq = write_folder(tmp_path)
-    assert_error(*run(capfd, ["classify", seq, "--param", "nosuch=1"], watch=tmp_path), path=None,
-                 problem=r"unknown parameter 'nosuch'; known: .*\bk\b")
+    assert_error(
+        *run(capfd, ["classify", seq, "--param", "nosuch=1"], watch=tmp_path),
+        path=None,
+        problem=r"unknown parameter 'nosuch'; known: .*\bk\b",
+    )
 
 
-@pytest.mark.parametrize("setting,expected", [
-    ("k=0", r"parameter k = 0 is out of bounds \[1, 1000\]"),
-    ("alpha=1.5", r"parameter alpha = 1\.5 is out of bounds \[0(\.0)?, 1(\.0)?\]"),
-    ("min_fitness=-0.1", r"parameter min_fitness = -0\.1 is out of bounds \[0(\.0)?, 1(\.0)?\]"),
-])
+@pytest.mark.parametrize(
+    "setting,expected",
+    [
+        ("k=0", r"parameter k = 0 is out of bounds \[1, 1000\]"),
+        ("alpha=1.5", r"parameter alpha = 1\.5 is out of bounds \[0(\.0)?, 1(\.0)?\]"),
+        ("min_fitness=-0.1", r"parameter min_fitness = -0\.1 is out of bounds \[0(\.0)?, 1(\.0)?\]"),
+    ],
+)
 def test_parameter_out_of_bounds(setting, expected, tmp_path, capfd):
     seq = write_folder(tmp_path)
-    assert_error(*run(capfd, ["classify", seq, "--param", setting], watch=tmp_path), path=None, problem=expected)
+    assert_error(
+        *run(capfd, ["classify", seq, "--param", setting], watch=tmp_path), path=None, problem=expected
+    )
 
 
 def test_parameter_of_the_wrong_type(tmp_path, capfd):
     seq = write_folder(tmp_path)
-    assert_error(*run(capfd, ["classify", seq, "--param", "k=five"], watch=tmp_path), path=None,
-                 problem="parameter k: 'five' is not a valid int")
+    assert_error(
+        *run(capfd, ["classify", seq, "--param", "k=five"], watch=tmp_path),
+        path=None,
+        problem="parameter k: 'five' is not a valid int",
+    )
 
 
 def test_evaluate_reports_bad_folders_and_goes_on(tmp_path, capfd):
@@ -308,6 +386,8 @@ def test_evaluate_reports_bad_folders_and_goes_on(tmp_path, capfd):
     edit_json(bad / "meta.json", fx=None)
     code, out, err = run(capfd, ["evaluate", tmp_path], watch=tmp_path)
     assert code == 0 and "Traceback" not in err
-    assert err.splitlines() == [f"artclass: skipping {bad / 'meta.json'}: missing 'fx' (camera intrinsics and "
-                                f"depth scale are required)"]
+    assert err.splitlines() == [
+        f"artclass: skipping {bad / 'meta.json'}: missing 'fx' (camera intrinsics and "
+        f"depth scale are required)"
+    ]
     assert f"| {good.name} |" in out and "error: " in out and "needs at least 6" in out

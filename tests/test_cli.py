@@ -72,7 +72,9 @@ def test_classify_json(capsys, seq):
 def test_classify_workers_give_the_same_result(capsys):
     runs = []
     for workers in ("1", "2"):
-        status, out, err = run_cli(capsys, "classify", SAMPLES[0], "--json", "--no-cells", "--workers", workers)
+        status, out, err = run_cli(
+            capsys, "classify", SAMPLES[0], "--json", "--no-cells", "--workers", workers
+        )
         assert status == 0, err
         d = json.loads(out)
         runs.append((d["label"], [(p["decision"], p["info"]) for p in d["pairs"]]))
@@ -90,17 +92,38 @@ def test_classify_summary(capsys):
     assert lines[0].split(":")[0] == seq.name
     assert lines[0].split(": ")[1].split()[0] in LABELS
     assert "(ground truth: " in lines[0]
-    for text in ("pairs (i, i+5):", "after max-count filter (w=3):", "fractions: AM", "plugins: segmenter=",
-                 "time:"):
+    for text in (
+        "pairs (i, i+5):",
+        "after max-count filter (w=3):",
+        "fractions: AM",
+        "plugins: segmenter=",
+        "time:",
+    ):
         assert any(text in line for line in lines), f"{text!r} missing from:\n{out}"
 
 
 @pytest.mark.slow
 def test_param_by_symbol_is_recorded(capsys):
     seq = SAMPLES[0]
-    status, out, err = run_cli(capsys, "classify", seq, "--json", "--no-cells", "--rule", "paper",
-                               "--preprocessor", "paper",
-                               "--param", "k=3", "--param", "v=0.006", "--param", "q_bar=0.2", "--param", "w=1")
+    status, out, err = run_cli(
+        capsys,
+        "classify",
+        seq,
+        "--json",
+        "--no-cells",
+        "--rule",
+        "paper",
+        "--preprocessor",
+        "paper",
+        "--param",
+        "k=3",
+        "--param",
+        "v=0.006",
+        "--param",
+        "q_bar=0.2",
+        "--param",
+        "w=1",
+    )
     assert status == 0, err
     d = json.loads(out)
     assert d["params"]["pipeline"]["k"] == 3 and d["params"]["pipeline"]["w"] == 1
@@ -109,15 +132,20 @@ def test_param_by_symbol_is_recorded(capsys):
     assert all(p["j"] - p["i"] == 3 for p in d["pairs"])
     assert all(f["v_m"] == 0.006 for f in d["frames"] if "v_m" in f)
     assert "cells" not in d["pairs"][0]
-    assert d["filtered"] == [p["decision"] for p in d["pairs"] if p["decision"] != "skipped"], "w = 1: no filtering"
+    assert d["filtered"] == [p["decision"] for p in d["pairs"] if p["decision"] != "skipped"], (
+        "w = 1: no filtering"
+    )
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--param", "zzz=1"], "unknown parameter 'zzz'; known: "),
-    (["--param", "k=0"], "k = 0 is out of bounds [1, 1000]"),
-    (["--param", "k"], "expected NAME=VALUE"),
-    (["--rule", "nope"], "unknown rule 'nope'; registered: "),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--param", "zzz=1"], "unknown parameter 'zzz'; known: "),
+        (["--param", "k=0"], "k = 0 is out of bounds [1, 1000]"),
+        (["--param", "k"], "expected NAME=VALUE"),
+        (["--rule", "nope"], "unknown rule 'nope'; registered: "),
+    ],
+)
 def test_bad_options_give_one_line(capsys, argv, message):
     status, out, err = run_cli(capsys, "classify", SAMPLES[0], *argv)
     assert status == 2 and out == ""
@@ -129,8 +157,13 @@ def test_evaluate_real_ycbv(capsys, shared_data):
     root = shared_data / "ycbv"
     status, out, err = run_cli(capsys, "evaluate", root, "--param", "k=2")
     assert status == 0, err
-    for heading in ("## Sequences", "## Accuracy per object (Tables 1-2)", "## Pair fractions per object (Tables 3-4)",
-                    "## Summary", "## Confusion matrix"):
+    for heading in (
+        "## Sequences",
+        "## Accuracy per object (Tables 1-2)",
+        "## Pair fractions per object (Tables 3-4)",
+        "## Summary",
+        "## Confusion matrix",
+    ):
         assert heading in out
     rows = [line for line in out.splitlines() if line.startswith("| 000")]
     assert len(rows) == 7, "3 objects in scene 0000 and 4 in scene 0001"
@@ -142,6 +175,7 @@ def test_evaluate_real_ycbv(capsys, shared_data):
 @pytest.mark.slow
 def test_evaluate_synthetic_smoke_set(capsys, tmp_path):
     from artclass_plugins.synth import generate_set
+
     paths = generate_set(tmp_path / "smoke", preset="smoke", seed=0)
     status, out, err = run_cli(capsys, "evaluate", tmp_path / "smoke", "--json", "--compare-rule", "paper")
     assert status == 0, err
@@ -163,12 +197,18 @@ def test_evaluate_synthetic_smoke_set(capsys, tmp_path):
 @pytest.mark.slow
 def test_evaluate_on_a_local_dask_cluster_is_the_serial_evaluation(capsys, tmp_path, rendered_root):
     pytest.importorskip("distributed", reason="Dask is in the test extra: pip install -e '.[test]'")
-    rendered_root(tmp_path, {"laptop": ("laptop", "articulate"), "mug": ("mug", "carry")}, n_frames=8, width=160,
-                  height=120)
+    rendered_root(
+        tmp_path,
+        {"laptop": ("laptop", "articulate"), "mug": ("mug", "carry")},
+        n_frames=8,
+        width=160,
+        height=120,
+    )
     runs = []
     for extra in ([], ["--scheduler", "local"]):
-        status, out, err = run_cli(capsys, "evaluate", tmp_path, "--json", "--param", "k=3", "--compare-rule", "paper",
-                                   *extra)
+        status, out, err = run_cli(
+            capsys, "evaluate", tmp_path, "--json", "--param", "k=3", "--compare-rule", "paper", *extra
+        )
         assert status == 0, err
         evals = json.loads(out)["evaluations"]
         for e in evals:
@@ -181,10 +221,11 @@ def test_evaluate_on_a_local_dask_cluster_is_the_serial_evaluation(capsys, tmp_p
 
 def test_progress_bars_show_counts_and_close(capsys):
     from artclass_core.cli import _Bars
+
     bars = _Bars()
     for done in range(4):
         bars("pairs", done, 3)
-    bars("rows", 0, 0)                      # nothing to do: opened and closed at once
+    bars("rows", 0, 0)  # nothing to do: opened and closed at once
     err = capsys.readouterr().err
     assert "pairs: 100%" in err and "3/3" in err and "rows: 0row" in err, err
     assert not bars._bars, "finished bars are closed"
@@ -215,7 +256,13 @@ def test_installed_console_script():
     script = Path(sys.executable).with_name("artclass")
     assert script.is_file(), f"{script} is not installed (pip install -e .)"
     seq = SAMPLES[0]
-    proc = subprocess.run([str(script), "classify", str(seq), "--json", "--no-cells"], cwd=ROOT, capture_output=True,
-                          text=True, timeout=300, stdin=subprocess.DEVNULL)
+    proc = subprocess.run(
+        [str(script), "classify", str(seq), "--json", "--no-cells"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        stdin=subprocess.DEVNULL,
+    )
     assert proc.returncode == 0, proc.stderr
     check_result(json.loads(proc.stdout), name=seq.name)

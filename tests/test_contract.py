@@ -44,7 +44,7 @@ def ids(kind: str) -> list[str]:
     return REGISTRY.names(kind)
 
 
-NEURAL = {"u2net"}      # segmenters that run a neural network on the CPU: slow
+NEURAL = {"u2net"}  # segmenters that run a neural network on the CPU: slow
 
 
 def marked(names: list[str]) -> list:
@@ -71,6 +71,7 @@ def one_line_error(err: ArtclassError) -> None:
 
 # -- every plugin -----------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("kind, name", ALL, ids=[f"{k}:{n}" for k, n in ALL])
 class TestDeclaration:
     def test_name_description_params(self, kind, name):
@@ -85,8 +86,8 @@ class TestDeclaration:
 
     def test_defaults_construct_within_bounds(self, kind, name):
         cls = REGISTRY.get(kind, name)
-        params = cls.Params()                       # validates itself
-        hash(params)                                # frozen dataclasses are cache keys
+        params = cls.Params()  # validates itself
+        hash(params)  # frozen dataclasses are cache keys
         plugin = cls(params)
         assert plugin.params == params
         assert cls().params == params, "constructing without params gives the defaults"
@@ -105,13 +106,15 @@ class TestDeclaration:
         for spec in describe(REGISTRY.get(kind, name).Params):
             assert spec.help.strip(), f"{spec.name}: no help text"
             if spec.type in (int, float):
-                assert len(spec.bounds) == 2 and None not in spec.bounds, \
+                assert len(spec.bounds) == 2 and None not in spec.bounds, (
                     f"{spec.name}: a number needs both bounds (the app builds a slider from them), got {spec.bounds}"
+                )
                 assert spec.bounds[0] <= spec.bounds[1], f"{spec.name}: bounds {spec.bounds} reversed"
                 assert spec.unit, f"{spec.name}: a number names its unit ('1' for a pure number)"
 
 
 # -- readers -------------------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("name", ids("reader"))
 def test_reader_ignores_foreign_folder(name, tmp_path):
@@ -162,9 +165,12 @@ def segment(name: str, frame: Frame, seq: Sequence):
 def test_segmenter_returns_a_mask_of_the_frame(name):
     out = segment(name, SEGMENT_SEQ[2], SEGMENT_SEQ)
     if isinstance(out, ArtclassError):
-        return   # e.g. a model-based segmenter without its model file: the documented error, asserted above
-    assert out is None or (isinstance(out, np.ndarray) and out.dtype == bool
-                           and out.shape == (INTRINSICS.height, INTRINSICS.width))
+        return  # e.g. a model-based segmenter without its model file: the documented error, asserted above
+    assert out is None or (
+        isinstance(out, np.ndarray)
+        and out.dtype == bool
+        and out.shape == (INTRINSICS.height, INTRINSICS.width)
+    )
     again = segment(name, SEGMENT_SEQ[2], SEGMENT_SEQ)
     assert (out is None and again is None) or np.array_equal(out, again), "segmentation is deterministic"
 
@@ -172,13 +178,25 @@ def test_segmenter_returns_a_mask_of_the_frame(name):
 @pytest.mark.parametrize("name", marked(ids("segmenter")))
 def test_segmenter_on_a_frame_without_depth(name):
     """No depth reading at all: no mask (None or empty), or the documented error; never a crash."""
-    blank = [Frame(i, f"{i:06d}", np.zeros((INTRINSICS.height, INTRINSICS.width, 3), np.uint8),
-                   np.zeros((INTRINSICS.height, INTRINSICS.width), np.float32),
-                   np.zeros((INTRINSICS.height, INTRINSICS.width), bool)) for i in range(3)]
+    blank = [
+        Frame(
+            i,
+            f"{i:06d}",
+            np.zeros((INTRINSICS.height, INTRINSICS.width, 3), np.uint8),
+            np.zeros((INTRINSICS.height, INTRINSICS.width), np.float32),
+            np.zeros((INTRINSICS.height, INTRINSICS.width), bool),
+        )
+        for i in range(3)
+    ]
     from conftest import ArraySequence
+
     seq = ArraySequence(blank, name="blank")
     out = segment(name, seq[1], seq)
-    assert out is None or isinstance(out, ArtclassError) or (out.dtype == bool and out.shape == blank[0].depth_m.shape)
+    assert (
+        out is None
+        or isinstance(out, ArtclassError)
+        or (out.dtype == bool and out.shape == blank[0].depth_m.shape)
+    )
 
 
 def test_mask_segmenter_without_masks_names_the_sequence():
@@ -203,6 +221,7 @@ def test_maskrcnn_without_its_model_fails_with_the_documented_error(model_path):
 
 # -- preprocessors -------------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("name", ids("preprocessor"))
 def test_preprocessor_gives_a_cloud_in_metres(name):
     frame = SEGMENT_SEQ[1]
@@ -212,11 +231,13 @@ def test_preprocessor_gives_a_cloud_in_metres(name):
     assert pts.ndim == 2 and pts.shape[1] == 3 and pts.dtype == np.float64 and len(pts) >= 10
     assert np.isfinite(pts).all()
     # the panels are 0.6 m away (one turned by 5 degrees): metres, not millimetres
-    assert 0.5 < pts[:, 2].min() and pts[:, 2].max() < 0.7, f"depth range {pts[:, 2].min()}..{pts[:, 2].max()}"
+    assert 0.5 < pts[:, 2].min() and pts[:, 2].max() < 0.7, (
+        f"depth range {pts[:, 2].min()}..{pts[:, 2].max()}"
+    )
     if cloud.normals is not None:
         assert cloud.normals.shape == pts.shape
         np.testing.assert_allclose(np.linalg.norm(cloud.normals, axis=1), 1.0, atol=1e-6)
-    json.dumps(cloud.info)                                   # recorded in results: JSON-ready
+    json.dumps(cloud.info)  # recorded in results: JSON-ready
     again = REGISTRY.create("preprocessor", name).process(frame, frame.mask, intrinsics=INTRINSICS)
     assert again.points.shape == pts.shape
     np.testing.assert_allclose(again.points, pts, rtol=0, atol=1e-9, err_msg="preprocessing is deterministic")
@@ -226,8 +247,9 @@ def test_preprocessor_gives_a_cloud_in_metres(name):
 def test_preprocessor_on_an_empty_mask(name):
     frame = SEGMENT_SEQ[1]
     try:
-        cloud = REGISTRY.create("preprocessor", name).process(frame, np.zeros_like(frame.mask),
-                                                              intrinsics=INTRINSICS)
+        cloud = REGISTRY.create("preprocessor", name).process(
+            frame, np.zeros_like(frame.mask), intrinsics=INTRINSICS
+        )
     except InputError as err:
         one_line_error(err)
     else:
@@ -236,12 +258,18 @@ def test_preprocessor_on_an_empty_mask(name):
 
 # -- registrars ----------------------------------------------------------------------------------------
 
+
 def corner_cell(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     a = rng.uniform(0.0, 0.04, (3, 100, 2))
     z = np.zeros(100)
-    src = np.concatenate([np.column_stack([z, a[0, :, 0], a[0, :, 1]]), np.column_stack([a[1, :, 0], z, a[1, :, 1]]),
-                          np.column_stack([a[2, :, 0], a[2, :, 1], z])]) + [0.05, -0.02, 0.6]
+    src = np.concatenate(
+        [
+            np.column_stack([z, a[0, :, 0], a[0, :, 1]]),
+            np.column_stack([a[1, :, 0], z, a[1, :, 1]]),
+            np.column_stack([a[2, :, 0], a[2, :, 1], z]),
+        ]
+    ) + [0.05, -0.02, 0.6]
     T = np.eye(4)
     T[:3, :3] = Rotation.from_rotvec(np.radians(2.0) * np.array([0.0, 0.6, 0.8])).as_matrix()
     c = src.mean(0)
@@ -268,15 +296,25 @@ def test_registrar_returns_a_rigid_transform(name, with_normals):
     normals = None
     if with_normals:
         from artclass_plugins.preprocessors import camera_facing_normals
+
         normals = (camera_facing_normals(src, radius_m=0.02), camera_facing_normals(tgt, radius_m=0.02))
-    kwargs = dict(source_normals=normals and normals[0], target_normals=normals and normals[1], cell_size_m=0.04)
+    kwargs = dict(
+        source_normals=normals and normals[0], target_normals=normals and normals[1], cell_size_m=0.04
+    )
     reg = REGISTRY.create("registrar", name).register(src, tgt, **kwargs)
     check_registration(reg, len(src))
-    assert reg.n_correspondences > 0 and reg.fitness > 0.5, "a 2 mm / 2 degree motion of a 4 cm cell registers"
+    assert reg.n_correspondences > 0 and reg.fitness > 0.5, (
+        "a 2 mm / 2 degree motion of a 4 cm cell registers"
+    )
     again = REGISTRY.create("registrar", name).register(src, tgt, **kwargs)
     # deterministic up to the summation order of Open3D's parallel reductions (last bits)
-    np.testing.assert_allclose(again.T_target_from_source, reg.T_target_from_source, rtol=0, atol=1e-9,
-                               err_msg="registration is deterministic")
+    np.testing.assert_allclose(
+        again.T_target_from_source,
+        reg.T_target_from_source,
+        rtol=0,
+        atol=1e-9,
+        err_msg="registration is deterministic",
+    )
     assert again.n_correspondences == reg.n_correspondences
 
 
@@ -284,13 +322,15 @@ def test_registrar_returns_a_rigid_transform(name, with_normals):
 def test_registrar_without_correspondence(name):
     """Clouds far apart (10 cell sizes): no correspondence is reported as n_correspondences = 0."""
     src, tgt = corner_cell()
-    reg = REGISTRY.create("registrar", name).register(src, tgt + [0.4, 0.0, 0.0], source_normals=None,
-                                                      target_normals=None, cell_size_m=0.04)
+    reg = REGISTRY.create("registrar", name).register(
+        src, tgt + [0.4, 0.0, 0.0], source_normals=None, target_normals=None, cell_size_m=0.04
+    )
     check_registration(reg, len(src))
     assert reg.n_correspondences == 0 and reg.fitness == 0.0
 
 
 # -- rules ------------------------------------------------------------------------------------------------
+
 
 def registered_pair(motion: str) -> tuple[list[CellMotion], Cloud, Cloud]:
     """The cells of the pair (0, 2) of a small sequence, registered by the paper's per-cell pipeline."""
@@ -319,7 +359,9 @@ def test_rule_decides_every_cell(name, motion):
             assert k is None, f"cell {cell.cell} did not register ({cell.skipped}) but got cluster {k}"
     json.dumps(out.info)
     again = REGISTRY.create("rule", name).decide(copy.deepcopy(cells), source=source, target=target)
-    assert (again.decision, again.clusters, again.keys) == (out.decision, out.clusters, out.keys), "deterministic"
+    assert (again.decision, again.clusters, again.keys) == (out.decision, out.clusters, out.keys), (
+        "deterministic"
+    )
 
 
 @pytest.mark.parametrize("name", rules("cells"))
@@ -342,6 +384,7 @@ def test_rule_with_no_matched_cell(name):
 
 
 # -- registrars and rules that work on whole pairs ------------------------------------------------------
+
 
 def pair_clouds(motion: str, **kw) -> tuple[Cloud, Cloud]:
     """The clouds of frames 0 and 2 of a small sequence, preprocessed by the default pipeline."""
@@ -400,6 +443,7 @@ def test_a_default_partner_fits_the_chosen_plugin_and_two_chosen_misfits_are_ref
 
 # -- joint estimators ------------------------------------------------------------------------------------
 
+
 def _hinge_poses(n: int = 20) -> np.ndarray:
     """A part 20 cm from a vertical hinge, turned 0-60 degrees, noise-free; frame 3 unknown."""
     poses = np.tile(np.eye(4), (n, 1, 1))
@@ -413,17 +457,24 @@ def _hinge_poses(n: int = 20) -> np.ndarray:
 @pytest.mark.parametrize("name", ids("joint_estimator"))
 def test_joint_estimator_returns_a_joint_estimate(name):
     from artclass_core.interfaces import JOINT_TYPES, JointEstimate
+
     poses = _hinge_poses()
     out = REGISTRY.create("joint_estimator", name).estimate(poses)
     assert isinstance(out, JointEstimate) and out.type in JOINT_TYPES
-    assert out.states.shape == (len(poses),) and out.inliers.shape == (len(poses),) and out.inliers.dtype == bool
+    assert (
+        out.states.shape == (len(poses),) and out.inliers.shape == (len(poses),) and out.inliers.dtype == bool
+    )
     assert np.isnan(out.states[3]) and not out.inliers[3], "an unknown pose has no state"
     if out.axis_direction is not None:
         assert out.axis_direction.shape == (3,) and np.linalg.norm(out.axis_direction) == pytest.approx(1.0)
     json.dumps(out.scores), json.dumps(out.info)
-    assert out.summary(up=np.array([0.0, 0.0, 1.0])).strip() and "\n" not in out.summary(up=np.array([0.0, 0.0, 1.0]))
+    assert out.summary(up=np.array([0.0, 0.0, 1.0])).strip() and "\n" not in out.summary(
+        up=np.array([0.0, 0.0, 1.0])
+    )
     again = REGISTRY.create("joint_estimator", name).estimate(poses)
-    assert again.type == out.type and np.array_equal(again.states, out.states, equal_nan=True), "deterministic"
+    assert again.type == out.type and np.array_equal(again.states, out.states, equal_nan=True), (
+        "deterministic"
+    )
 
 
 @pytest.mark.parametrize("name", ids("joint_estimator"))

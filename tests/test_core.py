@@ -47,6 +47,7 @@ def rigid(R: np.ndarray, t) -> np.ndarray:
 
 # -- geometry ----------------------------------------------------------------------------------------
 
+
 class TestLargestDistance:
     def test_cube_corners(self):
         corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float) * 0.3
@@ -68,7 +69,7 @@ class TestLargestDistance:
         """A flat cloud (no 3-D hull) is still exact: the far corners are found among many points."""
         rng = np.random.default_rng(4)
         xy = rng.uniform([-0.1, -0.05], [0.1, 0.05], (6000, 2))
-        xy[:2] = [[-0.1, -0.05], [0.1, 0.05]]            # the diagonal
+        xy[:2] = [[-0.1, -0.05], [0.1, 0.05]]  # the diagonal
         points = np.column_stack([xy, np.full(len(xy), 0.7)])[rng.permutation(len(xy))]
         assert largest_distance(points) == pytest.approx(np.hypot(0.2, 0.1), abs=1e-12)
 
@@ -146,11 +147,13 @@ class TestQuaternion:
         assert q[0] >= 0, "w >= 0 fixes the sign (q and -q are one rotation)"
         assert np.linalg.norm(q) == pytest.approx(1.0)
         np.testing.assert_allclose(Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix(), R, atol=1e-12)
-        assert rotation_angle_rad(R) == pytest.approx(np.radians(min(abs(angle_deg) % 360,
-                                                                     360 - abs(angle_deg) % 360)))
+        assert rotation_angle_rad(R) == pytest.approx(
+            np.radians(min(abs(angle_deg) % 360, 360 - abs(angle_deg) % 360))
+        )
 
 
 # -- decisions over a sequence ---------------------------------------------------------------------
+
 
 class TestMaxCountFilter:
     def test_w1_is_identity(self):
@@ -200,6 +203,7 @@ def test_fractions():
 
 # -- parameters --------------------------------------------------------------------------------------
 
+
 class TestParams:
     def test_out_of_bounds_names_parameter_value_and_range(self):
         with pytest.raises(ParamError) as err:
@@ -234,7 +238,9 @@ class TestParams:
     def test_overrides_by_name_and_symbol(self, registry):
         base = Config(rule="paper", preprocessor="paper")
         by_symbol = base.with_overrides(registry, {"k": "3", "v": "0.004", "q_bar": "0.2", "x": "0.05"})
-        by_name = base.with_overrides(registry, {"k": 3, "voxel_size_m": 0.004, "q_bar": 0.2, "cell_size_m": 0.05})
+        by_name = base.with_overrides(
+            registry, {"k": 3, "voxel_size_m": 0.004, "q_bar": 0.2, "cell_size_m": 0.05}
+        )
         assert by_symbol == by_name
         assert by_symbol.pipeline.k == 3 and by_symbol.pipeline.cell_size_m == 0.05
         assert by_symbol.preprocessor_params.voxel_size_m == 0.004
@@ -260,14 +266,18 @@ class TestParams:
 
 # -- registrars -----------------------------------------------------------------------------------
 
+
 def box_corner(n: int, *, seed: int, size_m: float = 0.04) -> np.ndarray:
     """``n`` points on the three faces of a box corner (a cell that pins all six degrees of freedom)."""
     rng = np.random.default_rng(seed)
     k = n // 3
     a = rng.uniform(0.0, size_m, (3, k, 2))
     zero = np.zeros(k)
-    faces = [np.column_stack([zero, a[0, :, 0], a[0, :, 1]]), np.column_stack([a[1, :, 0], zero, a[1, :, 1]]),
-             np.column_stack([a[2, :, 0], a[2, :, 1], zero])]
+    faces = [
+        np.column_stack([zero, a[0, :, 0], a[0, :, 1]]),
+        np.column_stack([a[1, :, 0], zero, a[1, :, 1]]),
+        np.column_stack([a[2, :, 0], a[2, :, 1], zero]),
+    ]
     return np.concatenate(faces) + [0.05, -0.02, 0.6]
 
 
@@ -286,8 +296,9 @@ def test_registrar_recovers_known_motion(registry, name, case):
     # rotate about the cell's own centre, then shift: T_target_from_source in the camera frame
     T_true = rigid(R, centre - R @ centre + shift)
     target = transform(source, T_true)
-    result = registry.create("registrar", name).register(source, target, source_normals=None,
-                                                         target_normals=None, cell_size_m=0.04)
+    result = registry.create("registrar", name).register(
+        source, target, source_normals=None, target_normals=None, cell_size_m=0.04
+    )
     T = result.T_target_from_source
     angle_err = np.degrees(rotation_angle_rad(T[:3, :3] @ T_true[:3, :3].T))
     point_err = np.abs(transform(source, T) - target).max()
@@ -297,6 +308,7 @@ def test_registrar_recovers_known_motion(registry, name, case):
 
 
 # -- the paper rule (Algorithm 2) -------------------------------------------------------------------
+
 
 def cells_with(transforms: list[np.ndarray | None]) -> list[CellMotion]:
     cells = []
@@ -365,6 +377,7 @@ class TestPaperRule:
 
 # -- the paper preprocessor (Algorithm 1) --------------------------------------------------------------
 
+
 def plane_frame(*, noise_m: float = 0.0, outliers: int = 0, seed: int = 0) -> tuple[Frame, np.ndarray]:
     """A fronto-parallel plate 0.6 m away filling a 60 x 40 pixel box of the test camera."""
     rng = np.random.default_rng(seed)
@@ -376,7 +389,7 @@ def plane_frame(*, noise_m: float = 0.0, outliers: int = 0, seed: int = 0) -> tu
     if outliers:
         v, u = np.nonzero(mask)
         pick = rng.choice(len(v), outliers, replace=False)
-        depth[v[pick], u[pick]] = 0.45             # flying pixels 15 cm in front of the plate
+        depth[v[pick], u[pick]] = 0.45  # flying pixels 15 cm in front of the plate
     return Frame(0, "plate", np.zeros((h, w, 3), np.uint8), depth, mask), mask
 
 
@@ -385,7 +398,7 @@ class TestPaperPreprocessor:
         frame, mask = plane_frame()
         cloud = registry.create("preprocessor", "paper").process(frame, mask, intrinsics=INTRINSICS)
         info = cloud.info
-        true_diameter = np.hypot(59, 39) * 0.6 / INTRINSICS.fx       # pixel centres of the corners
+        true_diameter = np.hypot(59, 39) * 0.6 / INTRINSICS.fx  # pixel centres of the corners
         # the diameter is taken after outlier removal, which trims the plate's corners a little
         assert 0.9 * true_diameter < info["diameter_m"] <= true_diameter + 1e-9
         assert info["v_m"] == pytest.approx(info["diameter_m"] / 20)
@@ -397,8 +410,9 @@ class TestPaperPreprocessor:
     def test_fixed_v_and_r(self, registry):
         frame, mask = plane_frame()
         cls = registry.get("preprocessor", "paper")
-        cloud = cls(cls.Params(voxel_size_m=0.01, smoothing_radius_m=0.0)).process(frame, mask,
-                                                                                   intrinsics=INTRINSICS)
+        cloud = cls(cls.Params(voxel_size_m=0.01, smoothing_radius_m=0.0)).process(
+            frame, mask, intrinsics=INTRINSICS
+        )
         assert cloud.info["v_m"] == 0.01 and cloud.info["r_m"] == 0.0
         # no two points of the downsampled cloud share a 1 cm voxel: neighbours are at least ~v apart
         gaps = pdist(cloud.points)
@@ -416,19 +430,24 @@ class TestPaperPreprocessor:
         frame, mask = plane_frame(noise_m=0.003, seed=2)
         cls = registry.get("preprocessor", "paper")
         v = 0.004
-        rough = cls(cls.Params(voxel_size_m=v, smoothing_radius_m=0.0)).process(frame, mask, intrinsics=INTRINSICS)
-        smooth = cls(cls.Params(voxel_size_m=v)).process(frame, mask, intrinsics=INTRINSICS)   # r = 5 v
+        rough = cls(cls.Params(voxel_size_m=v, smoothing_radius_m=0.0)).process(
+            frame, mask, intrinsics=INTRINSICS
+        )
+        smooth = cls(cls.Params(voxel_size_m=v)).process(frame, mask, intrinsics=INTRINSICS)  # r = 5 v
         before, after = rough.points[:, 2].std(), smooth.points[:, 2].std()
         assert smooth.info["r_m"] == pytest.approx(5 * v)
         assert after < 0.5 * before, f"depth noise {before * 1000:.2f} mm -> {after * 1000:.2f} mm"
 
     def test_empty_mask_gives_empty_cloud(self, registry):
         frame, mask = plane_frame()
-        cloud = registry.create("preprocessor", "paper").process(frame, np.zeros_like(mask), intrinsics=INTRINSICS)
+        cloud = registry.create("preprocessor", "paper").process(
+            frame, np.zeros_like(mask), intrinsics=INTRINSICS
+        )
         assert cloud.points.shape == (0, 3)
 
 
 # -- the streaming pipeline ------------------------------------------------------------------------------
+
 
 def run(registry, seq, **overrides):
     config = Config().with_overrides(registry, {k: str(v) for k, v in overrides.items()})
@@ -477,8 +496,10 @@ class TestPipelineRun:
     def test_pixel_stride_uses_every_nth_pixel_and_keeps_the_full_image_for_flow(self, registry):
         seq = make_sequence("static", n_frames=1)
         fine = dataclasses.replace(Config.paper(), preprocessor="fine", preprocessor_params=None)
-        full, strided = (Pipeline(registry, fine.with_overrides(registry, {"pixel_stride": n})).frame(seq, 0)
-                         for n in ("1", "2"))
+        full, strided = (
+            Pipeline(registry, fine.with_overrides(registry, {"pixel_stride": n})).frame(seq, 0)
+            for n in ("1", "2")
+        )
         assert 0.2 < strided.cloud.info["n_raw"] / full.cloud.info["n_raw"] < 0.3
         assert np.array_equal(strided.cloud.view.depth_m, full.cloud.view.depth_m)
 
@@ -486,12 +507,19 @@ class TestPipelineRun:
         seq = make_sequence("static", n_frames=1)
         frame = seq[0]
         for budget in (200, 100000):
-            cloud = Pipeline(registry, Config().with_overrides(registry, {"max_points": budget})).frame(seq, 0).cloud
+            cloud = (
+                Pipeline(registry, Config().with_overrides(registry, {"max_points": budget}))
+                .frame(seq, 0)
+                .cloud
+            )
             assert len(cloud) <= budget and cloud.pixels.shape == (len(cloud), 2)
             u, v = cloud.pixels.T
             assert frame.mask[v, u].all(), "every point comes from a pixel of the object"
             np.testing.assert_allclose(cloud.points[:, 2], cloud.view.depth_m[v, u], rtol=1e-6)
-            assert np.allclose(np.linalg.norm(cloud.normals, axis=1), 1.0) and (np.sum(cloud.normals * cloud.points, axis=1) < 0).all()
+            assert (
+                np.allclose(np.linalg.norm(cloud.normals, axis=1), 1.0)
+                and (np.sum(cloud.normals * cloud.points, axis=1) < 0).all()
+            )
         assert len(cloud) > 1000, "without a budget every usable pixel is a point"
 
     def test_no_object_anywhere(self, registry):
@@ -529,7 +557,9 @@ class TestPipelineRun:
             d.pop("timing_s")
         assert_same(a, b)
 
-    @pytest.mark.parametrize("motion, label", [("static", "static"), ("rigid", "rigid"), ("hinge", "articulated")])
+    @pytest.mark.parametrize(
+        "motion, label", [("static", "static"), ("rigid", "rigid"), ("hinge", "articulated")]
+    )
     def test_default_config_labels(self, registry, motion, label):
         """Noise-free panels: nothing moves -> static; both move 1 cm away from the camera per pair ->
         rigid; one turns 10 degrees per pair about the edge it shares with the other -> articulated."""

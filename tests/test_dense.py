@@ -79,12 +79,13 @@ def cloud(f: Frame):
 
 
 TABLE = (panel_points(0.5, 0.4, spacing_m=0.0008) - [0.25, 0.0, 0.0], pose(t=(0.0, 0.0, DEPTH_M + 0.03)), 0)
-BASE = panel_points(0.16, 0.10, spacing_m=0.0004) - [0.08, 0.0, 0.0]     # 16 x 10 cm plate
-LEVER = panel_points(0.10, 0.02, spacing_m=0.0004)                        # 10 x 2 cm, pivot at x = 0
+BASE = panel_points(0.16, 0.10, spacing_m=0.0004) - [0.08, 0.0, 0.0]  # 16 x 10 cm plate
+LEVER = panel_points(0.10, 0.02, spacing_m=0.0004)  # 10 x 2 cm, pivot at x = 0
 
 
-def plate_with_lever(angle_deg: float, carry: np.ndarray | None = None, index: int = 0, *,
-                     axis=(0, 1, 0)) -> Frame:
+def plate_with_lever(
+    angle_deg: float, carry: np.ndarray | None = None, index: int = 0, *, axis=(0, 1, 0)
+) -> Frame:
     """A plate facing the camera with a lever on it (5 mm proud), turned by ``angle_deg`` about a
     line through the plate's centre: vertical (``axis`` y, the lever lifts) or along the view (z, the
     lever turns in the plate's plane); the whole object moved by ``carry``."""
@@ -95,15 +96,20 @@ def plate_with_lever(angle_deg: float, carry: np.ndarray | None = None, index: i
 
 # -- projective look-ups --------------------------------------------------------------------------
 
+
 def test_look_tells_surface_occluded_free_space_off_object_and_unseen():
     """A plate 0.5 m away in front of a table 3 cm behind it: what a point finds at its pixel."""
     f = frame([(BASE, pose(t=(0.0, 0.0, DEPTH_M)), 1), TABLE])
     target = Target.of(cloud(f))
-    points = np.array([[0.0, 0.0, DEPTH_M + 0.001],     # on the plate, 1 mm behind it
-                       [0.0, 0.0, DEPTH_M + 0.02],      # hidden behind the plate
-                       [0.0, 0.0, DEPTH_M - 0.02],      # in front of the plate: the camera sees past it
-                       [0.2, 0.0, DEPTH_M + 0.03],      # on the table, far from the object
-                       [5.0, 0.0, DEPTH_M]])            # outside the image
+    points = np.array(
+        [
+            [0.0, 0.0, DEPTH_M + 0.001],  # on the plate, 1 mm behind it
+            [0.0, 0.0, DEPTH_M + 0.02],  # hidden behind the plate
+            [0.0, 0.0, DEPTH_M - 0.02],  # in front of the plate: the camera sees past it
+            [0.2, 0.0, DEPTH_M + 0.03],  # on the table, far from the object
+            [5.0, 0.0, DEPTH_M],
+        ]
+    )  # outside the image
     status, residual = look_all(np.eye(4)[None], points, target, reach_m=np.full(5, 0.005), off_object_px=3.0)
     assert status[0].tolist() == [SURFACE, OCCLUDED, FREE_SPACE, OFF_OBJECT, UNSEEN]
     assert abs(residual[0, 0]) == pytest.approx(0.001, abs=2e-4)
@@ -115,12 +121,13 @@ def test_robust_kabsch_recovers_a_motion_despite_wrong_matches():
     source = rng.uniform(-0.1, 0.1, (200, 3)) + [0, 0, DEPTH_M]
     T = pose(rotation((0, 0, 1), 12.0), t=(0.02, -0.01, 0.03))
     target = source @ T[:3, :3].T + T[:3, 3]
-    target[:40] += rng.uniform(-0.05, 0.05, (40, 3))          # 20 % wrong matches
+    target[:40] += rng.uniform(-0.05, 0.05, (40, 3))  # 20 % wrong matches
     assert not np.allclose(kabsch(source, target), T, atol=1e-3)
     np.testing.assert_allclose(robust_kabsch(source, target, inlier_m=0.002), T, atol=1e-6)
 
 
 # -- the registrar and the rule on rendered pairs ----------------------------------------------
+
 
 def decide(a: Frame, b: Frame, **params):
     source, target = cloud(a), cloud(b)
@@ -153,7 +160,9 @@ def test_a_lever_turning_in_the_plane_of_its_plate_is_seen_by_its_texture():
     """Turning 16 degrees in the plate's plane, the lever keeps its depth but for its edges; the
     optical flow on its texture sees it. Once the lever has its own motion, the plate keeps its own
     (none), not the compromise that fits the whole object best."""
-    _, out, source = decide(plate_with_lever(0.0, axis=(0, 0, 1)), plate_with_lever(16.0, index=1, axis=(0, 0, 1)))
+    _, out, source = decide(
+        plate_with_lever(0.0, axis=(0, 0, 1)), plate_with_lever(16.0, index=1, axis=(0, 0, 1))
+    )
     assert out.decision == "AM", out.reason
     assert angle_deg(out.motions[0].T_target_from_source[:3, :3]) < 0.5
     assert angle_deg(out.motions[1].T_target_from_source[:3, :3]) > 5.0
@@ -188,6 +197,7 @@ def test_nothing_moving_is_no_motion():
 
 # -- model selection on drawn evidence -----------------------------------------------------------
 
+
 def drawn_evidence(second_explains: np.ndarray, *, shift_m: float = 0.02) -> MotionEvidence:
     """A 40 x 40 grid of points; hypothesis 0 is the identity (it sends every point into free space),
     hypothesis 1 explains the points outside ``second_explains`` (1 mm residual), hypothesis 2 those
@@ -198,23 +208,36 @@ def drawn_evidence(second_explains: np.ndarray, *, shift_m: float = 0.02) -> Mot
     n = len(points)
     rng = np.random.default_rng(1)
     small = rng.uniform(-0.001, 0.001, n)
-    residual = np.stack([np.full(n, np.nan),
-                         np.where(second_explains, 0.03, small),
-                         np.where(second_explains, small, 0.03)]).astype(np.float32)
+    residual = np.stack(
+        [np.full(n, np.nan), np.where(second_explains, 0.03, small), np.where(second_explains, small, 0.03)]
+    ).astype(np.float32)
     status = np.stack([np.full(n, FREE_SPACE), np.full(n, SURFACE), np.full(n, SURFACE)]).astype(np.int8)
     motions = np.stack([np.eye(4), pose(t=(shift_m, 0, 0)), pose(t=(0, shift_m, 0))])
-    return MotionEvidence(motions, ["identity", "a", "b"], residual, status, np.full((3, n), np.nan, np.float32),
-                          0.001, points, pixels, DEPTH_M / 570, dict(stride_px=1))
+    return MotionEvidence(
+        motions,
+        ["identity", "a", "b"],
+        residual,
+        status,
+        np.full((3, n), np.nan, np.float32),
+        0.001,
+        points,
+        pixels,
+        DEPTH_M / 570,
+        dict(stride_px=1),
+    )
 
 
 GRID = np.mgrid[0:40, 0:40]
 
 
-@pytest.mark.parametrize("region, decision", [
-    (GRID[1].ravel() >= 28, "AM"),                                 # a coherent 30 % region
-    (((GRID[0] + GRID[1]) % 2 == 0).ravel(), "RM"),                # a checkerboard: a scatter, not a part
-    ((GRID[1] >= 39).ravel() & (GRID[0] < 20).ravel(), "RM"),      # 20 points, 1 %: below min_part_share
-])
+@pytest.mark.parametrize(
+    "region, decision",
+    [
+        (GRID[1].ravel() >= 28, "AM"),  # a coherent 30 % region
+        (((GRID[0] + GRID[1]) % 2 == 0).ravel(), "RM"),  # a checkerboard: a scatter, not a part
+        ((GRID[1] >= 39).ravel() & (GRID[0] < 20).ravel(), "RM"),  # 20 points, 1 %: below min_part_share
+    ],
+)
 def test_a_second_motion_must_explain_a_coherent_region(region, decision):
     out = DenseRule().decide(drawn_evidence(region))
     assert out.decision == decision, out.reason
@@ -230,7 +253,7 @@ def test_motions_closer_than_the_noise_are_one():
 
 
 def test_min_part_share_is_a_real_threshold():
-    region = GRID[1].ravel() >= 36                                  # a 10 % region
+    region = GRID[1].ravel() >= 36  # a 10 % region
     evidence = drawn_evidence(region)
     assert DenseRule().decide(evidence).decision == "AM"
     assert DenseRule(DenseRuleParams(min_part_share=0.2)).decide(evidence).decision == "RM"

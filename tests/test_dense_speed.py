@@ -45,7 +45,11 @@ def _frame(T: np.ndarray, index: int = 0) -> Frame:
     surface = transform(np.column_stack([gx.ravel(), gy.ravel(), DEPTH_M + bumps.ravel()]), T)
     wy, wx = np.meshgrid(np.arange(-0.4, 0.4, 0.003), np.arange(-0.5, 0.5, 0.003))
     wall = np.column_stack([wx.ravel(), wy.ravel(), np.full(wx.size, 1.0)])
-    shade = 128 + 60 * np.sin(gx.ravel() / 0.004) * np.sin(gy.ravel() / 0.006) + 50 * np.cos((gx.ravel() + gy.ravel()) / 0.01)
+    shade = (
+        128
+        + 60 * np.sin(gx.ravel() / 0.004) * np.sin(gy.ravel() / 0.006)
+        + 50 * np.cos((gx.ravel() + gy.ravel()) / 0.01)
+    )
     points = np.vstack([surface, wall])
     grey = np.concatenate([shade, np.full(len(wall), 90.0)])
     on_object = np.arange(len(points)) < len(surface)
@@ -76,6 +80,7 @@ def pair():
 
 
 # -- the numpy reference: the same math, one array operation at a time ------------------------------
+
 
 def _ref_project(points, shape):
     z = points[:, 2]
@@ -133,12 +138,15 @@ def _ref_icp(points, groups, T, target, reaches, flow_px, across, metres_per_px,
         z = q[:, 2]
         du = INTR.fx * q[:, 0] / z + INTR.cx - f[:, 0]
         dv = INTR.fy * q[:, 1] / z + INTR.cy - f[:, 1]
-        gu = np.column_stack([INTR.fx / z, 0 * z, -INTR.fx * q[:, 0] / z ** 2])
-        gv = np.column_stack([0 * z, INTR.fy / z, -INTR.fy * q[:, 1] / z ** 2])
+        gu = np.column_stack([INTR.fx / z, 0 * z, -INTR.fx * q[:, 0] / z**2])
+        gv = np.column_stack([0 * z, INTR.fy / z, -INTR.fy * q[:, 1] / z**2])
         edge = np.isfinite(e[:, 0])
         en = np.nan_to_num(e)
-        for res, grad, sel in ((du, gu, ~edge), (dv, gv, ~edge),
-                               (du * en[:, 0] + dv * en[:, 1], gu * en[:, :1] + gv * en[:, 1:], edge)):
+        for res, grad, sel in (
+            (du, gu, ~edge),
+            (dv, gv, ~edge),
+            (du * en[:, 0] + dv * en[:, 1], gu * en[:, :1] + gv * en[:, 1:], edge),
+        ):
             near = sel & (np.abs(res * metres_per_px) < reach)
             rows.append((res[near] * metres_per_px, grad[near] * metres_per_px, q[near], gk[near]))
         r, grad, at, g = (np.concatenate(x) for x in zip(*rows))
@@ -163,8 +171,9 @@ def _ref_icp(points, groups, T, target, reaches, flow_px, across, metres_per_px,
 def _flow(source, T, rng):
     """Flow targets of the source points under ``T``, 1 px of noise, a third unknown, a third edges."""
     moved = transform(source.points, T)
-    flow = np.column_stack([INTR.fx * moved[:, 0] / moved[:, 2] + INTR.cx,
-                            INTR.fy * moved[:, 1] / moved[:, 2] + INTR.cy]) + rng.normal(0, 1.0, (len(moved), 2))
+    flow = np.column_stack(
+        [INTR.fx * moved[:, 0] / moved[:, 2] + INTR.cx, INTR.fy * moved[:, 1] / moved[:, 2] + INTR.cy]
+    ) + rng.normal(0, 1.0, (len(moved), 2))
     kind = rng.integers(0, 3, len(moved))
     flow[kind == 0] = np.nan
     angle = rng.uniform(0, np.pi, len(moved))
@@ -184,11 +193,19 @@ def test_compiled_icp_equals_the_numpy_reference(pair):
     index = np.concatenate([np.arange(n), np.arange(n), np.flatnonzero(source.points[:, 0] < 0)])
     inits = np.stack([np.eye(4), _motion(angle_deg=2.0, shift_m=(0.005, 0.0, 0.004)), np.eye(4)])
     reaches = [0.03, 0.03, 0.015, 0.008, 0.004, 0.004]
-    fast, _ = icp(points, groups, inits, tgt, reach_m=reaches, flow_px=flow[index], across=across[index],
-                  metres_per_px=0.0005)
+    fast, _ = icp(
+        points,
+        groups,
+        inits,
+        tgt,
+        reach_m=reaches,
+        flow_px=flow[index],
+        across=across[index],
+        metres_per_px=0.0005,
+    )
     slow = _ref_icp(points, groups, inits, tgt, reaches, flow[index], across[index], 0.0005)
     assert np.abs(fast - slow).max() < 1e-9
-    assert np.abs(fast - inits).max() > 1e-3          # the motions did move
+    assert np.abs(fast - inits).max() > 1e-3  # the motions did move
 
 
 def test_look_all_equals_the_numpy_reference(pair):
@@ -210,9 +227,16 @@ def test_icp_recovers_a_known_motion(pair, use_flow):
     source, target, T_true = pair
     flow, across = _flow(source, T_true, np.random.default_rng(1))
     reaches = [0.03, 0.03, 0.015, 0.015, 0.008, 0.004, 0.004, 0.004]
-    T, inliers = icp(source.points, np.zeros(len(source), int), np.eye(4)[None], Target.of(target), reach_m=reaches,
-                     flow_px=flow if use_flow else None, across=across if use_flow else None,
-                     metres_per_px=0.0005 if use_flow else 0.0)
+    T, inliers = icp(
+        source.points,
+        np.zeros(len(source), int),
+        np.eye(4)[None],
+        Target.of(target),
+        reach_m=reaches,
+        flow_px=flow if use_flow else None,
+        across=across if use_flow else None,
+        metres_per_px=0.0005 if use_flow else 0.0,
+    )
     error = np.linalg.norm(transform(source.points, T[0]) - transform(source.points, T_true), axis=1)
     assert error.max() < 5e-4
     assert inliers[0] > 0.8 * len(source)
@@ -226,18 +250,22 @@ def test_flow_misfit_equals_the_numpy_reference(pair):
     edge = np.isfinite(across[:, 0])
     for h, T in enumerate(motions):
         moved = transform(source.points, T)
-        d = np.column_stack([INTR.fx * moved[:, 0] / moved[:, 2] + INTR.cx - flow[:, 0],
-                             INTR.fy * moved[:, 1] / moved[:, 2] + INTR.cy - flow[:, 1]])
+        d = np.column_stack(
+            [
+                INTR.fx * moved[:, 0] / moved[:, 2] + INTR.cx - flow[:, 0],
+                INTR.fy * moved[:, 1] / moved[:, 2] + INTR.cy - flow[:, 1],
+            ]
+        )
         ref = np.where(edge, np.abs(np.sum(d * np.nan_to_num(across), axis=1)), np.hypot(d[:, 0], d[:, 1]))
         np.testing.assert_allclose(misfit[h], ref, rtol=1e-6, atol=1e-6)
-    assert np.nanmedian(misfit[1]) < 2.0 < np.nanmedian(misfit[0])   # the true motion matches the flow
+    assert np.nanmedian(misfit[1]) < 2.0 < np.nanmedian(misfit[0])  # the true motion matches the flow
 
 
 def test_distance_to_the_mask_is_exact_near_it():
     rng = np.random.default_rng(3)
     mask = np.zeros((120, 160), bool)
     mask[30:70, 50:90] = rng.random((40, 40)) < 0.7
-    mask[0:5, 150:160] = True                        # touching the image border
+    mask[0:5, 150:160] = True  # touching the image border
     full = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 3)
     near = full <= NEAR_MASK_PX
     np.testing.assert_allclose(_outside(mask)[near], full[near], atol=1e-5)
@@ -248,13 +276,18 @@ def test_distance_to_the_mask_is_exact_near_it():
 def test_near_copies_are_dropped_as_by_their_point_distances():
     rng = np.random.default_rng(4)
     points = rng.normal([0, 0, 0.7], 0.05, (500, 3))
-    hyps = [np.eye(4)] + [_motion(angle_deg=a, shift_m=(s, 0, 0)) for a, s in
-                          [(0.05, 0.0), (1.0, 0.0), (0.0, 0.0005), (0.0, 0.003), (2.0, 0.01), (2.01, 0.01)]]
+    hyps = [np.eye(4)] + [
+        _motion(angle_deg=a, shift_m=(s, 0, 0))
+        for a, s in [(0.05, 0.0), (1.0, 0.0), (0.0, 0.0005), (0.0, 0.003), (2.0, 0.01), (2.01, 0.01)]
+    ]
     sample = points[:: max(1, len(points) // 200)]
     moved = [transform(sample, T) for T in hyps]
     keep: list[int] = []
     for i in range(len(hyps)):
-        if not keep or min(np.sqrt(np.mean(np.sum((moved[i] - moved[j]) ** 2, axis=1))) for j in keep) > 0.001:
+        if (
+            not keep
+            or min(np.sqrt(np.mean(np.sum((moved[i] - moved[j]) ** 2, axis=1))) for j in keep) > 0.001
+        ):
             keep.append(i)
     kept, names = _distinct(hyps, [str(i) for i in range(len(hyps))], points, 0.001)
     assert names == [str(i) for i in keep]
@@ -271,5 +304,5 @@ def test_the_sensor_noise_is_one_parameter_of_the_preprocessor():
         a, b = (pre.process(f, f.mask, intrinsics=INTR) for f in frames)
         assert a.info["depth_noise_m"] == at_1m
         evidence.append(DenseRegistrar(DenseRegistrar.Params()).register_pair(a, b))
-    surface = [np.mean(ev.status[0] == SURFACE) for ev in evidence]    # the identity hypothesis
-    assert surface[1] > surface[0] + 0.05                           # a wider reach finds more surface
+    surface = [np.mean(ev.status[0] == SURFACE) for ev in evidence]  # the identity hypothesis
+    assert surface[1] > surface[0] + 0.05  # a wider reach finds more surface

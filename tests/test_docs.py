@@ -52,10 +52,12 @@ def small_sequence(rendered) -> Path:
 
 # -- parameters.md ----------------------------------------------------------------------------------
 
+
 def test_parameters_md_is_up_to_date(builtin):
     committed = (DOCS / "parameters.md").read_text()
-    assert committed == gen_docs.render(builtin), \
+    assert committed == gen_docs.render(builtin), (
         "docs/parameters.md is out of date: run `python tools/gen_docs.py` and commit the result"
+    )
 
 
 def test_generator_covers_every_builtin_parameter(builtin):
@@ -69,8 +71,9 @@ def test_generator_covers_every_builtin_parameter(builtin):
         for name, info in plugins.items():
             assert f"### `{name}`" in text, f"{kind} {name} missing"
             for spec in describe(info.cls.Params):
-                assert re.search(rf"^\| `{spec.name}` \|.*\| {re.escape(gen_docs._cell(spec.help))} \|$", text, re.M), \
-                    f"{kind} {name}: parameter {spec.name} missing"
+                assert re.search(
+                    rf"^\| `{spec.name}` \|.*\| {re.escape(gen_docs._cell(spec.help))} \|$", text, re.M
+                ), f"{kind} {name}: parameter {spec.name} missing"
                 n += 1
     assert n >= 10
 
@@ -90,7 +93,7 @@ def test_generator_leaves_third_party_plugins_out(builtin):
         register(Outsider)
 
     everything = load_registry(extra_plugins=(SimpleNamespace(register_rules=register_rules),))
-    assert "outsider_rule" in gen_docs.render(everything)        # render() documents what it is given
+    assert "outsider_rule" in gen_docs.render(everything)  # render() documents what it is given
     assert "outsider_rule" not in gen_docs.render(builtin)
 
 
@@ -100,15 +103,19 @@ def test_gen_docs_check_command(tmp_path):
     assert ok.returncode == 0, ok.stderr
     stale = tmp_path / "parameters.md"
     stale.write_text((DOCS / "parameters.md").read_text().replace("Frame skip", "Frame skipping"))
-    bad = subprocess.run([sys.executable, str(GEN_DOCS), "--check", "--output", str(stale)], capture_output=True,
-                         text=True)
+    bad = subprocess.run(
+        [sys.executable, str(GEN_DOCS), "--check", "--output", str(stale)], capture_output=True, text=True
+    )
     assert bad.returncode == 1
     assert "out of date: run `python tools/gen_docs.py`" in bad.stderr
-    written = subprocess.run([sys.executable, str(GEN_DOCS), "--output", str(stale)], capture_output=True, text=True)
+    written = subprocess.run(
+        [sys.executable, str(GEN_DOCS), "--output", str(stale)], capture_output=True, text=True
+    )
     assert written.returncode == 0 and stale.read_text() == (DOCS / "parameters.md").read_text()
 
 
 # -- plugin-guide.md --------------------------------------------------------------------------------
+
 
 @pytest.mark.slow
 def test_plugin_guide_examples_run(capsys, monkeypatch):
@@ -119,13 +126,17 @@ def test_plugin_guide_examples_run(capsys, monkeypatch):
     module = types.ModuleType("artclass_plugin_guide")
     monkeypatch.setitem(sys.modules, module.__name__, module)
     for n, block in enumerate(blocks, 1):
-        exec(compile(block, f"docs/plugin-guide.md (python block {n})", "exec", dont_inherit=True), module.__dict__)
+        exec(
+            compile(block, f"docs/plugin-guide.md (python block {n})", "exec", dont_inherit=True),
+            module.__dict__,
+        )
     out = capsys.readouterr().out
-    assert "laptop: 8 frames, 160x120" in out                     # the `frames` command ran
+    assert "laptop: 8 frames, 160x120" in out  # the `frames` command ran
     assert module.result.plugins["registrar"] == "numpy_icp"
 
 
 # -- results.md -------------------------------------------------------------------------------------
+
 
 def _documented(key: str, text: str) -> bool:
     return f"`{key}`" in text
@@ -137,16 +148,29 @@ def test_results_md_names_every_key(small_sequence):
     text = (DOCS / "results.md").read_text()
     seq = open_sequences(registry, small_sequence)[0]
     result = Pipeline(registry, Config(pipeline=PipelineParams(k=2))).run(seq).to_dict()
-    paper = Pipeline(registry, dataclasses.replace(Config.paper(), pipeline=PipelineParams(k=2))).run(seq).to_dict()
-    json.dumps(result)                                             # JSON-ready as documented
+    paper = (
+        Pipeline(registry, dataclasses.replace(Config.paper(), pipeline=PipelineParams(k=2)))
+        .run(seq)
+        .to_dict()
+    )
+    json.dumps(result)  # JSON-ready as documented
     decided = next(p for p in result["pairs"] if p.get("motions"))
     pair = next(p for p in paper["pairs"] if any("fitness" in c for c in p["cells"]))
     cell = next(c for c in pair["cells"] if "fitness" in c)
-    groups = {"top level": result, "sequence": result["sequence"], "pairs[]": {**pair, **decided},
-              "pairs[].info (dense)": decided["info"], "motions[]": decided["motions"][0], "cells[]": cell,
-              "timing_s": result["timing_s"], "params": result["params"], "plugins": result["plugins"],
-              "frames[] (core keys)": {k: None for k in ("index", "name", "skipped", "mask_pixels")},
-              "frames[] (image preprocessor)": result["frames"][0], "frames[] (paper preprocessor)": paper["frames"][0]}
+    groups = {
+        "top level": result,
+        "sequence": result["sequence"],
+        "pairs[]": {**pair, **decided},
+        "pairs[].info (dense)": decided["info"],
+        "motions[]": decided["motions"][0],
+        "cells[]": cell,
+        "timing_s": result["timing_s"],
+        "params": result["params"],
+        "plugins": result["plugins"],
+        "frames[] (core keys)": {k: None for k in ("index", "name", "skipped", "mask_pixels")},
+        "frames[] (image preprocessor)": result["frames"][0],
+        "frames[] (paper preprocessor)": paper["frames"][0],
+    }
     missing = {where: [k for k in d if not _documented(k, text)] for where, d in groups.items()}
     assert not any(missing.values()), f"docs/results.md does not name these keys: {missing}"
 
@@ -158,13 +182,19 @@ def test_results_md_names_every_evaluation_key(small_sequence):
     seq = open_sequences(registry, small_sequence)[0]
     ev = evaluate(registry, [seq], Config(pipeline=PipelineParams(k=3))).to_dict()
     json.dumps(ev)
-    groups = {"evaluation": ev, "metrics": ev["metrics"], "sequences[]": ev["sequences"][0],
-              "per_object": next(iter(ev["metrics"]["per_object"].values())), "config": ev["config"]}
+    groups = {
+        "evaluation": ev,
+        "metrics": ev["metrics"],
+        "sequences[]": ev["sequences"][0],
+        "per_object": next(iter(ev["metrics"]["per_object"].values())),
+        "config": ev["config"],
+    }
     missing = {where: [k for k in d if not _documented(k, text)] for where, d in groups.items()}
     assert not any(missing.values()), f"docs/results.md does not name these evaluation keys: {missing}"
 
 
 # -- data-formats.md --------------------------------------------------------------------------------
+
 
 def test_data_formats_has_a_section_per_reader(builtin):
     text = (DOCS / "data-formats.md").read_text()
@@ -175,6 +205,7 @@ def test_data_formats_has_a_section_per_reader(builtin):
 
 
 # -- links ------------------------------------------------------------------------------------------
+
 
 def _slug(title: str) -> str:
     """GitHub's heading anchor: lower case, punctuation dropped (not - or _), spaces to dashes."""
@@ -190,7 +221,7 @@ DOC_PAGES = sorted(DOCS.glob("*.md"))
 
 @pytest.mark.parametrize("page", DOC_PAGES, ids=[p.name for p in DOC_PAGES])
 def test_links_resolve(page):
-    text = re.sub(r"^```.*?^```", "", page.read_text(), flags=re.M | re.S)   # not inside code blocks
+    text = re.sub(r"^```.*?^```", "", page.read_text(), flags=re.M | re.S)  # not inside code blocks
     bad = []
     for target in re.findall(r"\]\(([^)\s]+)\)", text):
         if re.match(r"[a-z]+:", target):

@@ -35,8 +35,13 @@ from conftest import make_sequence
 
 
 def config(**kw) -> Config:
-    base = dict(segmenter="mask", preprocessor="paper", registrar="icp_point_to_point", rule="paper",
-                pipeline=PipelineParams(k=2))
+    base = dict(
+        segmenter="mask",
+        preprocessor="paper",
+        registrar="icp_point_to_point",
+        rule="paper",
+        pipeline=PipelineParams(k=2),
+    )
     base.update(kw)
     return Config(**base)
 
@@ -48,9 +53,19 @@ def fingerprint(result) -> list:
         out.append((p.i, p.j, p.decision, p.reason, p.cell_size_m, p.truth))
         for c in p.cells:
             reg = c.registration
-            out.append((c.cell, c.skipped, c.cluster, c.key, tuple(c.source_idx), tuple(c.target_idx),
-                        None if reg is None else (reg.T_target_from_source.tobytes(), reg.fitness, reg.rmse_m,
-                                                  reg.n_correspondences)))
+            out.append(
+                (
+                    c.cell,
+                    c.skipped,
+                    c.cluster,
+                    c.key,
+                    tuple(c.source_idx),
+                    tuple(c.target_idx),
+                    None
+                    if reg is None
+                    else (reg.T_target_from_source.tobytes(), reg.fitness, reg.rmse_m, reg.n_correspondences),
+                )
+            )
     out.append([(f.index, f.skipped, f.mask_pixels, tuple(sorted(f.info.items()))) for f in result.frames])
     return out
 
@@ -61,6 +76,7 @@ def hinge():
 
 
 # -- workers -------------------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("registrar", ["icp_point_to_point", "icp_point_to_plane"])
 def test_identical_results_whatever_the_number_of_workers(registry, hinge, registrar):
@@ -94,15 +110,22 @@ def test_repeated_runs_are_identical(registry, hinge):
 
 @pytest.mark.slow
 def test_importing_the_plugins_leaves_open3d_alone_and_the_pipeline_sets_one_thread():
-    code = ("import open3d as o3d\n"
-            "from artclass_core import Pipeline, load_registry\n"
-            "before = o3d.utility.get_max_threads()\n"
-            "registry = load_registry()\n"
-            "assert before > 1 and o3d.utility.get_max_threads() == before, 'an import changed the threads'\n"
-            "Pipeline(registry)\n"
-            "assert o3d.utility.get_max_threads() == 1\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "OMP_NUM_THREADS": "2"})
+    code = (
+        "import open3d as o3d\n"
+        "from artclass_core import Pipeline, load_registry\n"
+        "before = o3d.utility.get_max_threads()\n"
+        "registry = load_registry()\n"
+        "assert before > 1 and o3d.utility.get_max_threads() == before, 'an import changed the threads'\n"
+        "Pipeline(registry)\n"
+        "assert o3d.utility.get_max_threads() == 1\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "OMP_NUM_THREADS": "2"},
+    )
     assert done.returncode == 0, done.stderr[-2000:]
 
 
@@ -110,8 +133,12 @@ def test_point_to_plane_icp_is_reproducible(registry, hinge):
     pipe = Pipeline(registry, config(registrar="icp_point_to_plane"))
     a, b = pipe.frame(hinge, 0).cloud, pipe.frame(hinge, 2).cloud
     icp = registry.create("registrar", "icp_point_to_plane")
-    runs = {icp.register(a.points, b.points, source_normals=a.normals, target_normals=b.normals,
-                         cell_size_m=0.06).T_target_from_source.tobytes() for _ in range(30)}
+    runs = {
+        icp.register(
+            a.points, b.points, source_normals=a.normals, target_normals=b.normals, cell_size_m=0.06
+        ).T_target_from_source.tobytes()
+        for _ in range(30)
+    }
     assert len(runs) == 1
 
 
@@ -120,7 +147,7 @@ def test_workers_with_skipped_frames_and_k1(registry):
     cfg = config(pipeline=PipelineParams(k=1))
     one, two = (Pipeline(registry, cfg).run(seq, workers=w) for w in (1, 2))
     assert fingerprint(one) == fingerprint(two)
-    assert [p.decision for p in one.pairs].count("skipped") >= 4   # the pairs touching frames 2 and 5
+    assert [p.decision for p in one.pairs].count("skipped") >= 4  # the pairs touching frames 2 and 5
 
 
 def test_identical_results_with_the_depth_threshold_segmenter(registry):
@@ -129,7 +156,8 @@ def test_identical_results_with_the_depth_threshold_segmenter(registry):
     seq = make_sequence("hinge", n_frames=7, masks=False)
     cfg = config(segmenter="depth_threshold")
     assert fingerprint(Pipeline(registry, cfg).run(seq, workers=2)) == fingerprint(
-        Pipeline(registry, cfg).run(seq, workers=1))
+        Pipeline(registry, cfg).run(seq, workers=1)
+    )
 
 
 def test_workers_must_be_positive(registry, hinge):
@@ -144,6 +172,7 @@ def test_an_error_in_a_worker_reaches_the_caller(registry):
 
 
 # -- streaming --------------------------------------------------------------------------------------
+
 
 class _Tracker:
     """Wraps a preprocessor: remembers (weakly) every cloud it made."""
@@ -187,7 +216,7 @@ def test_streaming_holds_a_bounded_number_of_clouds(registry, workers):
     # up to 2 per worker pairs are in flight
     bound = k + 2 if workers == 1 else k + 2 + 4 * workers
     assert long_peak <= bound
-    assert long_peak <= max(short_peak, bound)      # does not grow with the length
+    assert long_peak <= max(short_peak, bound)  # does not grow with the length
     assert after == 0, "a finished run keeps no cloud alive"
 
 
@@ -198,6 +227,7 @@ def test_keep_clouds_keeps_every_cloud(registry, hinge):
 
 # -- the stage cache ---------------------------------------------------------------------------------
 
+
 def _counting(seq):
     calls = []
     load = seq.load
@@ -205,6 +235,7 @@ def _counting(seq):
     def counted(i):
         calls.append(i)
         return load(i)
+
     seq.load = counted
     seq.frame.cache_clear()
     return calls
@@ -215,8 +246,10 @@ def test_rule_change_reuses_clouds_and_registrations(registry):
     cache = StageCache()
     first = Pipeline(registry, config()).run(seq, cache=cache)
     calls = _counting(seq)
-    changed = config(rule_params=registry.get("rule", "paper").Params(q_bar=0.3, t_bar=0.3),
-                     pipeline=PipelineParams(k=2, alpha=0.5, min_fitness=0.5, w=1))
+    changed = config(
+        rule_params=registry.get("rule", "paper").Params(q_bar=0.3, t_bar=0.3),
+        pipeline=PipelineParams(k=2, alpha=0.5, min_fitness=0.5, w=1),
+    )
     stats0 = cache.stats()
     again = Pipeline(registry, changed).run(seq, cache=cache)
     stats1 = cache.stats()
@@ -289,11 +322,14 @@ def test_cache_is_bounded_and_forgets_dead_sequences(registry):
 
 # -- re-deciding ---------------------------------------------------------------------------------------
 
+
 def test_redecide_equals_a_fresh_run_and_leaves_the_first_result_alone(registry, hinge):
     first = Pipeline(registry, config()).run(hinge, keep_clouds=True)
     before = fingerprint(first)
-    changed = config(rule_params=registry.get("rule", "paper").Params(q_bar=0.5, t_bar=0.5),
-                     pipeline=PipelineParams(k=2, w=1, alpha=0.6))
+    changed = config(
+        rule_params=registry.get("rule", "paper").Params(q_bar=0.5, t_bar=0.5),
+        pipeline=PipelineParams(k=2, w=1, alpha=0.6),
+    )
     redecided = Pipeline(registry, changed).redecide(first)
     fresh = Pipeline(registry, changed).run(hinge, keep_clouds=True)
     assert fingerprint(redecided) == fingerprint(fresh)
@@ -304,9 +340,11 @@ def test_redecide_equals_a_fresh_run_and_leaves_the_first_result_alone(registry,
 @pytest.mark.slow
 def test_redecide_is_the_same_whatever_the_number_of_workers(registry, hinge):
     cfg = dataclasses.replace(Config(), pipeline=PipelineParams(k=2))
-    changed = cfg.with_overrides(registry, {"noise_factor": "2.5"})    # moves every cost and threshold
-    one, two = (Pipeline(registry, changed).redecide(Pipeline(registry, cfg).run(hinge, keep_clouds=True),
-                                                     workers=w) for w in (1, 2))
+    changed = cfg.with_overrides(registry, {"noise_factor": "2.5"})  # moves every cost and threshold
+    one, two = (
+        Pipeline(registry, changed).redecide(Pipeline(registry, cfg).run(hinge, keep_clouds=True), workers=w)
+        for w in (1, 2)
+    )
     fresh = Pipeline(registry, changed).run(hinge)
     assert fingerprint(two) == fingerprint(one) == fingerprint(fresh)
     assert [p.info for p in two.pairs] == [p.info for p in one.pairs] == [p.info for p in fresh.pairs]
@@ -328,14 +366,16 @@ def test_redecide_with_another_rule_and_back(registry, hinge):
 def test_redecide_from_the_cache(registry):
     seq = make_sequence("hinge", n_frames=6)
     cache = StageCache()
-    first = Pipeline(registry, config()).run(seq, cache=cache)       # clouds dropped from the result
+    first = Pipeline(registry, config()).run(seq, cache=cache)  # clouds dropped from the result
     changed = config(pipeline=PipelineParams(k=2, min_fitness=0.9))
     with pytest.raises(ArtclassError, match="keep_clouds"):
         Pipeline(registry, changed).redecide(first)
     calls = _counting(seq)
     again = Pipeline(registry, changed).redecide(first, sequence=seq, cache=cache)
     assert calls == []
-    assert fingerprint(again) == fingerprint(Pipeline(registry, changed).run(make_sequence("hinge", n_frames=6)))
+    assert fingerprint(again) == fingerprint(
+        Pipeline(registry, changed).run(make_sequence("hinge", n_frames=6))
+    )
 
 
 def test_redecide_goes_without_a_skipped_frame_between(registry):
@@ -345,17 +385,21 @@ def test_redecide_goes_without_a_skipped_frame_between(registry):
     first = Pipeline(registry, config(rule="robust")).run(seq, keep_clouds=True)
     assert [f.index for f in first.frames if f.skipped] == [2]
     changed = config(rule="robust", pipeline=PipelineParams(k=2, w=1))
-    assert fingerprint(Pipeline(registry, changed).redecide(first)) == \
-        fingerprint(Pipeline(registry, changed).run(seq))
+    assert fingerprint(Pipeline(registry, changed).redecide(first)) == fingerprint(
+        Pipeline(registry, changed).run(seq)
+    )
 
 
-@pytest.mark.parametrize("change", [
-    dict(pipeline=PipelineParams(k=1)),
-    dict(pipeline=PipelineParams(k=2, cell_size_m=0.02)),
-    dict(pipeline=PipelineParams(k=2, min_cell_points=20)),
-    dict(registrar="icp_point_to_plane"),
-    dict(preprocessor_params="std_ratio"),
-])
+@pytest.mark.parametrize(
+    "change",
+    [
+        dict(pipeline=PipelineParams(k=1)),
+        dict(pipeline=PipelineParams(k=2, cell_size_m=0.02)),
+        dict(pipeline=PipelineParams(k=2, min_cell_points=20)),
+        dict(registrar="icp_point_to_plane"),
+        dict(preprocessor_params="std_ratio"),
+    ],
+)
 def test_redecide_refuses_changed_registrations(registry, hinge, change):
     if change.get("preprocessor_params") == "std_ratio":
         change = dict(preprocessor_params=registry.get("preprocessor", "paper").Params(std_ratio=1.5))
@@ -378,6 +422,7 @@ def test_decide_does_not_modify_the_cells_it_is_given(registry, hinge):
 
 # -- geometry shortcuts ---------------------------------------------------------------------------------
 
+
 def _reference_grid_cells(source, target, *, cell_size_m):
     """The straightforward grid (np.unique over rows), as it was written first."""
     origin = np.minimum(source.min(0), target.min(0))
@@ -387,10 +432,15 @@ def _reference_grid_cells(source, target, *, cell_size_m):
     order = np.argsort(inverse, kind="stable")
     bounds = np.searchsorted(inverse[order], np.arange(len(cells) + 1))
     n_s = len(source)
-    return [(tuple(int(v) for v in cell), origin + (cell + 0.5) * cell_size_m,
-             order[bounds[c]:bounds[c + 1]][order[bounds[c]:bounds[c + 1]] < n_s],
-             order[bounds[c]:bounds[c + 1]][order[bounds[c]:bounds[c + 1]] >= n_s] - n_s)
-            for c, cell in enumerate(cells)]
+    return [
+        (
+            tuple(int(v) for v in cell),
+            origin + (cell + 0.5) * cell_size_m,
+            order[bounds[c] : bounds[c + 1]][order[bounds[c] : bounds[c + 1]] < n_s],
+            order[bounds[c] : bounds[c + 1]][order[bounds[c] : bounds[c + 1]] >= n_s] - n_s,
+        )
+        for c, cell in enumerate(cells)
+    ]
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -399,7 +449,10 @@ def test_grid_cells_equal_the_reference(seed):
     source = rng.normal(scale=0.05, size=(rng.integers(1, 2000), 3)) + [0, 0, 0.7]
     target = rng.normal(scale=0.05, size=(rng.integers(1, 2000), 3)) + [0.01, 0, 0.7]
     x = rng.uniform(0.003, 0.08)
-    got, want = grid_cells(source, target, cell_size_m=x), _reference_grid_cells(source, target, cell_size_m=x)
+    got, want = (
+        grid_cells(source, target, cell_size_m=x),
+        _reference_grid_cells(source, target, cell_size_m=x),
+    )
     assert len(got) == len(want)
     for g, w in zip(got, want):
         assert g[0] == w[0] and np.array_equal(g[1], w[1])
@@ -412,14 +465,14 @@ def test_pair_diameter_from_hull_vertices_is_exact(registry, seed):
     a = rng.normal(scale=0.04, size=(1500, 3))
     b = rng.normal(scale=0.04, size=(900, 3)) + rng.normal(scale=0.03, size=3)
     both = diameter_of_vertices(np.concatenate([hull_vertices(a), hull_vertices(b)]))
-    assert both == largest_distance(np.concatenate([a, b]))      # bit for bit
+    assert both == largest_distance(np.concatenate([a, b]))  # bit for bit
 
 
 def test_cell_size_is_a_fifth_of_the_pair_diameter(registry, hinge):
     pipe = Pipeline(registry, config())
     a, b = pipe.frame(hinge, 0).cloud, pipe.frame(hinge, 2).cloud
     assert pipe.cell_size(a, b) == max(largest_distance(np.concatenate([a.points, b.points])) / 5, 1e-4)
-    a.points = a.points + [0.5, 0.0, 0.0]                        # moved: the hull follows the points
+    a.points = a.points + [0.5, 0.0, 0.0]  # moved: the hull follows the points
     assert pipe.cell_size(a, b) == max(largest_distance(np.concatenate([a.points, b.points])) / 5, 1e-4)
 
 
@@ -428,7 +481,7 @@ def test_quaternion_equals_scipy():
     for t in range(300):
         R = Rotation.random(random_state=t).as_matrix()
         if t % 2:
-            R = R + rng.normal(scale=1e-8, size=(3, 3))          # not orthonormal: projected first
+            R = R + rng.normal(scale=1e-8, size=(3, 3))  # not orthonormal: projected first
         x, y, z, w = Rotation.from_matrix(R).as_quat()
         want = np.array([w, x, y, z]) * (1 if w >= 0 else -1)
         assert np.allclose(quaternion_wxyz(R), want, rtol=0, atol=1e-15)
@@ -447,16 +500,17 @@ def test_statistical_inliers_equal_open3d(seed):
     surface = np.column_stack([rng.uniform(-0.1, 0.1, (3000, 2)), np.full(3000, 0.7)])
     surface[:, 2] += rng.normal(scale=0.001, size=3000)
     flying = rng.uniform([-0.1, -0.1, 0.5], [0.1, 0.1, 0.9], (60, 3))
-    points = np.concatenate([surface, flying, surface[:5]])          # duplicates too
+    points = np.concatenate([surface, flying, surface[:5]])  # duplicates too
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     for neighbours, ratio in ((20, 0.5), (8, 2.0), (1, 1.0)):
         _, want = pcd.remove_statistical_outlier(nb_neighbors=neighbours, std_ratio=ratio)
         got = statistical_inliers(points, neighbours=neighbours, std_ratio=ratio)
         assert np.array_equal(got, np.asarray(want)), (neighbours, ratio)
-    assert len(statistical_inliers(points, neighbours=20, std_ratio=0.5)) < len(points) - 40   # flyers go
+    assert len(statistical_inliers(points, neighbours=20, std_ratio=0.5)) < len(points) - 40  # flyers go
 
 
 # -- the benchmark command (its numbers are printed, not judged; here only that it runs and reports) ---
+
 
 def test_cycled_sequence_plays_back_and_forth(sample_dir, registry):
     from artclass_core import open_sequences
@@ -466,7 +520,7 @@ def test_cycled_sequence_plays_back_and_forth(sample_dir, registry):
     n = len(base)
     long = CycledSequence(base, 5 * n)
     order = [long.base_index(i) for i in range(len(long))]
-    assert order[:n] == list(range(n)) and order[n:2 * n - 1] == list(range(n - 2, -1, -1))
+    assert order[:n] == list(range(n)) and order[n : 2 * n - 1] == list(range(n - 2, -1, -1))
     assert all(abs(a - b) == 1 for a, b in zip(order, order[1:])), "neighbours stay neighbours"
     f = long[n + 1]
     assert f.index == n + 1 and np.array_equal(f.depth_m, base[n - 3].depth_m)
@@ -480,8 +534,21 @@ def test_bench_command_reports_every_stage(sample_dir, tmp_path, capsys):
     from artclass_core.cli import main
 
     out = tmp_path / "bench.json"
-    status = main(["bench", "--sequence", str(sample_dir / "drawer_carry_articulate"), "--segmenters", "mask",
-                   "--workers", "1,2", "--long-frames", "40", "--json", str(out)])
+    status = main(
+        [
+            "bench",
+            "--sequence",
+            str(sample_dir / "drawer_carry_articulate"),
+            "--segmenters",
+            "mask",
+            "--workers",
+            "1,2",
+            "--long-frames",
+            "40",
+            "--json",
+            str(out),
+        ]
+    )
     text = capsys.readouterr().out
     assert status == 0
     for stage in ("read", "segment", "preprocess", "register", "decide", "total"):
@@ -492,8 +559,10 @@ def test_bench_command_reports_every_stage(sample_dir, tmp_path, capsys):
     assert "re-decide after a rule change" in text and "long sequence (40 frames" in text
     data = json.loads(out.read_text())
     assert [r["spec"]["workers"] for r in data["runs"]] == [1, 2]
-    assert all("error" not in r and r["n_pairs"] > 0 and r["wall_s"] > 0 and r["peak_rss_mb"] > 0
-               for r in data["runs"])
+    assert all(
+        "error" not in r and r["n_pairs"] > 0 and r["wall_s"] > 0 and r["peak_rss_mb"] > 0
+        for r in data["runs"]
+    )
     assert data["runs"][0]["label"] == data["runs"][1]["label"]
     assert data["paper"]["spec"]["paper"] is True and data["paper"]["n_pairs"] == data["runs"][0]["n_pairs"]
     assert data["redecide"]["redecide_equals_cached_rerun"] is True
@@ -501,6 +570,7 @@ def test_bench_command_reports_every_stage(sample_dir, tmp_path, capsys):
 
 
 # -- the pair's scratch space (a rule's threshold-independent evidence) ----------------------------------
+
 
 def test_pair_scratch_lives_with_the_cached_registration(registry, hinge):
     cache = StageCache(max_frames=64, max_pairs=1)
@@ -511,7 +581,7 @@ def test_pair_scratch_lives_with_the_cached_registration(registry, hinge):
     scratch["evidence"] = 42
     assert cache.scratch(key) is scratch
     assert cache.scratch(pipe.pair_key(hinge, 0, pipe.params.k, cache)) is not scratch, "another pair"
-    cache.put("register", pipe.pair_key(hinge, 0, pipe.params.k, cache), ((), 0.01))   # drops the first entry
+    cache.put("register", pipe.pair_key(hinge, 0, pipe.params.k, cache), ((), 0.01))  # drops the first entry
     assert "evidence" not in cache.scratch(key), "dropped with its registration"
 
 
@@ -547,7 +617,7 @@ def test_rule_evidence_in_the_memo_is_reused_when_redeciding(registry, hinge):
     assert len(calls) == n_calls, "the evidence was found again"
     assert [p.decision for p in one.pairs] != [p.decision for p in two.pairs]
     cache = StageCache()
-    streamed = Pipeline(registry, config()).run(hinge, cache=cache)          # no clouds kept in the result
+    streamed = Pipeline(registry, config()).run(hinge, cache=cache)  # no clouds kept in the result
     pipe.redecide(streamed, sequence=hinge, cache=cache)
     n_calls = len(calls)
     assert fingerprint(pipe.redecide(streamed, sequence=hinge, cache=cache)) == fingerprint(two)
@@ -563,6 +633,7 @@ def test_stage_configs_depend_on_what_the_stage_uses():
         return {s for s in stages if stage_config(config, s) != keys[s]}
 
     from artclass_plugins.rules.paper import PaperRuleParams
+
     later = {"register", "decide"}
     assert changed(Config(rule="paper", rule_params=PaperRuleParams(q_bar=0.5))) == {"decide"}
     assert changed(Config(rule="paper", pipeline=PipelineParams(alpha=0.9))) == {"decide"}

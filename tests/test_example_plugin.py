@@ -50,7 +50,7 @@ from artclass_core import (
 )
 from artclass_core.cli import build_parser
 
-pytestmark = pytest.mark.slow      # builds and installs the example package, in subprocesses
+pytestmark = pytest.mark.slow  # builds and installs the example package, in subprocesses
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "artclass-example-plugin"
@@ -60,6 +60,7 @@ SAMPLE = ROOT / "sample_data" / "laptop_articulate"
 # --------------------------------------------------------------------------------------------------
 # 1. The example package, installed with pip and used through the real command line
 # --------------------------------------------------------------------------------------------------
+
 
 def _artclass_cmd() -> list[str]:
     exe = Path(sys.executable).parent / "artclass"
@@ -74,9 +75,24 @@ def plugin_env(tmp_path_factory) -> dict[str, str]:
     # Build from a copy: a build writes egg-info/ next to the sources, never into the repository.
     shutil.copytree(EXAMPLE, src, ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
     target = tmp / "site"
-    proc = subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--disable-pip-version-check",
-                           "--no-deps", "--no-build-isolation", "--no-index", "--target", str(target), str(src)],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--disable-pip-version-check",
+            "--no-deps",
+            "--no-build-isolation",
+            "--no-index",
+            "--target",
+            str(target),
+            str(src),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 0, f"pip could not install the example plugin:\n{proc.stderr}"
     assert (target / "artclass_example_plugin" / "__init__.py").is_file()
     env = {k: v for k, v in os.environ.items() if k != "ARTCLASS_PLUGINS"}
@@ -90,8 +106,17 @@ def articulated_sequence(tmp_path_factory) -> Path:
     if SAMPLE.is_dir():
         return SAMPLE
     from artclass_plugins.synth import generate_sequence
-    return generate_sequence(tmp_path_factory.mktemp("seq") / "laptop_articulate", object_name="laptop",
-                             motion="articulate", noise="low", n_frames=16, seed=1, width=320, height=240)
+
+    return generate_sequence(
+        tmp_path_factory.mktemp("seq") / "laptop_articulate",
+        object_name="laptop",
+        motion="articulate",
+        noise="low",
+        n_frames=16,
+        seed=1,
+        width=320,
+        height=240,
+    )
 
 
 def _run(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
@@ -106,7 +131,7 @@ def test_artclass_plugins_lists_the_example(plugin_env):
     rules = {r["name"]: r for r in out["plugins"]["rule"]}
     assert "example_centroid" in rules, f"rules listed: {sorted(rules)}"
     rule = rules["example_centroid"]
-    assert "artclass-example-plugin" in rule["source"]           # its own distribution, not artclass
+    assert "artclass-example-plugin" in rule["source"]  # its own distribution, not artclass
     assert [p["name"] for p in rule["params"]] == ["min_motion_m", "max_spread_m", "min_part_cells"]
     assert {"paper", "robust"} & set(rules), "the built-in rules must still be there"
     text = _run(["plugins"], plugin_env)
@@ -121,16 +146,27 @@ def test_example_is_absent_without_install():
 
 
 def test_classify_with_the_example_rule(plugin_env, articulated_sequence):
-    proc = _run(["classify", str(articulated_sequence), "--rule", "example_centroid", "--json", "--no-cells",
-                 "--param", "max_spread_m=0.01"], plugin_env)
+    proc = _run(
+        [
+            "classify",
+            str(articulated_sequence),
+            "--rule",
+            "example_centroid",
+            "--json",
+            "--no-cells",
+            "--param",
+            "max_spread_m=0.01",
+        ],
+        plugin_env,
+    )
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout)
     assert result["plugins"]["rule"] == "example_centroid"
     assert result["params"]["rule"] == dict(min_motion_m=0.004, max_spread_m=0.01, min_part_cells=2)
     decided = [p for p in result["pairs"] if p["decision"] != "skipped"]
     assert decided, "no pair was decided"
-    assert all(p["info"]["n_outlier_cells"] >= 0 for p in decided)    # the rule's own evidence is recorded
-    assert result["label"] == "articulated", result["fractions"]     # a laptop opening: the lid moves alone
+    assert all(p["info"]["n_outlier_cells"] >= 0 for p in decided)  # the rule's own evidence is recorded
+    assert result["label"] == "articulated", result["fractions"]  # a laptop opening: the lid moves alone
     assert result["fractions"]["AM"] > 0.5
 
 
@@ -183,7 +219,9 @@ def hinge_points(angle_rad: float, shift_m: np.ndarray) -> np.ndarray:
     h = np.linspace(-0.08, 0.08, 161)
     gx, gy = np.meshgrid(g, h)
     left = np.column_stack([-gx.ravel(), gy.ravel(), np.full(gx.size, 0.6)])
-    right = np.column_stack([gx.ravel() * np.cos(angle_rad), gy.ravel(), 0.6 + gx.ravel() * np.sin(angle_rad)])
+    right = np.column_stack(
+        [gx.ravel() * np.cos(angle_rad), gy.ravel(), 0.6 + gx.ravel() * np.sin(angle_rad)]
+    )
     return np.concatenate([left, right]) + shift_m
 
 
@@ -202,8 +240,14 @@ class HingeSequence(Sequence):
     """In-memory sequence: the right plate opens by 3 degrees a frame (or the whole thing moves)."""
 
     def __init__(self, path: Path, *, motion: str = "hinge", n_frames: int = 4):
-        super().__init__(name=f"hinge_{motion}", path=path, intrinsics=INTR, n_frames=n_frames,
-                         label="articulated" if motion == "hinge" else "rigid", has_masks=False)
+        super().__init__(
+            name=f"hinge_{motion}",
+            path=path,
+            intrinsics=INTR,
+            n_frames=n_frames,
+            label="articulated" if motion == "hinge" else "rigid",
+            has_masks=False,
+        )
         self.motion = motion
 
     def load(self, i: int) -> Frame:
@@ -281,8 +325,13 @@ class MedianDepthRule(DecisionRule):
     def decide(self, cells, *, source, target) -> RuleDecision:
         dz = np.median([c.registration.T_target_from_source[2, 3] for c in cells if c.matched])
         clusters = [0 if c.matched else None for c in cells]
-        return RuleDecision("RM" if abs(dz) > 0.005 else "NM", clusters, [f"dz {dz:+.4f} m"],
-                            reason="median z shift", info=dict(dz_m=float(dz)))
+        return RuleDecision(
+            "RM" if abs(dz) > 0.005 else "NM",
+            clusters,
+            [f"dz {dz:+.4f} m"],
+            reason="median z shift",
+            info=dict(dz_m=float(dz)),
+        )
 
 
 def _hinge_folder(tmp_path: Path, motion: str = "hinge") -> Path:
@@ -294,10 +343,12 @@ def _hinge_folder(tmp_path: Path, motion: str = "hinge") -> Path:
 
 def _plugin(hook: str, *classes) -> SimpleNamespace:
     """A plugin object whose ``hook`` registers ``classes``."""
+
     @hookimpl(specname=hook)
     def impl(register):
         for cls in classes:
             register(cls)
+
     return SimpleNamespace(impl=impl, __name__=f"test plugin for {hook}")
 
 
@@ -308,7 +359,7 @@ SEGMENTER = _plugin("register_segmenters", BandSegmenter)
 def test_hook_register_readers(tmp_path):
     registry = load_registry(extra_plugins=(READER,))
     assert "test_hinge" in registry.names("reader")
-    assert "folder" in registry.names("reader")           # built-ins are still there
+    assert "folder" in registry.names("reader")  # built-ins are still there
     seqs = open_sequences(registry, _hinge_folder(tmp_path))
     assert [type(s) for s in seqs] == [HingeSequence]
     frame = seqs[0][1]
@@ -333,10 +384,17 @@ def test_hook_register_segmenters(tmp_path):
 
 
 def test_hook_register_preprocessors(tmp_path):
-    registry = load_registry(extra_plugins=(READER, SEGMENTER, _plugin("register_preprocessors", StridePreprocessor)))
+    registry = load_registry(
+        extra_plugins=(READER, SEGMENTER, _plugin("register_preprocessors", StridePreprocessor))
+    )
     seq = open_sequences(registry, _hinge_folder(tmp_path))[0]
-    config = Config(segmenter="test_band", preprocessor="test_stride", preprocessor_params=StrideParams(stride=3),
-                    registrar="icp_point_to_point", pipeline=PipelineParams(k=1))
+    config = Config(
+        segmenter="test_band",
+        preprocessor="test_stride",
+        preprocessor_params=StrideParams(stride=3),
+        registrar="icp_point_to_point",
+        pipeline=PipelineParams(k=1),
+    )
     result = Pipeline(registry, config).run(seq)
     n_pixels = int(np.count_nonzero(seq[0].depth_m))
     assert result.frames[0].info == dict(n_points=len(range(0, n_pixels, 3)), stride=3)
@@ -346,7 +404,9 @@ def test_hook_register_preprocessors(tmp_path):
 
 def test_hook_register_registrars(tmp_path):
     CentroidShiftRegistrar.calls = []
-    registry = load_registry(extra_plugins=(READER, SEGMENTER, _plugin("register_registrars", CentroidShiftRegistrar)))
+    registry = load_registry(
+        extra_plugins=(READER, SEGMENTER, _plugin("register_registrars", CentroidShiftRegistrar))
+    )
     seq = open_sequences(registry, _hinge_folder(tmp_path, "carry"))[0]
     config = Config(segmenter="test_band", registrar="test_centroid_shift", pipeline=PipelineParams(k=1))
     result = Pipeline(registry, config).run(seq)
@@ -359,8 +419,10 @@ def test_hook_register_registrars(tmp_path):
     for cell in registered:
         src_shape, tgt_shape, normals, x, _ = returned[id(cell.registration)]
         assert src_shape == (len(cell.source_idx), 3) and tgt_shape == (len(cell.target_idx), 3)
-        assert normals is not None and normals.shape == src_shape   # the preprocessor supplies normals
-        assert x == pytest.approx(next(p.cell_size_m for p in result.pairs if any(c is cell for c in p.cells)))
+        assert normals is not None and normals.shape == src_shape  # the preprocessor supplies normals
+        assert x == pytest.approx(
+            next(p.cell_size_m for p in result.pairs if any(c is cell for c in p.cells))
+        )
     # the whole object moved 10 mm towards +z per frame: the registrar's z shifts say so
     dz = np.median([c.registration.T_target_from_source[2, 3] for c in registered])
     assert dz == pytest.approx(0.01, abs=0.003)

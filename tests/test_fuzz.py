@@ -26,9 +26,14 @@ from artclass_core.cli import main
 from fixtures_layouts import write_folder, write_rbo, write_tum, write_ycbv
 
 N_FRAMES = 3
-RUN = ["--param", "k=1", "--workers", "1"]          # two pairs: every frame is read
-FUZZ = settings(max_examples=15, deadline=timedelta(seconds=30), derandomize=True, database=None,
-                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+RUN = ["--param", "k=1", "--workers", "1"]  # two pairs: every frame is read
+FUZZ = settings(
+    max_examples=15,
+    deadline=timedelta(seconds=30),
+    derandomize=True,
+    database=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
@@ -36,10 +41,12 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 def templates(tmp_path_factory) -> dict[str, tuple[Path, str]]:
     """One small sequence per layout: reader -> (folder, the path argument's ``#name`` suffix)."""
     root = tmp_path_factory.mktemp("fuzz_templates")
-    return {"folder": (write_folder(root / "folder", n_frames=N_FRAMES), ""),
-            "ycbv": (write_ycbv(root / "ycbv", n_frames=N_FRAMES), "#0000/025_mug"),
-            "tum": (write_tum(root / "tum", n_frames=N_FRAMES), ""),
-            "rbo": (write_rbo(root / "rbo", n_frames=N_FRAMES), "")}
+    return {
+        "folder": (write_folder(root / "folder", n_frames=N_FRAMES), ""),
+        "ycbv": (write_ycbv(root / "ycbv", n_frames=N_FRAMES), "#0000/025_mug"),
+        "tum": (write_tum(root / "tum", n_frames=N_FRAMES), ""),
+        "rbo": (write_rbo(root / "rbo", n_frames=N_FRAMES), ""),
+    }
 
 
 def state(folder: Path) -> dict[str, tuple]:
@@ -75,8 +82,12 @@ def copy_of(template: Path) -> tuple[Path, Path]:
 
 # -- readers ----------------------------------------------------------------------------------------
 @FUZZ
-@given(layout=st.sampled_from(["folder", "ycbv", "tum", "rbo"]), pick=st.integers(0, 10_000),
-       header=st.booleans(), data=st.binary(max_size=600))
+@given(
+    layout=st.sampled_from(["folder", "ycbv", "tum", "rbo"]),
+    pick=st.integers(0, 10_000),
+    header=st.booleans(),
+    data=st.binary(max_size=600),
+)
 def test_random_bytes_as_a_png(templates, capfd, layout, pick, header, data):
     template, suffix = templates[layout]
     tmp, seq = copy_of(template)
@@ -89,17 +100,21 @@ def test_random_bytes_as_a_png(templates, capfd, layout, pick, header, data):
         shutil.rmtree(tmp)
 
 
-JSON_VALUES = st.recursive(st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=12),
-                           lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=5), inner,
-                                                                                       max_size=3),
-                           max_leaves=6)
+JSON_VALUES = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=12),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=5), inner, max_size=3),
+    max_leaves=6,
+)
 META_KEYS = ("fx", "fy", "cx", "cy", "depth_scale", "object", "label", "width", "height")
 
 
 @FUZZ
-@given(changes=st.dictionaries(st.sampled_from(META_KEYS) | st.text(max_size=8), JSON_VALUES | st.just(None),
-                               max_size=4),
-       raw=st.none() | st.binary(max_size=200))
+@given(
+    changes=st.dictionaries(
+        st.sampled_from(META_KEYS) | st.text(max_size=8), JSON_VALUES | st.just(None), max_size=4
+    ),
+    raw=st.none() | st.binary(max_size=200),
+)
 def test_random_meta_json_values(templates, capfd, changes, raw):
     tmp, seq = copy_of(templates["folder"][0])
     try:
@@ -119,18 +134,39 @@ def test_random_meta_json_values(templates, capfd, changes, raw):
         shutil.rmtree(tmp)
 
 
-NAMES = ("rgb", "depth", "mask", "meta.json", "truth.json", "rgb.txt", "depth.txt", "camera_info.csv",
-         "000000.png", "000001.png", "x.png", "0000", "camera_rgb", "camera_depth", "data")
+NAMES = (
+    "rgb",
+    "depth",
+    "mask",
+    "meta.json",
+    "truth.json",
+    "rgb.txt",
+    "depth.txt",
+    "camera_info.csv",
+    "000000.png",
+    "000001.png",
+    "x.png",
+    "0000",
+    "camera_rgb",
+    "camera_depth",
+    "data",
+)
 CONTENTS = st.sampled_from(["png", "depth_png", "json", "empty"]) | st.binary(max_size=100)
 
 
 @FUZZ
-@given(entries=st.lists(st.tuples(st.lists(st.sampled_from(NAMES), min_size=1, max_size=3), CONTENTS),
-                        min_size=1, max_size=8))
+@given(
+    entries=st.lists(
+        st.tuples(st.lists(st.sampled_from(NAMES), min_size=1, max_size=3), CONTENTS), min_size=1, max_size=8
+    )
+)
 def test_random_folder_layouts(templates, capfd, entries):
     template = templates["folder"][0]
-    sources = {"png": template / "rgb" / "000000.png", "depth_png": template / "depth" / "000000.png",
-               "json": template / "meta.json"}
+    sources = {
+        "png": template / "rgb" / "000000.png",
+        "depth_png": template / "depth" / "000000.png",
+        "json": template / "meta.json",
+    }
     tmp = Path(tempfile.mkdtemp(prefix="artclass_fuzz_"))
     try:
         seq = tmp / "seq"
@@ -138,25 +174,43 @@ def test_random_folder_layouts(templates, capfd, entries):
         for parts, content in entries:
             path = seq.joinpath(*parts)
             if any(p.exists() and not p.is_dir() for p in [*reversed(path.parents)][1:]) or path.is_dir():
-                continue                       # a file already stands where a folder is needed
+                continue  # a file already stands where a folder is needed
             path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_bytes(sources[content].read_bytes() if content in sources else
-                             b"" if content == "empty" else content)
+            path.write_bytes(
+                sources[content].read_bytes()
+                if content in sources
+                else b""
+                if content == "empty"
+                else content
+            )
         run_and_check(capfd, ["classify", seq, *RUN], watch=tmp)
     finally:
         shutil.rmtree(tmp)
 
 
 # -- the --param parser -------------------------------------------------------------------------------
-KNOWN = sorted({n for s in describe(PipelineParams) for n in (s.name, s.symbol) if n}
-               | {"v", "r", "s", "x", "q_bar", "t_bar", "k", "w", "alpha"})
-VALUES = (st.sampled_from(["auto", "nan", "inf", "-inf", "1e309", "", "-1", "0", "true", "none", "1/2"])
-          | st.floats().map(repr) | st.integers(-10**6, 10**6).map(str) | st.text(max_size=10))
+KNOWN = sorted(
+    {n for s in describe(PipelineParams) for n in (s.name, s.symbol) if n}
+    | {"v", "r", "s", "x", "q_bar", "t_bar", "k", "w", "alpha"}
+)
+VALUES = (
+    st.sampled_from(["auto", "nan", "inf", "-inf", "1e309", "", "-1", "0", "true", "none", "1/2"])
+    | st.floats().map(repr)
+    | st.integers(-(10**6), 10**6).map(str)
+    | st.text(max_size=10)
+)
 
 
 @FUZZ
-@given(params=st.lists(st.tuples(st.sampled_from(KNOWN) | st.text(max_size=8), st.sampled_from(["=", " = ", "", "=="]),
-                                 VALUES).map("".join), min_size=1, max_size=3))
+@given(
+    params=st.lists(
+        st.tuples(
+            st.sampled_from(KNOWN) | st.text(max_size=8), st.sampled_from(["=", " = ", "", "=="]), VALUES
+        ).map("".join),
+        min_size=1,
+        max_size=3,
+    )
+)
 def test_random_param_values(templates, capfd, params):
     template = templates["folder"][0]
     argv = ["classify", template, "--workers", "1", "--param", "k=1"]

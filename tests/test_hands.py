@@ -37,11 +37,11 @@ from artclass_plugins.segmenters.u2net import U2netParams, U2netSegmenter
 W, H = 320, 240
 INTR = Intrinsics(fx=300.0, fy=300.0, cx=159.5, cy=119.5, width=W, height=H)
 PITCH = np.radians(40.0)
-UP = np.array([0.0, -np.cos(PITCH), -np.sin(PITCH)])      # the table's normal, towards the camera
+UP = np.array([0.0, -np.cos(PITCH), -np.sin(PITCH)])  # the table's normal, towards the camera
 LIGHT_SKIN, DARK_SKIN = (224, 172, 140), (141, 85, 36)
-FINGER_M, FOREARM_M = 0.015, 0.06                         # thickness of fingers lying flat, of a forearm
+FINGER_M, FOREARM_M = 0.015, 0.06  # thickness of fingers lying flat, of a forearm
 TABLE, WALL, BOX, GRIPPER = (160, 165, 170), (225, 228, 230), (50, 70, 150), (60, 62, 66)
-SLEEVE = (45, 110, 60)                                    # a green sleeve: not skin, not the box
+SLEEVE = (45, 110, 60)  # a green sleeve: not skin, not the box
 
 
 def table_depth(height_m: np.ndarray | float = 0.0) -> np.ndarray:
@@ -59,27 +59,42 @@ def hand_shape(x: int, y: int, *, scale: float = 1.0, side: str = "right") -> np
     forearm reaching that side's border: bool (H, W)."""
     m = np.zeros((H, W), np.uint8)
     s = scale
-    sign = -1 if side == "right" else 1                        # fingers point left for a right-side arm
+    sign = -1 if side == "right" else 1  # fingers point left for a right-side arm
     cv2.ellipse(m, (x, y), (int(22 * s), int(18 * s)), 0, 0, 360, 1, -1)
-    for k, dy in enumerate((-13, -4, 5, 13)):                  # four fingers
+    for k, dy in enumerate((-13, -4, 5, 13)):  # four fingers
         length = int((30 - 4 * abs(k - 1.5)) * s)
-        cv2.line(m, (x + sign * int(18 * s), y + int(dy * s)), (x + sign * (int(18 * s) + length), y + int(dy * s)),
-                 1, max(2, int(7 * s)))
-    cv2.line(m, (x, y - int(15 * s)), (x + sign * int(14 * s), y - int(38 * s)), 1, max(2, int(8 * s)))   # thumb
+        cv2.line(
+            m,
+            (x + sign * int(18 * s), y + int(dy * s)),
+            (x + sign * (int(18 * s) + length), y + int(dy * s)),
+            1,
+            max(2, int(7 * s)),
+        )
+    cv2.line(
+        m, (x, y - int(15 * s)), (x + sign * int(14 * s), y - int(38 * s)), 1, max(2, int(8 * s))
+    )  # thumb
     edge = W - 1 if side == "right" else 0
-    cv2.line(m, (x, y), (edge, y + int(25 * s)), 1, int(30 * s))                                    # forearm
+    cv2.line(m, (x, y), (edge, y + int(25 * s)), 1, int(30 * s))  # forearm
     return m > 0
 
 
 def box_mask(x: int, y: int, w: int = 60, h: int = 45) -> np.ndarray:
     m = np.zeros((H, W), bool)
-    m[y:y + h, x:x + w] = True
+    m[y : y + h, x : x + w] = True
     return m
 
 
-def render(box: np.ndarray, hand: np.ndarray | None, *, hand_depth_m: float | None, skin=LIGHT_SKIN,
-           hand_colour=None, seed: int = 0, sleeve: np.ndarray | None = None, depth: np.ndarray | None = None
-           ) -> tuple[np.ndarray, np.ndarray]:
+def render(
+    box: np.ndarray,
+    hand: np.ndarray | None,
+    *,
+    hand_depth_m: float | None,
+    skin=LIGHT_SKIN,
+    hand_colour=None,
+    seed: int = 0,
+    sleeve: np.ndarray | None = None,
+    depth: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Colour and depth of the scene. ``hand_depth_m`` None: the hand lies on what is under it (holding it).
     ``sleeve``: the part of the hand coloured SLEEVE. ``depth``: the scene's depth with the box in it
     (default: the table, with the box 5 cm nearer along the rays)."""
@@ -94,17 +109,17 @@ def render(box: np.ndarray, hand: np.ndarray | None, *, hand_depth_m: float | No
     rgb[depth >= 1.2] = WALL
     rgb[box] = BOX
     if hand is not None:
-        if hand_depth_m is None:            # fingers lying on the box, the wrist and forearm raised off the table
+        if hand_depth_m is None:  # fingers lying on the box, the wrist and forearm raised off the table
             depth[hand] -= np.where(box[hand], FINGER_M, FOREARM_M)
         else:
             depth[hand] = hand_depth_m
         rgb[hand] = hand_colour or skin
         if sleeve is not None:
             rgb[sleeve] = SLEEVE
-        shade = 0.85 + 0.15 * np.linspace(0, 1, W)[None, :]     # light falls off across the hand
+        shade = 0.85 + 0.15 * np.linspace(0, 1, W)[None, :]  # light falls off across the hand
         rgb[hand] *= np.broadcast_to(shade, (H, W))[hand][:, None]
     rgb += rng.normal(0, 4, rgb.shape)
-    depth = np.round(depth + rng.normal(0, 0.001, depth.shape), 3)   # millimetre steps, as sensors store
+    depth = np.round(depth + rng.normal(0, 0.001, depth.shape), 3)  # millimetre steps, as sensors store
     return np.clip(rgb, 0, 255).astype(np.uint8), depth.astype(np.float32)
 
 
@@ -144,9 +159,25 @@ def carrying_scene(n: int = 10) -> tuple[Scene, list[np.ndarray], list[np.ndarra
 
 # -- the colour models ------------------------------------------------------------------------------
 
+
 def test_skin_colour_model_accepts_skin_tones_and_rejects_the_scene():
-    patches = np.array([[LIGHT_SKIN, DARK_SKIN, (255, 200, 170), TABLE, WALL, BOX, GRIPPER, (40, 160, 60),
-                         (240, 240, 40), (20, 20, 20)]], np.uint8)
+    patches = np.array(
+        [
+            [
+                LIGHT_SKIN,
+                DARK_SKIN,
+                (255, 200, 170),
+                TABLE,
+                WALL,
+                BOX,
+                GRIPPER,
+                (40, 160, 60),
+                (240, 240, 40),
+                (20, 20, 20),
+            ]
+        ],
+        np.uint8,
+    )
     assert skin_mask(patches)[0].tolist() == [True, True, True] + [False] * 7
 
 
@@ -162,14 +193,15 @@ def test_gripper_colour_box_is_parsed_and_applied():
 
 # -- hand regions -----------------------------------------------------------------------------------
 
+
 def test_hand_regions_reach_the_border_and_have_a_hand_sized_surface():
-    depth = np.full((H, W), 0.6, np.float32)      # a pixel is 2 mm across: 30 cm^2 is 750 pixels
+    depth = np.full((H, W), 0.6, np.float32)  # a pixel is 2 mm across: 30 cm^2 is 750 pixels
     arm, lone, speck = hand_shape(220, 100), np.zeros((H, W), bool), np.zeros((H, W), bool)
-    lone[150:200, 30:90] = True                   # skin-coloured, large, but not reaching the border
-    speck[0:20, 100:120] = True                   # at the border, 400 px = 16 cm^2
+    lone[150:200, 30:90] = True  # skin-coloured, large, but not reaching the border
+    speck[0:20, 100:120] = True  # at the border, 400 px = 16 cm^2
     found = hand_regions(arm | lone | speck, depth, INTR, min_area_m2=0.003)
     assert mask_iou(found, arm) > 0.97 and not found[lone].any() and not found[speck].any()
-    depth[arm] = 0.0                             # no reading on the hand: counted at the region's depth
+    depth[arm] = 0.0  # no reading on the hand: counted at the region's depth
     depth[arm & (np.arange(W)[None, :] > 300)] = 0.6
     assert mask_iou(hand_regions(arm, depth, INTR, min_area_m2=0.003), arm) > 0.97
 
@@ -204,19 +236,20 @@ def test_arms_reach_the_border_stand_off_the_table_and_touch_the_hand():
     height = np.where(hand | sleeve, 0.10, 0.0)
     assert mask_iou(arm_of(sleeve, height), sleeve) > 0.97
 
-    front = np.zeros((H, W), bool)                 # the box's front face: from its top down to the table
+    front = np.zeros((H, W), bool)  # the box's front face: from its top down to the table
     front[130:145, 200:] = True
     resting = np.where(sleeve, 0.03, 0.0) + np.where(hand, 0.04, 0.0)
     resting[130:145, 200:] = np.linspace(0.03, 0.0, 15)[:, None]
     assert not arm_of(sleeve | front, resting).any()
 
-    away = np.where(hand, 0.10, 0.0) + np.where(sleeve, 0.30, 0.0)      # 20 cm nearer the camera
+    away = np.where(hand, 0.10, 0.0) + np.where(sleeve, 0.30, 0.0)  # 20 cm nearer the camera
     assert not arm_of(sleeve, away).any()
     short = sleeve & (np.arange(W)[None, :] < W - 10)
     assert not arm_of(short, np.where(hand | short, 0.10, 0.0)).any()
 
 
 # -- whole frames and sequences --------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("skin", [LIGHT_SKIN, DARK_SKIN], ids=["light", "dark"])
 def test_hand_mask_matches_the_drawn_hand(skin):
@@ -310,11 +343,11 @@ def test_a_gripper_is_removed_when_its_colour_is_given():
     for i in range(len(scene)):
         assert mask_iou(seg.hand_mask(scene[i], sequence=scene), grippers[i]) > 0.9
         assert mask_iou(seg.segment(scene[i], sequence=scene), box & ~grippers[i]) > 0.85
-        assert not plain.hand_mask(scene[i], sequence=scene).any()      # grey is not skin
+        assert not plain.hand_mask(scene[i], sequence=scene).any()  # grey is not skin
 
 
 def test_given_hand_masks_are_read_from_the_folder(tmp_path):
-    scene, box, hands = waving_scene(3, skin=(120, 200, 120))     # a green glove: no skin colour
+    scene, box, hands = waving_scene(3, skin=(120, 200, 120))  # a green glove: no skin colour
     scene.path = tmp_path
     (tmp_path / "hand").mkdir()
     for i, hand in enumerate(hands):
@@ -395,7 +428,7 @@ def test_an_object_resting_on_the_table_at_the_border_is_kept_when_held():
     scene = Scene(frames, name="box-at-the-border")
     seg = DepthThresholdSegmenter()
     for i in range(len(scene)):
-        taken = seg.hand_mask(scene[i], sequence=scene) & box & ~hands[i]     # the hand outline's mixed pixels
+        taken = seg.hand_mask(scene[i], sequence=scene) & box & ~hands[i]  # the hand outline's mixed pixels
         assert np.count_nonzero(taken) < 0.01 * np.count_nonzero(box), i
         assert mask_iou(seg.segment(scene[i], sequence=scene), box & ~hands[i]) > 0.85, i
         choice = seg.choice(scene[i], sequence=scene)

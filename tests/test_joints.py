@@ -21,14 +21,21 @@ from artclass_core.joint_metrics import (
 from artclass_plugins.joints import BICJointParams, chain_pair_motions, fit_joint
 from artclass_plugins.joints.synthetic import synthetic_joint
 
-NOISE_M, NOISE_RAD = 0.001, np.radians(0.5)      # 1 mm and 0.5 degree per axis
+NOISE_M, NOISE_RAD = 0.001, np.radians(0.5)  # 1 mm and 0.5 degree per axis
 UP = np.array([0.0, 0.0, 1.0])
 
 
 def noisy(kind: str, *, n_outliers: int = 0, seed: int = 0, **kw):
     travel = {"revolute": np.radians(74), "prismatic": 0.3, "fixed": 0.0}[kind]
-    return synthetic_joint(kind, travel=kw.pop("travel", travel), noise_m=kw.pop("noise_m", NOISE_M),
-                           noise_rad=kw.pop("noise_rad", NOISE_RAD), n_outliers=n_outliers, seed=seed, **kw)
+    return synthetic_joint(
+        kind,
+        travel=kw.pop("travel", travel),
+        noise_m=kw.pop("noise_m", NOISE_M),
+        noise_rad=kw.pop("noise_rad", NOISE_RAD),
+        n_outliers=n_outliers,
+        seed=seed,
+        **kw,
+    )
 
 
 def aligned(truth, estimate) -> bool:
@@ -36,6 +43,7 @@ def aligned(truth, estimate) -> bool:
 
 
 # -- model choice and accuracy -------------------------------------------------------------------------
+
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
@@ -46,8 +54,9 @@ def test_revolute_is_recovered_and_chosen_over_prismatic(seed):
     assert est.scores["revolute"] < min(est.scores["prismatic"], est.scores["fixed"])
     assert np.degrees(axis_direction_error_rad(truth.direction, est.axis_direction)) < 1.0
     part = truth.poses[0, :3, 3]
-    position_error = axis_position_error_m(truth.point_m, truth.direction, est.axis_point_m, est.axis_direction,
-                                           at_m=part)
+    position_error = axis_position_error_m(
+        truth.point_m, truth.direction, est.axis_point_m, est.axis_direction, at_m=part
+    )
     assert position_error < 0.003
     assert np.degrees(state_error(truth.states, est.states, same_direction=aligned(truth, est))) < 0.5
     assert est.inliers.all() and est.states[0] == 0.0
@@ -59,8 +68,10 @@ def test_prismatic_is_recovered_and_chosen_over_revolute(seed):
     truth = noisy("prismatic", seed=seed)
     est = fit_joint(truth.poses)
     assert est.type == "prismatic" and est.scores["prismatic"] < est.scores["revolute"]
-    assert np.degrees(axis_direction_error_rad(truth.direction, est.axis_direction, sign_invariant=False)) < 1.0
-    assert state_error(truth.states, est.states) < 0.002                        # metres
+    assert (
+        np.degrees(axis_direction_error_rad(truth.direction, est.axis_direction, sign_invariant=False)) < 1.0
+    )
+    assert state_error(truth.states, est.states) < 0.002  # metres
     assert est.state_unit == "m"
 
 
@@ -99,10 +110,16 @@ def test_uncertainties_are_the_size_of_the_errors():
     for seed in range(4):
         truth = noisy("revolute", seed=seed)
         est = fit_joint(truth.poses)
-        ratios.append(axis_direction_error_rad(truth.direction, est.axis_direction) / est.axis_direction_std_rad)
+        ratios.append(
+            axis_direction_error_rad(truth.direction, est.axis_direction) / est.axis_direction_std_rad
+        )
         part = truth.poses[0, :3, 3]
-        ratios.append(axis_position_error_m(truth.point_m, truth.direction, est.axis_point_m, est.axis_direction,
-                                            at_m=part) / est.axis_point_std_m)
+        ratios.append(
+            axis_position_error_m(
+                truth.point_m, truth.direction, est.axis_point_m, est.axis_direction, at_m=part
+            )
+            / est.axis_point_std_m
+        )
         assert np.all(est.states_std[est.inliers] > 0)
     assert max(ratios) < 3.0 and np.median(ratios) > 0.2, ratios
 
@@ -120,7 +137,9 @@ def test_unknown_frames_stay_unknown():
     poses = truth.poses.copy()
     poses[[0, 7, 8]] = np.nan
     est = fit_joint(poses)
-    assert est.type == "revolute" and np.isnan(est.states[[0, 7, 8]]).all() and not est.inliers[[0, 7, 8]].any()
+    assert (
+        est.type == "revolute" and np.isnan(est.states[[0, 7, 8]]).all() and not est.inliers[[0, 7, 8]].any()
+    )
     assert est.states[1] == 0.0, "states count from the first known frame"
 
 
@@ -129,10 +148,12 @@ def test_summary_reads_like_a_sentence():
     est = fit_joint(noisy("revolute").poses)
     tilt = np.degrees(np.arccos(noisy("revolute").direction @ UP))
     text = est.summary(up=UP)
-    assert re.fullmatch(r"revolute joint, axis \d+ deg from vertical, 0-7[345] deg over the video", text), text
+    assert re.fullmatch(r"revolute joint, axis \d+ deg from vertical, 0-7[345] deg over the video", text), (
+        text
+    )
     assert f"axis {tilt:.0f} deg" in text
     assert fit_joint(noisy("prismatic").poses).summary(up=UP).startswith("prismatic joint, direction ")
-    assert "0-30" in fit_joint(noisy("prismatic").poses).summary(up=UP)   # 0-300 mm (0-299 with noise)
+    assert "0-30" in fit_joint(noisy("prismatic").poses).summary(up=UP)  # 0-300 mm (0-299 with noise)
 
 
 @pytest.mark.slow
@@ -143,10 +164,13 @@ def test_same_input_same_result():
     assert a.scores == b.scores
 
 
-@pytest.mark.parametrize("poses, problem", [
-    (np.zeros((5, 3, 3)), "shape"),
-    (np.full((5, 4, 4), np.nan), "at least 3 known poses"),
-])
+@pytest.mark.parametrize(
+    "poses, problem",
+    [
+        (np.zeros((5, 3, 3)), "shape"),
+        (np.full((5, 4, 4), np.nan), "at least 3 known poses"),
+    ],
+)
 def test_bad_poses_raise_one_line(poses, problem):
     with pytest.raises(InputError, match=problem) as err:
         fit_joint(poses)
@@ -155,17 +179,20 @@ def test_bad_poses_raise_one_line(poses, problem):
 
 @pytest.mark.slow
 def test_given_noise_levels_are_used():
-    est = fit_joint(noisy("revolute").poses, params=BICJointParams(sigma_position_m=0.002, sigma_orientation_rad=0.01))
+    est = fit_joint(
+        noisy("revolute").poses, params=BICJointParams(sigma_position_m=0.002, sigma_orientation_rad=0.01)
+    )
     assert est.info["sigma_position_m"] == 0.002 and est.info["sigma_orientation_rad"] == 0.01
 
 
 # -- poses from pairs ------------------------------------------------------------------------------------
 
+
 def test_chain_pair_motions_rebuilds_the_poses():
     truth = noisy("revolute", noise_m=0.0, noise_rad=0.0, n_frames=12)
     P = truth.poses
-    pairs = [(i, i + 2, P[i + 2] @ np.linalg.inv(P[i])) for i in range(0, 10, 2)]      # even frames
-    pairs += [(3, 1, P[1] @ np.linalg.inv(P[3]))]                                       # an island
+    pairs = [(i, i + 2, P[i + 2] @ np.linalg.inv(P[i])) for i in range(0, 10, 2)]  # even frames
+    pairs += [(3, 1, P[1] @ np.linalg.inv(P[3]))]  # an island
     poses = chain_pair_motions(12, pairs, origin_m=P[0, :3, 3])
     even = np.arange(0, 12, 2)
     # the part's origin and its motion are those of the truth (the orientation is the part's at frame 0)
@@ -176,6 +203,7 @@ def test_chain_pair_motions_rebuilds_the_poses():
 
 
 # -- metrics ---------------------------------------------------------------------------------------------
+
 
 def test_axis_direction_error_is_sign_invariant_for_hinges():
     a, b = np.array([0, 0, 1.0]), np.array([0, np.sin(0.1), -np.cos(0.1)])
@@ -197,13 +225,17 @@ def test_state_error_aligns_zero_and_sign():
     truth = np.radians([0, 10, 20, 30, np.nan])
     assert state_error(truth, truth + 0.3) == pytest.approx(0.0)
     assert state_error(truth, -truth, same_direction=False) == pytest.approx(0.0)
-    assert state_error(truth, truth * 1.1) == pytest.approx(np.radians(1.0))     # 0-3 deg off, median 1 deg
+    assert state_error(truth, truth * 1.1) == pytest.approx(np.radians(1.0))  # 0-3 deg off, median 1 deg
     assert np.isnan(state_error([np.nan], [1.0]))
 
 
 def test_joint_type_accuracy():
-    assert joint_type_accuracy(["revolute", "prismatic", "fixed", "revolute"],
-                               ["revolute", "revolute", "fixed", "revolute"]) == 0.75
+    assert (
+        joint_type_accuracy(
+            ["revolute", "prismatic", "fixed", "revolute"], ["revolute", "revolute", "fixed", "revolute"]
+        )
+        == 0.75
+    )
     with pytest.raises(ValueError):
         joint_type_accuracy(["fixed"], [])
 
@@ -212,7 +244,7 @@ def test_part_iou_matches_parts_whatever_their_numbers():
     truth = np.zeros((10, 10), int)
     truth[:, :5], truth[:, 5:] = 1, 2
     estimate = np.where(truth == 1, 7, 3)
-    estimate[:, 4] = 3                       # one column of part 1 given to part 2
+    estimate[:, 4] = 3  # one column of part 1 given to part 2
     scores = part_iou(truth, estimate)
     assert scores == {1: pytest.approx(40 / 50), 2: pytest.approx(50 / 60)}
     assert part_iou(truth, np.zeros_like(truth)) == {1: 0.0, 2: 0.0}
@@ -220,9 +252,11 @@ def test_part_iou_matches_parts_whatever_their_numbers():
 
 # -- the plugin kind -------------------------------------------------------------------------------------
 
+
 @pytest.mark.slow
 def test_hook_register_joint_estimators():
     """The built-in estimator comes from the entry points; a plugin adds its own through the hook."""
+
     class AlwaysFixed(JointEstimator):
         name = "always_fixed"
         description = "calls every joint fixed (test only)"
@@ -236,8 +270,10 @@ def test_hook_register_joint_estimators():
     def register_joint_estimators(register):
         register(AlwaysFixed)
 
-    registry = load_registry(extra_plugins=(SimpleNamespace(register_joint_estimators=register_joint_estimators),),
-                             entry_point_setting="")
+    registry = load_registry(
+        extra_plugins=(SimpleNamespace(register_joint_estimators=register_joint_estimators),),
+        entry_point_setting="",
+    )
     assert registry.names("joint_estimator") == ["always_fixed", "bic"]
     poses = noisy("revolute").poses
     assert registry.create("joint_estimator", "always_fixed").estimate(poses).type == "fixed"
@@ -249,7 +285,9 @@ def test_a_part_moving_freely_gets_no_joint():
     rng = np.random.default_rng(0)
     poses = noisy("fixed").poses
     poses[:, :3, 3] += rng.normal(0, 0.1, (len(poses), 3))
-    poses[:, :3, :3] = Rotation.from_rotvec(rng.normal(0, 0.7, (len(poses), 3))).as_matrix() @ poses[:, :3, :3]
+    poses[:, :3, :3] = (
+        Rotation.from_rotvec(rng.normal(0, 0.7, (len(poses), 3))).as_matrix() @ poses[:, :3, :3]
+    )
     est = fit_joint(poses)
     assert est.type == "free" and est.axis_direction is None and np.isnan(est.states).all()
     assert est.summary(up=UP).startswith("free motion: no single joint explains the part's motion")

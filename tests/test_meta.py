@@ -40,15 +40,25 @@ SPECS = [(where, cls, spec) for where, cls in PARAMS for spec in describe(cls)]
 
 
 def test_hooks_are_found():
-    assert {"register_readers", "register_segmenters", "register_preprocessors", "register_registrars",
-            "register_rules", "register_joint_estimators", "register_commands"} <= set(HOOKS)
+    assert {
+        "register_readers",
+        "register_segmenters",
+        "register_preprocessors",
+        "register_registrars",
+        "register_rules",
+        "register_joint_estimators",
+        "register_commands",
+    } <= set(HOOKS)
 
 
 @pytest.mark.parametrize("hook", HOOKS)
 def test_hook_has_a_test(hook):
     """Some test module other than this one names the hook (e.g. ``test_hook_register_rules``)."""
-    users = [p.name for p in TESTS.glob("test_*.py")
-             if p.name != Path(__file__).name and re.search(rf"\b{hook}\b", p.read_text())]
+    users = [
+        p.name
+        for p in TESTS.glob("test_*.py")
+        if p.name != Path(__file__).name and re.search(rf"\b{hook}\b", p.read_text())
+    ]
     assert users, f"no test exercises the hook {hook}: add e.g. test_hook_{hook} under tests/"
 
 
@@ -76,27 +86,42 @@ def test_guide_documents_no_unknown_hook():
 
 def test_parameters_are_collected():
     kinds = {where.split()[0] for where, _ in PARAMS}
-    assert {"pipeline", "reader", "segmenter", "preprocessor", "registrar", "rule", "joint_estimator"} <= kinds
+    assert {
+        "pipeline",
+        "reader",
+        "segmenter",
+        "preprocessor",
+        "registrar",
+        "rule",
+        "joint_estimator",
+    } <= kinds
     assert len(SPECS) >= 15
 
 
 @pytest.mark.parametrize("where,cls,spec", SPECS, ids=[f"{w}.{s.name}" for w, _, s in SPECS])
 def test_parameter_is_described(where, cls, spec):
     name = f"{where} {cls.__name__}.{spec.name}"
-    assert len(spec.help.strip()) >= 10, \
+    assert len(spec.help.strip()) >= 10, (
         f"{name}: help must be a sentence saying what the parameter does, got {spec.help!r}"
+    )
     if spec.type in (int, float):
-        assert spec.unit, (f"{name}: a numeric parameter needs a unit (metres 'm', 'rad', 'frames', ...) or "
-                           f"the dimensionless marker {DIMENSIONLESS!r}")
+        assert spec.unit, (
+            f"{name}: a numeric parameter needs a unit (metres 'm', 'rad', 'frames', ...) or "
+            f"the dimensionless marker {DIMENSIONLESS!r}"
+        )
         low, high = spec.bounds
-        assert low is not None and high is not None, f"{name}: a numeric parameter needs both bounds, got {spec.bounds}"
+        assert low is not None and high is not None, (
+            f"{name}: a numeric parameter needs both bounds, got {spec.bounds}"
+        )
         assert low <= high, f"{name}: bounds {spec.bounds} are reversed"
         if spec.default is not None:
             assert low <= spec.default <= high, f"{name}: default {spec.default} outside {spec.bounds}"
     if spec.default is None:
         assert spec.auto, f"{name}: default None needs `auto` saying how the value is derived"
     if spec.symbol:
-        assert spec.symbol in PAPER_SYMBOLS, f"{name}: symbol {spec.symbol!r} is not one of the paper's {PAPER_SYMBOLS}"
+        assert spec.symbol in PAPER_SYMBOLS, (
+            f"{name}: symbol {spec.symbol!r} is not one of the paper's {PAPER_SYMBOLS}"
+        )
     if spec.choices:
         assert spec.default is None or spec.default in spec.choices, f"{name}: default not among the choices"
 
@@ -104,4 +129,6 @@ def test_parameter_is_described(where, cls, spec):
 def test_every_paper_symbol_is_a_parameter():
     """The paper's v, r, s, x, q_bar, t_bar, k, w and alpha are each exposed by some built-in parameter."""
     declared = {spec.symbol for _, _, spec in SPECS}
-    assert set(PAPER_SYMBOLS) <= declared, f"paper symbols without a parameter: {set(PAPER_SYMBOLS) - declared}"
+    assert set(PAPER_SYMBOLS) <= declared, (
+        f"paper symbols without a parameter: {set(PAPER_SYMBOLS) - declared}"
+    )

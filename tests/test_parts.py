@@ -23,8 +23,8 @@ from artclass_core.types import (
 )
 
 K = Intrinsics(500.0, 500.0, 160.0, 120.0, 320, 240)
-HINGE = np.array([0.0, 0.0, 0.8])            # camera frame of frame 0, metres
-AXIS = np.array([0.0, 1.0, 0.0])             # vertical (the camera's y)
+HINGE = np.array([0.0, 0.0, 0.8])  # camera frame of frame 0, metres
+AXIS = np.array([0.0, 1.0, 0.0])  # vertical (the camera's y)
 N_FRAMES, K_PAIRS = 24, 4
 rng = np.random.default_rng(1)
 
@@ -57,7 +57,9 @@ def _carry(f: int, carried: bool) -> np.ndarray:
     """Where the hand has moved the whole object in frame f (camera frame)."""
     if not carried:
         return np.eye(4)
-    return _T(Rotation.from_rotvec([0.0, 0.004 * f, 0.002 * f]).as_matrix(), np.array([0.002, 0.001, 0.0]) * f)
+    return _T(
+        Rotation.from_rotvec([0.0, 0.004 * f, 0.002 * f]).as_matrix(), np.array([0.002, 0.001, 0.0]) * f
+    )
 
 
 def _cloud(f: int, carried: bool) -> tuple[Cloud, np.ndarray]:
@@ -90,13 +92,31 @@ def run_result(*, carried: bool = False, hidden: range = range(0), label: str = 
         if found:
             motions.append(Motion(lid, "cell 1", int((part_a == 1).sum()), 0.01))
         labels = np.r_[part_a, part_b] if found else np.zeros(len(part_a) + len(part_b), int)
-        ev = MotionEvidence(np.stack([m.T_target_from_source for m in motions]), [m.name for m in motions],
-                            np.zeros((len(motions), len(labels)), np.float32), np.zeros((len(motions), len(labels)), np.int8),
-                            np.zeros((len(motions), len(labels)), np.float32), 0.001, np.vstack([a.points, b.points]),
-                            np.vstack([a.pixels, b.pixels]), 0.0016, {"stride_px": 1}, n_source=len(a.points))
+        ev = MotionEvidence(
+            np.stack([m.T_target_from_source for m in motions]),
+            [m.name for m in motions],
+            np.zeros((len(motions), len(labels)), np.float32),
+            np.zeros((len(motions), len(labels)), np.int8),
+            np.zeros((len(motions), len(labels)), np.float32),
+            0.001,
+            np.vstack([a.points, b.points]),
+            np.vstack([a.pixels, b.pixels]),
+            0.0016,
+            {"stride_px": 1},
+            n_source=len(a.points),
+        )
         pairs.append(PairResult(i, j, "AM" if found else "RM", motions=motions, labels=labels, evidence=ev))
-    return RunResult(dict(name="flap", path="", object="flap", n_frames=N_FRAMES, truth=label), label, {}, pairs,
-                     [p.decision for p in pairs], frames, {}, {}, {})
+    return RunResult(
+        dict(name="flap", path="", object="flap", n_frames=N_FRAMES, truth=label),
+        label,
+        {},
+        pairs,
+        [p.decision for p in pairs],
+        frames,
+        {},
+        {},
+        {},
+    )
 
 
 @pytest.fixture(scope="module")
@@ -151,7 +171,7 @@ def test_labels_become_part_images(bic):
     assert image.shape == (K.height, K.width)
     u, v = cloud.pixels.T
     agree = image[v, u] == part + 1
-    assert agree.mean() > 0.97            # points sharing a pixel with the other part may differ
+    assert agree.mean() > 0.97  # points sharing a pixel with the other part may differ
     assert art.label_image(99) is None
 
 
@@ -175,11 +195,11 @@ def test_frame_states_from_pair_differences():
     """States from the differences of interleaved pairs (i, i + 3), with a gap: each chain is exact,
     and the constant-speed term places the chains relative to each other and bridges the gap."""
     truth = np.linspace(0.0, 1.0, 16) ** 2
-    pairs = [(i, i + 3) for i in range(13) if not {i, i + 3} & {6, 7, 8}]     # frames 6-8 unseen
+    pairs = [(i, i + 3) for i in range(13) if not {i, i + 3} & {6, 7, 8}]  # frames 6-8 unseen
     deltas = np.array([truth[j] - truth[i] for i, j in pairs])
     states, std = frame_states(16, pairs, deltas, np.full(len(pairs), 0.01), smoothness=1e-3)
     assert np.isnan(states[6:9]).all() and np.isfinite(np.delete(states, [6, 7, 8])).all()
-    np.testing.assert_allclose(states[[0, 3]], truth[[0, 3]], atol=1e-6)       # frame 0's chain, exact
+    np.testing.assert_allclose(states[[0, 3]], truth[[0, 3]], atol=1e-6)  # frame 0's chain, exact
     np.testing.assert_allclose(np.delete(states, [6, 7, 8]), np.delete(truth, [6, 7, 8]), atol=0.05)
     assert std[0] == 0 and (std[np.isfinite(states)][1:] > 0).all()
 
@@ -189,15 +209,26 @@ def test_chain_interleaved_ties_the_chains():
     pairs = [(i, i + 3, poses[i + 3] @ np.linalg.inv(poses[i])) for i in range(7)]
     out = chain_interleaved(10, pairs)
     np.testing.assert_allclose(out[::3], np.stack(poses[::3]), atol=1e-9)
-    np.testing.assert_allclose(out, np.stack(poses), atol=1e-3)       # the others: interpolated, then chained
+    np.testing.assert_allclose(out, np.stack(poses), atol=1e-3)  # the others: interpolated, then chained
 
 
 def test_score_against_the_truth(bic):
     art = find_articulation(run_result(), estimator=bic)
-    truth = dict(parts=[dict(parent=-1, joint=None), dict(parent=0, joint=0)],
-                 joints=[dict(type="revolute", parent=0, child=1, state=list(STATES), axis_camera0=[AXIS] * N_FRAMES,
-                              origin_camera0_m=[HINGE] * N_FRAMES)],
-                 part_points_m=[[BASE.tolist(), LID.tolist()]], part_poses=[[np.eye(4).tolist()] * 2])
+    truth = dict(
+        parts=[dict(parent=-1, joint=None), dict(parent=0, joint=0)],
+        joints=[
+            dict(
+                type="revolute",
+                parent=0,
+                child=1,
+                state=list(STATES),
+                axis_camera0=[AXIS] * N_FRAMES,
+                origin_camera0_m=[HINGE] * N_FRAMES,
+            )
+        ],
+        part_points_m=[[BASE.tolist(), LID.tolist()]],
+        part_poses=[[np.eye(4).tolist()] * 2],
+    )
     images = {}
     for f in art.frames:
         cloud, part = _cloud(f, False)
@@ -224,14 +255,19 @@ def test_the_urdf_of_a_found_hinge_moves_like_the_flap(bic, tmp_path):
     from artclass_plugins.joints.urdf import model_from_articulation, write_urdf
 
     art = find_articulation(run_result(), estimator=bic)
-    robot = yourdfpy.URDF.load(str(write_urdf(model_from_articulation(art, name="flap"), tmp_path)),
-                               build_scene_graph=True, load_meshes=True)
+    robot = yourdfpy.URDF.load(
+        str(write_urdf(model_from_articulation(art, name="flap"), tmp_path)),
+        build_scene_graph=True,
+        load_meshes=True,
+    )
     (joint,) = robot.joint_map.values()
     assert (joint.parent, joint.child, joint.type) == ("base", "part1", "revolute")
     f = 15
     robot.update_cfg({joint.name: art.joints[0].estimate.states[f]})
     mesh = robot.scene.geometry["part1.ply"].vertices
-    placed = mesh @ robot.get_transform("part1", "base")[:3, :3].T + robot.get_transform("part1", "base")[:3, 3]
+    placed = (
+        mesh @ robot.get_transform("part1", "base")[:3, :3].T + robot.get_transform("part1", "base")[:3, 3]
+    )
     flap = LID @ _hinge(STATES[f])[:3, :3].T + _hinge(STATES[f])[:3, 3]
     np.testing.assert_allclose(np.sort(placed, axis=0)[[0, -1]], np.sort(flap, axis=0)[[0, -1]], atol=0.003)
 
@@ -246,15 +282,36 @@ def test_evaluation_reports_parts_and_joints():
         o.joints = dict(part_iou=iou if joints else None, joints=joints)
         return o
 
-    hinge = dict(type="revolute", true_type="revolute", axis_direction_error_deg=2.0, axis_position_error_mm=8.0,
-                 state_error=1.0, state_unit="deg")
-    slide = dict(type="revolute", true_type="prismatic", axis_direction_error_deg=6.0, axis_position_error_mm=None,
-                 state_error=4.0, state_unit="mm")
-    outs = [outcome("laptop_a", "articulated", [hinge]), outcome("drawer_a", "articulated", [slide], iou=0.6),
-            outcome("drawer_b", "articulated", []), outcome("mug_a", "rigid", []),
-            outcome("book_a", "rigid", [dict(hinge, true_type=None)])]
+    hinge = dict(
+        type="revolute",
+        true_type="revolute",
+        axis_direction_error_deg=2.0,
+        axis_position_error_mm=8.0,
+        state_error=1.0,
+        state_unit="deg",
+    )
+    slide = dict(
+        type="revolute",
+        true_type="prismatic",
+        axis_direction_error_deg=6.0,
+        axis_position_error_mm=None,
+        state_error=4.0,
+        state_unit="mm",
+    )
+    outs = [
+        outcome("laptop_a", "articulated", [hinge]),
+        outcome("drawer_a", "articulated", [slide], iou=0.6),
+        outcome("drawer_b", "articulated", []),
+        outcome("mug_a", "rigid", []),
+        outcome("book_a", "rigid", [dict(hinge, true_type=None)]),
+    ]
     j = Evaluation("dense", outs, {}).metrics()["joints"]
-    assert (j["n_articulated"], j["n_with_part"], j["n_not_articulated"], j["not_articulated_with_joint"]) == (3, 2, 2, 1)
+    assert (
+        j["n_articulated"],
+        j["n_with_part"],
+        j["n_not_articulated"],
+        j["not_articulated_with_joint"],
+    ) == (3, 2, 2, 1)
     assert j["n_joints"] == 2 and j["joint_type_accuracy"] == 0.5
     assert j["axis_direction_error_deg"] == 4.0 and j["axis_position_error_mm"] == 8.0
     assert (j["state_error_deg"], j["state_error_mm"], j["part_iou"]) == (1.0, 4.0, pytest.approx(0.7))

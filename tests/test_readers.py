@@ -51,10 +51,12 @@ needs_ycbv = pytest.mark.skipif(not YCBV.is_dir(), reason=f"real data folder {YC
 # 0.2 mm (TUM, 5000/m); the RBO text matrix keeps 1 um.
 DEPTH_TOL_M = dict(folder=6e-4, ycbv=6e-5, tum=1.1e-4, rbo=2e-6)
 # The functions each reader module calls to read one frame's files (patched to count file reads).
-FRAME_READERS = dict(folder=(folder_mod, ("read_rgb", "read_depth", "read_mask")),
-                     ycbv=(ycbv_mod, ("read_rgb", "read_depth", "read_label")),
-                     rbo=(rbo_mod, ("read_rgb", "read_depth_txt")),
-                     tum=(tum_mod, ("read_rgb", "read_depth")))
+FRAME_READERS = dict(
+    folder=(folder_mod, ("read_rgb", "read_depth", "read_mask")),
+    ycbv=(ycbv_mod, ("read_rgb", "read_depth", "read_label")),
+    rbo=(rbo_mod, ("read_rgb", "read_depth_txt")),
+    tum=(tum_mod, ("read_rgb", "read_depth")),
+)
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +76,7 @@ def test_builtin_readers_are_registered():
     for name in LAYOUTS:
         cls = REGISTRY.get("reader", name)
         assert cls.description and "\n" not in cls.description
-        cls.Params()   # defaults within bounds
+        cls.Params()  # defaults within bounds
 
 
 @pytest.mark.parametrize("reader", READERS)
@@ -84,7 +86,12 @@ def test_reader_returns_nothing_for_foreign_folders(reader, layouts, tmp_path):
     plain_file = tmp_path / "notes.txt"
     plain_file.write_text("not a dataset\n")
     r = REGISTRY.create("reader", reader)
-    for path in (empty, plain_file, tmp_path / "missing", *(p for name, p in layouts.items() if name != reader)):
+    for path in (
+        empty,
+        plain_file,
+        tmp_path / "missing",
+        *(p for name, p in layouts.items() if name != reader),
+    ):
         assert r.sequences(path) == [], f"reader {reader!r} claimed {path}"
 
 
@@ -101,17 +108,20 @@ def test_frames_are_read_lazily(layout, layouts, monkeypatch):
     calls: list[str] = []
     for fname in names:
         original = getattr(module, fname)
-        monkeypatch.setattr(module, fname,
-                            lambda path, *a, _f=original, **kw: (calls.append(str(path)), _f(path, *a, **kw))[1])
+        monkeypatch.setattr(
+            module,
+            fname,
+            lambda path, *a, _f=original, **kw: (calls.append(str(path)), _f(path, *a, **kw))[1],
+        )
     seq = first_sequence(layouts[layout], layout)
-    assert len(calls) <= 1, f"sequences() read frame files up front: {calls}"   # at most one, for the size
+    assert len(calls) <= 1, f"sequences() read frame files up front: {calls}"  # at most one, for the size
     calls.clear()
     frame = seq[5]
     assert frame.index == 5
     assert len(calls) == len(names) and len(set(calls)) == len(names), calls
     assert any(frame.name in Path(c).name for c in calls)
     calls.clear()
-    seq[5]                    # cached
+    seq[5]  # cached
     assert calls == []
 
 
@@ -127,7 +137,7 @@ def test_frames_have_the_documented_types_and_exact_depth(layout, layouts):
             truth = render(angles(8, moving=moving)[i], seed=i)
             assert f.rgb.dtype == np.uint8 and f.rgb.shape == (HEIGHT, WIDTH, 3)
             assert f.depth_m.dtype == np.float32 and f.depth_m.shape == (HEIGHT, WIDTH)
-            np.testing.assert_array_equal(f.rgb, truth.rgb)          # RGB order, lossless
+            np.testing.assert_array_equal(f.rgb, truth.rgb)  # RGB order, lossless
             valid = f.depth_m > 0
             assert valid.mean() > 0.99
             np.testing.assert_allclose(f.depth_m[valid], truth.depth_m[valid], atol=DEPTH_TOL_M[layout])
@@ -141,8 +151,10 @@ def test_folder_reader(layouts, tmp_path):
     assert (seq.intrinsics.fx, seq.intrinsics.fy, seq.intrinsics.cx, seq.intrinsics.cy) == (FX, FY, CX, CY)
     for i in (0, 7):
         np.testing.assert_array_equal(seq[i].mask, render(angles(8)[i]).mask)
-    assert seq.pair_truth(0, 5) == "AM"          # the flap turns 0.43 rad over 5 frames
-    still = first_sequence(write_folder(tmp_path, "still", moving=False, label="static", masks=False), "folder")
+    assert seq.pair_truth(0, 5) == "AM"  # the flap turns 0.43 rad over 5 frames
+    still = first_sequence(
+        write_folder(tmp_path, "still", moving=False, label="static", masks=False), "folder"
+    )
     assert still.has_masks is False and still[0].mask is None
     assert still.pair_truth(0, 5) == "NM"
     # Masks that do not match the frames are bad input, named.
@@ -157,41 +169,50 @@ def test_folder_pair_truth_follows_what_the_sensor_sees_of_the_part(tmp_path):
     seq_dir = write_folder(tmp_path, "seen")
     truth = json.loads((seq_dir / "truth.json").read_text())
     q = truth["joint_positions"]
-    assert abs(q[5] - q[0]) > np.radians(3)                  # the joint truth alone says AM
+    assert abs(q[5] - q[0]) > np.radians(3)  # the joint truth alone says AM
 
     def truth_with(share, reach_m):
         truth["part_visibility"] = [{"share": share, "axis_distance_m": reach_m}] * len(q)
         (seq_dir / "truth.json").write_text(json.dumps(truth))
         return first_sequence(seq_dir, "folder").pair_truth(0, 5)
 
-    assert truth_with(0.3, 0.10) == "AM"                      # a large part, its far end moves centimetres
-    assert truth_with(0.02, 0.10) is None                     # the part is barely in view (seen edge-on)
-    assert truth_with(0.3, 0.002) == "NM"                     # its visible points stay within a millimetre
-    assert truth_with(0.3, 0.008) is None                     # 1-5 mm: within the ambiguous band
+    assert truth_with(0.3, 0.10) == "AM"  # a large part, its far end moves centimetres
+    assert truth_with(0.02, 0.10) is None  # the part is barely in view (seen edge-on)
+    assert truth_with(0.3, 0.002) == "NM"  # its visible points stay within a millimetre
+    assert truth_with(0.3, 0.008) is None  # 1-5 mm: within the ambiguous band
 
 
-
-def _two_part_truth(motion_of_part: np.ndarray, *, part_px: int = 5000, noise_a_m: float = 0.0012,
-                    n_frames: int = 2) -> dict:
+def _two_part_truth(
+    motion_of_part: np.ndarray, *, part_px: int = 5000, noise_a_m: float = 0.0012, n_frames: int = 2
+) -> dict:
     """Hand-made observable truth: a 30 x 30 cm grey base and a 10 x 2 cm flat lever lying on it,
     1 m in front of the camera, the lever seen on ``part_px`` pixels. Frame 1 moves the lever by
     ``motion_of_part`` (4x4, in the base's frame); nothing else moves. The points are in a plane (a
     texture-less surface turning in its own plane looks the same to the camera)."""
     camera_from_base = np.eye(4)
     camera_from_base[2, 3] = 1.0
-    grid = np.stack(np.meshgrid(np.linspace(-0.15, 0.15, 16), np.linspace(-0.15, 0.15, 16)), -1).reshape(-1, 2)
+    grid = np.stack(np.meshgrid(np.linspace(-0.15, 0.15, 16), np.linspace(-0.15, 0.15, 16)), -1).reshape(
+        -1, 2
+    )
     base = np.column_stack([grid, np.zeros(len(grid))])
-    lever = np.column_stack([np.linspace(0.0, 0.10, 64).repeat(4), np.tile(np.linspace(-0.01, 0.01, 4), 64),
-                             np.full(256, -0.005)])                  # from its pivot at the origin
-    poses = [[camera_from_base.tolist(), (camera_from_base @ np.linalg.matrix_power(motion_of_part, f)).tolist()]
-             for f in range(n_frames)]
+    lever = np.column_stack(
+        [np.linspace(0.0, 0.10, 64).repeat(4), np.tile(np.linspace(-0.01, 0.01, 4), 64), np.full(256, -0.005)]
+    )  # from its pivot at the origin
+    poses = [
+        [camera_from_base.tolist(), (camera_from_base @ np.linalg.matrix_power(motion_of_part, f)).tolist()]
+        for f in range(n_frames)
+    ]
     return dict(
-        object_poses=[camera_from_base.tolist()] * n_frames, joint_type="revolute",
+        object_poses=[camera_from_base.tolist()] * n_frames,
+        joint_type="revolute",
         parts=[dict(name="base", parent=-1, joint=None), dict(name="lever", parent=0, joint=0)],
-        part_poses=poses, part_valid_px=[[40000, part_px]] * n_frames,
+        part_poses=poses,
+        part_valid_px=[[40000, part_px]] * n_frames,
         part_points_m=[[base.tolist(), lever.tolist()]] * n_frames,
-        sensor=dict(fx_px=570.0, axial_a_m=noise_a_m, axial_b_per_m=0.0019, axial_reference_m=0.4,
-                    depth_step_m=0.001))
+        sensor=dict(
+            fx_px=570.0, axial_a_m=noise_a_m, axial_b_per_m=0.0019, axial_reference_m=0.4, depth_step_m=0.001
+        ),
+    )
 
 
 def _turn_z(angle_deg: float) -> np.ndarray:
@@ -210,7 +231,7 @@ def _shift_x(d_m: float) -> np.ndarray:
 def test_observable_truth_thresholds_follow_the_sensor_noise():
     truth = folder_mod.observable_pair_truth
     # At 1 m: sigma = 1.2 mm + 1.9 mm/m * 0.36 m^2 = 1.88 mm; one pixel = 1.75 mm; AM above 7.4 mm.
-    sigma, pixel = 0.0012 + 0.0019 * 0.6 ** 2, 1.0 / 570.0
+    sigma, pixel = 0.0012 + 0.0019 * 0.6**2, 1.0 / 570.0
     # A lever turning 10 degrees in its own plane about its pivot: its median point (5 cm out) moves
     # 8.7 mm, and so does the base's median point (about 5 cm from the pivot) in the lever's frame.
     assert truth(_two_part_truth(_turn_z(10.0)), 0, 1) == "AM"
@@ -223,25 +244,25 @@ def test_observable_truth_thresholds_follow_the_sensor_noise():
     assert truth(_two_part_truth(_shift_x(3 * sigma + pixel + 0.0005)), 0, 1) == "AM"
     # A part the sensor sees on too few pixels shows no articulation, however far it moves.
     assert truth(_two_part_truth(_turn_z(30.0), part_px=25), 0, 1) == "NM"
-    assert truth(_two_part_truth(_turn_z(30.0), part_px=799), 0, 1) == "NM"    # < 2 % of the object
+    assert truth(_two_part_truth(_turn_z(30.0), part_px=799), 0, 1) == "NM"  # < 2 % of the object
     assert truth(_two_part_truth(_turn_z(30.0), part_px=1000), 0, 1) == "AM"
 
 
 def test_observable_truth_judges_each_side_in_the_others_frame():
     # A lever turning about an axis through its own median point barely moves its median point, but
     # the base's points, seen from the lever, swing round by centimetres: the smaller side decides.
-    spin = np.linalg.inv(_shift_x(0.05)) @ _turn_z(1.0) @ _shift_x(0.05)    # about the lever's centre
+    spin = np.linalg.inv(_shift_x(0.05)) @ _turn_z(1.0) @ _shift_x(0.05)  # about the lever's centre
     motions = folder_mod.observable_joint_motions(_two_part_truth(spin), 0, 1)
     (m,) = motions
     assert m["valid"] and m["moving"]["displacement_m"] < m["rest"]["displacement_m"]
-    assert m["moving"]["depth_m"] == pytest.approx(0.995, abs=1e-3)     # the lever lies 5 mm nearer
+    assert m["moving"]["depth_m"] == pytest.approx(0.995, abs=1e-3)  # the lever lies 5 mm nearer
 
 
 def test_folder_pair_truth_is_observable_for_new_truth_and_legacy_for_old(tmp_path):
     seq_dir = write_folder(tmp_path, "both")
     old = json.loads((seq_dir / "truth.json").read_text())
     seq = first_sequence(seq_dir, "folder")
-    assert seq.pair_truth(0, 5) == seq.pair_truth_legacy(0, 5) == "AM"      # old truth: old rule
+    assert seq.pair_truth(0, 5) == seq.pair_truth_legacy(0, 5) == "AM"  # old truth: old rule
     # With per-part data, the observable rule decides: a 0.5 mm motion per frame is no articulation.
     new = dict(old, **_two_part_truth(_shift_x(0.0005), n_frames=len(old["joint_positions"])))
     (seq_dir / "truth.json").write_text(json.dumps(new))
@@ -300,12 +321,17 @@ def test_ycbv_missing_frame_file_is_named(tmp_path):
 
 def test_rbo_reader(layouts, tmp_path):
     seq = first_sequence(layouts["rbo"], "rbo")
-    assert (seq.name, seq.object_name, seq.label, seq.has_masks) == ("flapbox01_o", "flapbox", "articulated", False)
+    assert (seq.name, seq.object_name, seq.label, seq.has_masks) == (
+        "flapbox01_o",
+        "flapbox",
+        "articulated",
+        False,
+    )
     assert (seq.intrinsics.fx, seq.intrinsics.cy) == (FX, CY)
-    assert len(seq) == 8 and seq.meta["n_rgb"] == 9          # the colour frame without depth is dropped
+    assert len(seq) == 8 and seq.meta["n_rgb"] == 9  # the colour frame without depth is dropped
     times = [seq[i].time_s for i in range(8)]
     np.testing.assert_allclose(np.diff(times), 1 / RBO_RATE_HZ, atol=1e-5)
-    assert seq[0].depth_m[0, 0] == 0.0                         # NaN = no reading -> 0
+    assert seq[0].depth_m[0, 0] == 0.0  # NaN = no reading -> 0
     np.testing.assert_allclose([seq.joint_positions(i)["j_0_1"] for i in range(8)], angles(8), atol=1e-5)
     assert [seq.pair_truth(i, i + 5) for i in range(3)] == ["AM"] * 3
 
@@ -338,9 +364,14 @@ def test_rbo_without_joint_states_has_no_truth(tmp_path):
 def test_tum_reader(layouts, tmp_path):
     seq = first_sequence(layouts["tum"], "tum")
     assert seq.label is None and seq.has_masks is False
-    assert len(seq) == 8 and seq.meta["n_associated"] == 8     # the unpaired depth frame is left out
+    assert len(seq) == 8 and seq.meta["n_associated"] == 8  # the unpaired depth frame is left out
     assert seq.meta["intrinsics_source"] == "freiburg1"
-    assert (seq.intrinsics.fx, seq.intrinsics.fy, seq.intrinsics.cx, seq.intrinsics.cy) == (517.3, 516.5, 318.6, 255.3)
+    assert (seq.intrinsics.fx, seq.intrinsics.fy, seq.intrinsics.cx, seq.intrinsics.cy) == (
+        517.3,
+        516.5,
+        318.6,
+        255.3,
+    )
     assert seq.pair_truth(0, 5) is None
     np.testing.assert_allclose(seq.world_from_camera(3)[:3, 3], [0.003, 0, 0])
     # No calibration in the folder name: the ROS default.
@@ -348,12 +379,19 @@ def test_tum_reader(layouts, tmp_path):
     s = first_sequence(plain, "tum")
     assert s.meta["intrinsics_source"] == "ros_default" and s.intrinsics.fx == 525.0
     # meta.json gives intrinsics and a label.
-    own = write_tum(tmp_path, "rgbd_dataset_freiburg2_labelled",
-                    config=dict(fx=FX, fy=FY, cx=CX, cy=CY, label="articulated", object="flap_box"))
-    s = first_sequence(own)          # through open_sequences: the folder reader must not claim it
+    own = write_tum(
+        tmp_path,
+        "rgbd_dataset_freiburg2_labelled",
+        config=dict(fx=FX, fy=FY, cx=CX, cy=CY, label="articulated", object="flap_box"),
+    )
+    s = first_sequence(own)  # through open_sequences: the folder reader must not claim it
     assert type(s).__name__ == "TumSequence"
-    assert (s.intrinsics.fx, s.label, s.object_name, s.meta["intrinsics_source"]) == (FX, "articulated", "flap_box",
-                                                                                       "meta.json")
+    assert (s.intrinsics.fx, s.label, s.object_name, s.meta["intrinsics_source"]) == (
+        FX,
+        "articulated",
+        "flap_box",
+        "meta.json",
+    )
 
 
 def test_tum_bad_list_line_is_named(tmp_path):
@@ -367,7 +405,7 @@ def test_tum_bad_list_line_is_named(tmp_path):
 def test_associate_is_greedy_one_to_one():
     # Depth 0.010 is 0.002 from colour 0.012 and 0.010 from colour 0.0: it goes to the closer one.
     assert associate([0.0, 0.012], [0.010], max_diff_s=0.02) == [(1, 0)]
-    assert associate([0.0, 1.0], [0.019, 1.02], max_diff_s=0.02) == [(0, 0)]     # 0.02 is not < 0.02
+    assert associate([0.0, 1.0], [0.019, 1.02], max_diff_s=0.02) == [(0, 0)]  # 0.02 is not < 0.02
     assert associate([2.0, 1.0], [1.001, 2.001], max_diff_s=0.02) == [(0, 1), (1, 0)]
     assert associate([], [1.0], max_diff_s=0.02) == []
 
@@ -382,9 +420,15 @@ def test_find_sequences_over_mixed_layouts(tmp_path):
     before = snapshot(tmp_path)
 
     found, errors = find_sequences(REGISTRY, tmp_path, labelled_only=False)
-    assert sorted(s.name for s in found) == sorted(["folder_seq", "0000/025_mug", "0000/061_foam_brick",
-                                                    "flapbox01_o", "rgbd_dataset_freiburg1_flapbox"])
-    assert {type(s).__name__ for s in found} == {"FolderSequence", "YcbvSequence", "RboSequence", "TumSequence"}
+    assert sorted(s.name for s in found) == sorted(
+        ["folder_seq", "0000/025_mug", "0000/061_foam_brick", "flapbox01_o", "rgbd_dataset_freiburg1_flapbox"]
+    )
+    assert {type(s).__name__ for s in found} == {
+        "FolderSequence",
+        "YcbvSequence",
+        "RboSequence",
+        "TumSequence",
+    }
     assert len(errors) == 1 and errors[0].path == str(bad / "meta.json") and "'fx'" in errors[0].problem
     labelled, _ = find_sequences(REGISTRY, tmp_path)
     assert "rgbd_dataset_freiburg1_flapbox" not in {s.name for s in labelled} and len(labelled) == 4
@@ -399,8 +443,8 @@ def test_find_sequences_follows_links_and_ends_a_link_loop(tmp_path):
     write_folder(data / "real", "seq")
     picked = tmp_path / "picked"
     picked.mkdir()
-    (picked / "seq").symlink_to(data / "real" / "seq", target_is_directory=True)   # a hand-picked subset
-    (picked / "again").symlink_to(picked, target_is_directory=True)                 # a loop
+    (picked / "seq").symlink_to(data / "real" / "seq", target_is_directory=True)  # a hand-picked subset
+    (picked / "again").symlink_to(picked, target_is_directory=True)  # a loop
     found, errors = find_sequences(REGISTRY, picked, labelled_only=False)
     assert [s.name for s in found] == ["seq"] and not errors
 
@@ -408,8 +452,12 @@ def test_find_sequences_follows_links_and_ends_a_link_loop(tmp_path):
 def test_open_sequences_selects_by_name(layouts):
     scene = layouts["ycbv"]
     assert [s.name for s in open_sequences(REGISTRY, f"{scene}#025_mug")] == ["0000/025_mug"]
-    assert [s.name for s in open_sequences(REGISTRY, f"{scene}#0000/061_foam_brick")] == ["0000/061_foam_brick"]
-    with pytest.raises(InputError, match="no sequence named 'banana'; found: 0000/025_mug, 0000/061_foam_brick"):
+    assert [s.name for s in open_sequences(REGISTRY, f"{scene}#0000/061_foam_brick")] == [
+        "0000/061_foam_brick"
+    ]
+    with pytest.raises(
+        InputError, match="no sequence named 'banana'; found: 0000/025_mug, 0000/061_foam_brick"
+    ):
         open_sequences(REGISTRY, f"{scene}#banana")
 
 
@@ -417,13 +465,20 @@ def test_open_sequences_selects_by_name(layouts):
 @needs_ycbv
 def test_ycbv_real_scenes_list_their_objects():
     r = REGISTRY.create("reader", "ycbv")
-    assert [s.name for s in r.sequences(YCBV / "0000")] == ["0000/009_gelatin_box", "0000/025_mug",
-                                                             "0000/061_foam_brick"]
+    assert [s.name for s in r.sequences(YCBV / "0000")] == [
+        "0000/009_gelatin_box",
+        "0000/025_mug",
+        "0000/061_foam_brick",
+    ]
     s1 = r.sequences(YCBV / "0001")
-    assert [s.object_name for s in s1] == ["002_master_chef_can", "003_cracker_box", "004_sugar_box",
-                                           "006_mustard_bottle"]
+    assert [s.object_name for s in s1] == [
+        "002_master_chef_can",
+        "003_cracker_box",
+        "004_sugar_box",
+        "006_mustard_bottle",
+    ]
     assert [len(s) for s in s1] == [5] * 4
-    assert r.sequences(YCBV) == []           # the dataset root is not a scene
+    assert r.sequences(YCBV) == []  # the dataset root is not a scene
 
 
 @needs_ycbv
@@ -432,7 +487,7 @@ def test_ycbv_real_frames(monkeypatch):
     original = ycbv_mod.read_rgb
     monkeypatch.setattr(ycbv_mod, "read_rgb", lambda p: (calls.append(p), original(p))[1])
     seqs = REGISTRY.create("reader", "ycbv").sequences(YCBV / "0000")
-    assert calls == []                       # nothing but the first depth and a few meta.mat read up front
+    assert calls == []  # nothing but the first depth and a few meta.mat read up front
     for seq in seqs:
         K = seq.intrinsics
         np.testing.assert_allclose([K.fx, K.fy, K.cx, K.cy], [1066.778, 1067.487, 312.9869, 241.3109])
@@ -460,8 +515,8 @@ def test_ycbv_real_pair_truth_follows_the_camera():
     mug = open_sequences(REGISTRY, f"{YCBV / '0000'}#025_mug")[0]
     truths = {(i, j): mug.pair_truth(i, j) for i in range(10) for j in range(i + 1, 10)}
     assert "AM" not in truths.values()
-    assert truths[(0, 1)] == "NM"                 # under a millimetre between neighbours
-    assert truths[(0, 9)] == "RM"                 # the camera moved about 5 mm over the ten frames
+    assert truths[(0, 1)] == "NM"  # under a millimetre between neighbours
+    assert truths[(0, 9)] == "RM"  # the camera moved about 5 mm over the ten frames
 
 
 @pytest.mark.slow
@@ -498,8 +553,12 @@ class _NpzPlugin:
                 self.data = np.load(path)
                 n, h, w = self.data["depth_m"].shape
                 fx, fy, cx, cy = self.data["K"]
-                super().__init__(name=path.parent.name, path=path, n_frames=n,
-                                 intrinsics=Intrinsics(fx, fy, cx, cy, width=w, height=h))
+                super().__init__(
+                    name=path.parent.name,
+                    path=path,
+                    n_frames=n,
+                    intrinsics=Intrinsics(fx, fy, cx, cy, width=w, height=h),
+                )
 
             def load(self, i):
                 return Frame(i, str(i), self.data["rgb"][i], self.data["depth_m"][i])
@@ -521,8 +580,12 @@ def test_hook_register_readers(tmp_path, layouts):
     seq_dir = tmp_path / "npz_seq"
     seq_dir.mkdir()
     truth = render(0.3)
-    np.savez(seq_dir / "sequence.npz", rgb=truth.rgb[None].repeat(3, 0),
-             depth_m=truth.depth_m[None].repeat(3, 0).astype(np.float32), K=np.array([FX, FY, CX, CY]))
+    np.savez(
+        seq_dir / "sequence.npz",
+        rgb=truth.rgb[None].repeat(3, 0),
+        depth_m=truth.depth_m[None].repeat(3, 0).astype(np.float32),
+        K=np.array([FX, FY, CX, CY]),
+    )
     (seq,) = open_sequences(registry, seq_dir)
     assert type(seq).__name__ == "NpzSequence" and len(seq) == 3
     np.testing.assert_array_equal(seq[2].depth_m, truth.depth_m.astype(np.float32))

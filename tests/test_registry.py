@@ -40,10 +40,12 @@ def plugin_module(name: str, **hooks) -> types.ModuleType:
 
 def segmenter_class(name: str, *, frozen: bool = True, description: str = "a test segmenter"):
     if frozen:
+
         @dataclass(frozen=True)
         class P(Params):
             level: float = param(0.5, unit="1", bounds=(0.0, 1.0), help="a level")
-    else:   # a dataclass cannot be a non-frozen subclass of the frozen Params: a plain mutable one
+    else:  # a dataclass cannot be a non-frozen subclass of the frozen Params: a plain mutable one
+
         @dataclass
         class P:
             level: float = 0.5
@@ -62,10 +64,12 @@ def registering(*classes):
     def register_all(register):
         for cls in classes:
             register(cls)
+
     return register_all
 
 
 # -- entry points -------------------------------------------------------------------------------------
+
 
 def test_builtins_come_from_entry_points():
     names = {ep.name for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
@@ -79,6 +83,7 @@ def test_builtins_come_from_entry_points():
 
 
 # -- ARTCLASS_PLUGINS -----------------------------------------------------------------------------------
+
 
 def test_allow_list_loads_only_those(monkeypatch):
     monkeypatch.setenv("ARTCLASS_PLUGINS", "segmenters, rules")
@@ -105,9 +110,12 @@ def test_setting_argument_overrides_the_environment(monkeypatch):
 
 # -- failures -----------------------------------------------------------------------------------------------
 
+
 def test_a_plugin_that_fails_to_import_is_reported_not_fatal(monkeypatch):
     real = plugins_module.entry_points
-    broken = importlib.metadata.EntryPoint(name="broken", value="artclass_no_such_module_xyz", group=ENTRY_POINT_GROUP)
+    broken = importlib.metadata.EntryPoint(
+        name="broken", value="artclass_no_such_module_xyz", group=ENTRY_POINT_GROUP
+    )
 
     def with_broken(*, group):
         return [*real(group=group), broken]
@@ -124,8 +132,11 @@ def test_a_plugin_that_fails_to_import_is_reported_not_fatal(monkeypatch):
 
 def test_cli_lists_the_failure(monkeypatch, capsys):
     from artclass_core.cli import main
+
     real = plugins_module.entry_points
-    broken = importlib.metadata.EntryPoint(name="broken", value="artclass_no_such_module_xyz", group=ENTRY_POINT_GROUP)
+    broken = importlib.metadata.EntryPoint(
+        name="broken", value="artclass_no_such_module_xyz", group=ENTRY_POINT_GROUP
+    )
     monkeypatch.setattr(plugins_module, "entry_points", lambda *, group: [*real(group=group), broken])
     assert main(["plugins"]) == 0
     assert "failed to load plugin 'broken'" in capsys.readouterr().out
@@ -147,13 +158,17 @@ def test_duplicate_of_a_builtin_names_the_builtin():
     assert "clashing_plugin" in str(err.value) and "artclass_plugins.segmenters" in str(err.value)
 
 
-@pytest.mark.parametrize("cls, problem", [
-    (segmenter_class("Bad Name"), "`name` must be a lowercase identifier, got 'Bad Name'"),
-    (segmenter_class("UPPER"), "`name` must be a lowercase identifier"),
-    (segmenter_class(""), "`name` must be a lowercase identifier"),
-    (segmenter_class("ok_name", frozen=False), "`Params` must be a frozen dataclass"),
-    (segmenter_class("ok_name", description=""), "`description` must be a one-line string"),
-], ids=["space", "upper", "empty", "not-frozen", "no-description"])
+@pytest.mark.parametrize(
+    "cls, problem",
+    [
+        (segmenter_class("Bad Name"), "`name` must be a lowercase identifier, got 'Bad Name'"),
+        (segmenter_class("UPPER"), "`name` must be a lowercase identifier"),
+        (segmenter_class(""), "`name` must be a lowercase identifier"),
+        (segmenter_class("ok_name", frozen=False), "`Params` must be a frozen dataclass"),
+        (segmenter_class("ok_name", description=""), "`description` must be a one-line string"),
+    ],
+    ids=["space", "upper", "empty", "not-frozen", "no-description"],
+)
 def test_badly_formed_classes_are_rejected(cls, problem):
     bad = plugin_module("bad_plugin", register_segmenters=registering(cls))
     with pytest.raises(PluginError) as err:
@@ -185,6 +200,7 @@ def test_params_must_subclass_params():
 
 # -- extra plugins --------------------------------------------------------------------------------------------
 
+
 class AlwaysRM(DecisionRule):
     name = "always_rm"
     description = "calls every pair a rigid motion (test only)"
@@ -202,7 +218,8 @@ def test_extra_plugin_registers_and_runs():
     assert registry.plugins["rule"]["always_rm"].source == "test_rules"
     assert "paper" in registry.names("rule"), "the built-ins stay"
     result = Pipeline(registry, Config(rule="always_rm").with_overrides(registry, {"k": "2"})).run(
-        make_sequence("hinge", n_frames=5))
+        make_sequence("hinge", n_frames=5)
+    )
     decided = [p.decision for p in result.pairs if p.decision != "skipped"]
     assert decided and set(decided) == {"RM"} and result.label == "rigid"
     assert result.plugins["rule"] == "always_rm"
@@ -210,6 +227,7 @@ def test_extra_plugin_registers_and_runs():
 
 def test_extra_plugin_object_with_methods():
     """A plugin may be any object whose attributes are hook implementations (here a class instance)."""
+
     class RulePlugin:
         @hookimpl
         def register_rules(self, register):
@@ -224,8 +242,10 @@ def test_extra_plugin_adds_a_command(capsys):
         p = subparsers.add_parser("hello", help="say hello")
         p.set_defaults(func=lambda args: print("hello from a plugin") or 0)
 
-    registry = load_registry(extra_plugins=(plugin_module("hello_plugin", register_commands=register_commands),),
-                             entry_point_setting="")
+    registry = load_registry(
+        extra_plugins=(plugin_module("hello_plugin", register_commands=register_commands),),
+        entry_point_setting="",
+    )
     args = build_parser(registry).parse_args(["hello"])
     assert args.func(args) == 0
     assert capsys.readouterr().out == "hello from a plugin\n"
@@ -237,5 +257,7 @@ def test_registry_create_uses_params():
     plugin = registry.create("segmenter", "mask", cls.Params(erode_px=2))
     assert plugin.params.erode_px == 2
     assert registry.create("segmenter", "mask").params == cls.Params()
-    mask = plugin.segment(make_sequence("static", n_frames=1)[0], sequence=make_sequence("static", n_frames=1))
+    mask = plugin.segment(
+        make_sequence("static", n_frames=1)[0], sequence=make_sequence("static", n_frames=1)
+    )
     assert mask.dtype == bool and np.count_nonzero(mask) > 0

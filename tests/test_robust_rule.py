@@ -26,7 +26,7 @@ from artclass_plugins.synth.generate import plan_sequence
 from artclass_plugins.synth.presets import preset_plans
 from artclass_plugins.synth.write import prepare_sequence_dir, write_frame, write_json
 
-pytestmark = pytest.mark.slow      # full runs of rendered scenes
+pytestmark = pytest.mark.slow  # full runs of rendered scenes
 
 SPACING_M = 0.005
 
@@ -40,7 +40,7 @@ def box_surface(centre, size, *, spacing=SPACING_M) -> np.ndarray:
             normal = np.zeros(3)
             normal[axis] = sign
             face_centre = centre + normal * size / 2
-            if normal @ (-face_centre) <= 0:        # faces away from the camera
+            if normal @ (-face_centre) <= 0:  # faces away from the camera
                 continue
             u, v = [a for a in range(3) if a != axis]
             gu = np.arange(-size[u] / 2, size[u] / 2 + 1e-9, spacing)
@@ -62,7 +62,7 @@ def motion(*, rot_deg=(0.0, 0.0, 0.0), about=(0.0, 0.0, 0.0), shift=(0.0, 0.0, 0
 
 def cloud(points: np.ndarray, *, noise_m: float, seed: int, index: int = 0) -> Cloud:
     rng = np.random.default_rng(seed)
-    noisy = points + rng.normal(0.0, noise_m, points.shape) * [0.3, 0.3, 1.0]   # mostly axial, as a sensor
+    noisy = points + rng.normal(0.0, noise_m, points.shape) * [0.3, 0.3, 1.0]  # mostly axial, as a sensor
     return Cloud(index, noisy, camera_facing_normals(noisy, radius_m=3 * SPACING_M), {"v_m": SPACING_M})
 
 
@@ -97,14 +97,18 @@ def test_rigid_rotation_about_the_object_is_one_motion_not_many_keys(robust, pap
     T = motion(rot_deg=(0, 4, 2), about=BOX_CENTRE, shift=(0.01, 0, 0))
     a, b = cloud(BOX, noise_m=0.001, seed=1), cloud(transform(BOX, T), noise_m=0.001, seed=2, index=1)
     assert decide(robust, a, b).decision == "RM"
-    assert decide(paper_rule, a, b).decision == "AM", "the paper's keys split this rigid motion (the failure mode)"
+    assert decide(paper_rule, a, b).decision == "AM", (
+        "the paper's keys split this rigid motion (the failure mode)"
+    )
 
 
 def test_static_scene_with_noise_is_no_motion(robust, paper_rule):
     a, b = cloud(BOX, noise_m=0.002, seed=3), cloud(BOX, noise_m=0.002, seed=4, index=1)
     pair = decide(robust, a, b)
     assert pair.decision == "NM", pair.info
-    assert decide(paper_rule, a, b).decision == "AM", "noise scatters the paper's cell keys (the failure mode)"
+    assert decide(paper_rule, a, b).decision == "AM", (
+        "noise scatters the paper's cell keys (the failure mode)"
+    )
 
 
 def test_threshold_follows_the_measured_noise(robust):
@@ -116,12 +120,13 @@ def test_threshold_follows_the_measured_noise(robust):
         pair = decide(robust, a, b)
         assert pair.decision == "NM", pair.info
         taus.append(pair.info["tau_m"])
-    assert taus[0] == pytest.approx(RobustRule.Params().noise_floor_m)   # low noise: the floor
+    assert taus[0] == pytest.approx(RobustRule.Params().noise_floor_m)  # low noise: the floor
     assert taus[1] > 2.5 * taus[0], taus
 
 
 def test_surface_noise_measures_axial_noise():
     from scipy.spatial import cKDTree
+
     flat = box_surface((0, 0, 1.0), (0.3, 0.3, 0.001))
     for sigma in (0.001, 0.003):
         noisy = flat + np.random.default_rng(0).normal(0, sigma, flat.shape) * [0, 0, 1]
@@ -140,12 +145,15 @@ def test_degenerate_cells_that_slid_do_not_vote_for_a_motion(robust):
     T = motion(rot_deg=(0, 3, 0), about=BOX_CENTRE, shift=(0.02, 0, -0.01))
     a, b = cloud(BOX, noise_m=0.001, seed=9), cloud(transform(BOX, T), noise_m=0.001, seed=10, index=1)
     cells, x = robust.register(a, b)
-    front = [c for c in cells if c.matched and np.allclose(a.normals[c.source_idx].mean(0), [0, 0, -1], atol=0.05)]
+    front = [
+        c for c in cells if c.matched and np.allclose(a.normals[c.source_idx].mean(0), [0, 0, -1], atol=0.05)
+    ]
     assert len(front) >= 3, "the box's front face should span several cells"
-    slide = motion(shift=(0.02, 0.015, 0.0))   # within the front face (normal -z)
+    slide = motion(shift=(0.02, 0.015, 0.0))  # within the front face (normal -z)
     for c in front[: len(front) // 2 + 1]:
-        c.registration = dataclasses.replace(c.registration,
-                                             T_target_from_source=slide @ c.registration.T_target_from_source)
+        c.registration = dataclasses.replace(
+            c.registration, T_target_from_source=slide @ c.registration.T_target_from_source
+        )
     assert robust.decide(0, 1, cells, a, b, x).decision == "RM"
 
 
@@ -156,14 +164,16 @@ def test_one_wrong_cell_is_cross_explained_not_a_part(robust):
     a, b = cloud(BOX, noise_m=0.001, seed=11), cloud(transform(BOX, T), noise_m=0.001, seed=12, index=1)
     cells, x = robust.register(a, b)
     wrong = next(c for c in cells if c.matched)
-    wrong.registration = dataclasses.replace(wrong.registration, T_target_from_source=motion(rot_deg=(20, 0, 0)))
+    wrong.registration = dataclasses.replace(
+        wrong.registration, T_target_from_source=motion(rot_deg=(20, 0, 0))
+    )
     pair = robust.decide(0, 1, cells, a, b, x)
     assert pair.decision == "RM", pair.info
 
 
 # An articulated box: a base 24 x 8 x 16 cm and a lid 24 x 2 x 16 cm hinged on the base's back top edge.
 BASE = box_surface((0.0, 0.10, 1.0), (0.24, 0.08, 0.16))
-HINGE = np.array([0.0, 0.06, 1.08])   # back top edge (y down: top is at smaller y)
+HINGE = np.array([0.0, 0.06, 1.08])  # back top edge (y down: top is at smaller y)
 
 
 def lid(angle_deg: float) -> np.ndarray:
@@ -199,7 +209,9 @@ INTRINSICS = Intrinsics(285.0, 285.0, 159.5, 119.5, 320, 240)
 ROWS, COLS, SPLIT, SLIDE_PX = slice(60, 180), slice(80, 240), 160, 8
 
 
-def belt_cloud(index: int, *, with_view: bool = True, slide_px: int = SLIDE_PX, stripes: bool = False) -> Cloud:
+def belt_cloud(
+    index: int, *, with_view: bool = True, slide_px: int = SLIDE_PX, stripes: bool = False
+) -> Cloud:
     """Frame ``index`` of the belt; with ``stripes`` its texture varies across the slide only (vertical
     stripes of random widths: an edge everywhere, never a corner), seen with a camera's pixel noise (on
     a noise-free 1D texture DIS cannot solve even the flow across it)."""
@@ -209,14 +221,14 @@ def belt_cloud(index: int, *, with_view: bool = True, slide_px: int = SLIDE_PX, 
     texture = cv2.normalize(texture, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
     gray = texture[:, 20:340].copy()
     if index:
-        gray[:, SPLIT:] = texture[:, 20 + SPLIT - index * slide_px:340 - index * slide_px]
+        gray[:, SPLIT:] = texture[:, 20 + SPLIT - index * slide_px : 340 - index * slide_px]
     if stripes:
         pixel_noise = np.random.default_rng(index).normal(0.0, 2.0, gray.shape)
         gray = np.clip(gray + pixel_noise, 0, 255).astype(np.uint8)
     depth = np.zeros((240, 320), np.float32)
     depth[ROWS, COLS] = 1.0
     grid = np.zeros_like(depth, bool)
-    grid[ROWS.start:ROWS.stop:2, COLS.start:COLS.stop:2] = True
+    grid[ROWS.start : ROWS.stop : 2, COLS.start : COLS.stop : 2] = True
     points = INTRINSICS.backproject(depth, grid)
     view = View(gray, depth, INTRINSICS) if with_view else None
     return Cloud(index, points, camera_facing_normals(points, radius_m=0.02), {"v_m": 0.007}, view=view)
@@ -236,8 +248,9 @@ def test_optical_flow_across_stripes_sees_a_slide(robust, monkeypatch):
     pair = decide(robust, a, b)
     assert pair.decision == "AM", pair.info
     monkeypatch.setattr(flow, "EDGE_FACTOR", np.inf)
-    assert decide(robust, belt_cloud(0, stripes=True), belt_cloud(1, stripes=True)).decision == "NM", \
+    assert decide(robust, belt_cloud(0, stripes=True), belt_cloud(1, stripes=True)).decision == "NM", (
         "without edges, the stripes were expected to give the flow nothing to go on"
+    )
 
 
 def test_optical_flow_is_followed_from_frame_to_frame_where_it_cannot_jump(robust):
@@ -259,7 +272,7 @@ def panel_cloud(index: int, *, behind: str = "wall") -> Cloud:
     if index:
         panel[:, SPLIT:] = False
         if behind == "hand":
-            scene[ROWS, SPLIT:COLS.stop] = 0.8
+            scene[ROWS, SPLIT : COLS.stop] = 0.8
     scene[panel] = 1.0
     depth = np.where(panel, scene, 0.0).astype(np.float32)
     grid = np.zeros_like(panel)
@@ -278,12 +291,18 @@ def test_a_part_is_gone_where_the_camera_sees_through_it(robust, behind, expecte
     assert pair.decision == expected, pair.info
 
 
-@pytest.mark.parametrize("relative, expected", [
-    (motion(rot_deg=(0, 0, 30), about=(0.05, 0.0, 1.0)), True),                   # a hinge through the object
-    (motion(shift=(0.04, 0.0, 0.0)), True),                                         # a drawer
-    (motion(rot_deg=(0, 0, 30), about=(0.05, 0.0, 1.0), shift=(0, 0, 0.05)), False),  # a screw: 5 cm along the axis
-    (motion(rot_deg=(0, 0, 30), about=(0.6, 0.0, 1.0)), False),                    # a hinge 55 cm away
-])
+@pytest.mark.parametrize(
+    "relative, expected",
+    [
+        (motion(rot_deg=(0, 0, 30), about=(0.05, 0.0, 1.0)), True),  # a hinge through the object
+        (motion(shift=(0.04, 0.0, 0.0)), True),  # a drawer
+        (
+            motion(rot_deg=(0, 0, 30), about=(0.05, 0.0, 1.0), shift=(0, 0, 0.05)),
+            False,
+        ),  # a screw: 5 cm along the axis
+        (motion(rot_deg=(0, 0, 30), about=(0.6, 0.0, 1.0)), False),  # a hinge 55 cm away
+    ],
+)
 def test_a_part_moves_on_a_joint(relative, expected):
     carry = motion(rot_deg=(5, 10, 0), about=(0, 0, 1.0), shift=(0.02, 0, 0))
     assert joint_like(carry, relative @ carry, np.array([0.0, 0.0, 1.0]), 0.3) is expected
@@ -302,7 +321,7 @@ def test_a_motion_that_is_no_part_is_passed_over_for_the_next():
 
     chosen, members, passed = cover(lambda h, cells: True)
     assert chosen == [0, 1] and passed == 0 and members[1].tolist() == [1, 2, 3]
-    chosen, members, passed = cover(lambda h, cells: h == 2)            # motion 1: no joint moves so
+    chosen, members, passed = cover(lambda h, cells: h == 2)  # motion 1: no joint moves so
     assert chosen == [0, 2] and passed == 1 and members[1].tolist() == [1, 2]
     assert sorted(members[0].tolist()) == [0, 3], "cells of a motion passed over stay with the first"
     chosen, members, passed = cover(lambda h, cells: False)
@@ -364,8 +383,15 @@ def benchmark_frames(registry, tmp_path, name: str, n_frames: int):
     index = int(name[:2])
     plan = preset_plans("benchmark-vga")[index]
     assert plan.name == name
-    seq = plan_sequence(object_name=plan.object_name, motion=plan.motion, noise=plan.noise,
-                        n_frames=plan.n_frames, seed=index, width=plan.width, height=plan.height)
+    seq = plan_sequence(
+        object_name=plan.object_name,
+        motion=plan.motion,
+        noise=plan.noise,
+        n_frames=plan.n_frames,
+        seed=index,
+        width=plan.width,
+        height=plan.height,
+    )
     out = prepare_sequence_dir(tmp_path / name)
     for i in range(n_frames):
         frame = seq.render(i)

@@ -54,8 +54,14 @@ INTR = Intrinsics(fx=150.0, fy=150.0, cx=79.5, cy=59.5, width=W, height=H)
 
 # -- a numpy scene: a table plane and three boxes --------------------------------------------------
 
-def box_scene(offsets: dict[str, int], *, table_m: float = 1.0, box_m: float = 0.85,
-              sizes: dict[str, tuple[int, int, int, int]] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+
+def box_scene(
+    offsets: dict[str, int],
+    *,
+    table_m: float = 1.0,
+    box_m: float = 0.85,
+    sizes: dict[str, tuple[int, int, int, int]] | None = None,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Depth image of a wall-like plane at ``table_m`` with flat boxes at ``box_m`` in front of it.
 
     ``sizes`` maps a box name to (row, col, height, width) in pixels; ``offsets`` shifts a box right
@@ -67,7 +73,7 @@ def box_scene(offsets: dict[str, int], *, table_m: float = 1.0, box_m: float = 0
     for name, (r, c, h, w) in sizes.items():
         c = c + offsets.get(name, 0)
         m = np.zeros((H, W), bool)
-        m[r:r + h, c:c + w] = True
+        m[r : r + h, c : c + w] = True
         depth[m] = box_m
         masks[name] = m
     return depth, masks
@@ -82,7 +88,9 @@ class ArraySequence(Sequence):
         return self._frames[i]
 
 
-def box_sequence(n: int = 8, *, moving: str | None = "b", step_px: int = 3, **kw) -> tuple[ArraySequence, list]:
+def box_sequence(
+    n: int = 8, *, moving: str | None = "b", step_px: int = 3, **kw
+) -> tuple[ArraySequence, list]:
     frames, truth = [], []
     for i in range(n):
         depth, masks = box_scene({moving: step_px * i} if moving else {}, **kw)
@@ -93,6 +101,7 @@ def box_sequence(n: int = 8, *, moving: str | None = "b", step_px: int = 3, **kw
 
 # -- the pure selection --------------------------------------------------------------------------
 
+
 def test_selection_picks_the_moving_box_among_still_ones():
     d0, m0 = box_scene({})
     d1, m1 = box_scene({"b": 6})
@@ -100,7 +109,7 @@ def test_selection_picks_the_moving_box_among_still_ones():
     scores, matches, tau = change_scores(instances, d0, others, d1, change_m=0.01)
     assert [j for j, _ in matches] == [1, 2, 0]
     assert scores[0] == 0.0 and scores[2] == 0.0
-    assert scores[1] > 0.1          # 6 of 36 columns swept (2 x 6 px changed, edges excluded)
+    assert scores[1] > 0.1  # 6 of 36 columns swept (2 x 6 px changed, edges excluded)
     choice = choose_instance(instances, d0, others, d1, change_m=0.01, min_change=0.1, keep_iou=0.3)
     assert choice.index == 1 and choice.rule == "moving"
 
@@ -112,9 +121,10 @@ def test_selection_ignores_depth_noise_and_edge_flicker():
     d1, m1 = box_scene({})
     d0 = d0 + rng.normal(0, 0.003, d0.shape).astype(np.float32)
     d1 = d1 + rng.normal(0, 0.003, d1.shape).astype(np.float32)
-    grown = {k: np.pad(v, 1)[2:, 1:-1] | v for k, v in m1.items()}   # one pixel taller
-    choice = choose_instance(list(m0.values()), d0, list(grown.values()), d1, change_m=0.01,
-                             min_change=0.1, keep_iou=0.3)
+    grown = {k: np.pad(v, 1)[2:, 1:-1] | v for k, v in m1.items()}  # one pixel taller
+    choice = choose_instance(
+        list(m0.values()), d0, list(grown.values()), d1, change_m=0.01, min_change=0.1, keep_iou=0.3
+    )
     assert max(choice.scores) < 0.02
     assert choice.rule == "still, fallback"
 
@@ -141,12 +151,28 @@ def test_selection_keeps_the_previous_choice():
     assert still.index == 2 and still.rule == "still, kept"
     # two boxes move; the one overlapping the previous choice is kept although the other moves more
     d1, m1 = box_scene({"a": 10, "b": 4})
-    moving = choose_instance(inst, d0, [m1["a"], m1["b"], m1["c"]], d1, previous=m0["b"], change_m=0.01,
-                             min_change=0.1, keep_iou=0.3)
+    moving = choose_instance(
+        inst,
+        d0,
+        [m1["a"], m1["b"], m1["c"]],
+        d1,
+        previous=m0["b"],
+        change_m=0.01,
+        min_change=0.1,
+        keep_iou=0.3,
+    )
     assert moving.scores[0] > moving.scores[1] > 0.1
     assert moving.index == 1 and moving.rule == "moving, kept"
-    unrelated = choose_instance(inst, d0, [m1["a"], m1["b"], m1["c"]], d1, previous=m0["c"], change_m=0.01,
-                                min_change=0.1, keep_iou=0.3)
+    unrelated = choose_instance(
+        inst,
+        d0,
+        [m1["a"], m1["b"], m1["c"]],
+        d1,
+        previous=m0["c"],
+        change_m=0.01,
+        min_change=0.1,
+        keep_iou=0.3,
+    )
     assert unrelated.index == 0 and unrelated.rule == "moving"
 
 
@@ -160,12 +186,12 @@ def test_selection_without_instances_or_neighbour():
 def test_unmatched_flicker_cannot_win_but_a_vanished_object_scores():
     d0, m0 = box_scene({})
     blob = np.zeros((H, W), bool)
-    blob[100:115, 20:40] = True              # a segment on the plane, seen in one frame only
+    blob[100:115, 20:40] = True  # a segment on the plane, seen in one frame only
     before = blob.copy()
     scores, matches, _ = change_scores([m0["a"], blob], d0, [m0["a"]], d0, change_m=0.01)
     assert matches[1][0] is None and scores[1] == 0.0
-    assert np.array_equal(blob, before)          # the instances are not modified
-    gone, _ = box_scene({}, sizes={"a": (20, 10, 30, 30)})   # box b removed in the other frame
+    assert np.array_equal(blob, before)  # the instances are not modified
+    gone, _ = box_scene({}, sizes={"a": (20, 10, 30, 30)})  # box b removed in the other frame
     scores, matches, _ = change_scores([m0["a"], m0["b"]], d0, [m0["a"]], gone, change_m=0.01)
     assert matches[1][0] is None and scores[1] > 0.9
 
@@ -190,7 +216,7 @@ def test_packed_mask_round_trip():
 # -- background planes ---------------------------------------------------------------------------
 
 PITCH = np.radians(40.0)
-UP = np.array([0.0, -np.cos(PITCH), -np.sin(PITCH)])    # the table's normal, towards the camera
+UP = np.array([0.0, -np.cos(PITCH), -np.sin(PITCH)])  # the table's normal, towards the camera
 
 
 def tilted_table(*, height_m: float = 0.5, wall_m: float = 1.0) -> np.ndarray:
@@ -207,16 +233,16 @@ def test_fit_planes_finds_table_and_wall_and_removes_them():
     depth = tilted_table()
     obj = np.zeros((H, W), bool)
     obj[70:85, 70:90] = True
-    depth[obj] -= 0.05                 # an object 5 cm proud of the table
+    depth[obj] -= 0.05  # an object 5 cm proud of the table
     p = BackgroundParams()
     planes = fit_planes(depth, INTR, params=p)
     assert len(planes) == 2 and all(pl.offset_m > 0 for pl in planes)
     normals = sorted(planes, key=lambda pl: pl.inlier_fraction, reverse=True)
     assert {round(abs(float(np.dot(pl.normal, UP))), 3) for pl in normals} >= {1.0}
-    assert any(abs(pl.normal[2] + 1) < 1e-3 and abs(pl.offset_m - 1.0) < 1e-3 for pl in planes)   # the wall
+    assert any(abs(pl.normal[2] + 1) < 1e-3 and abs(pl.offset_m - 1.0) < 1e-3 for pl in planes)  # the wall
     background, valid = background_mask(depth, INTR, planes, params=p)
     assert mask_iou(valid & ~background, obj) > 0.95
-    assert fit_planes(depth, INTR, params=p) == planes        # seeded: reproducible
+    assert fit_planes(depth, INTR, params=p) == planes  # seeded: reproducible
 
 
 def test_fit_planes_does_not_take_a_plane_in_front_of_the_support_for_background():
@@ -228,7 +254,9 @@ def test_fit_planes_does_not_take_a_plane_in_front_of_the_support_for_background
     depth[slab] = tilted_table(height_m=0.4)[slab]
     p = BackgroundParams()
     planes = fit_planes(depth, INTR, params=p)
-    assert all(abs(abs(float(np.dot(pl.normal, UP))) - 1) > 1e-3 or abs(pl.offset_m - 0.5) < 1e-3 for pl in planes)
+    assert all(
+        abs(abs(float(np.dot(pl.normal, UP))) - 1) > 1e-3 or abs(pl.offset_m - 0.5) < 1e-3 for pl in planes
+    )
     background, valid = background_mask(depth, INTR, planes, params=p)
     assert np.count_nonzero(slab & ~background) > 0.95 * np.count_nonzero(slab)
 
@@ -279,12 +307,14 @@ def test_hysteresis_keeps_an_objects_low_part_and_what_it_connects():
     frame = Frame(0, "0", np.zeros((H, W, 3), np.uint8), depth)
     seq = ArraySequence([frame])
     planes = fit_planes(depth, INTR, params=BackgroundParams())
-    assert 0.0003 < planes[0].noise_m < 0.001           # 1 mm along the ray, about 0.64 mm off the plane
-    cut = DepthThresholdSegmenter(DepthThresholdParams(grow_sigmas=0.0, join_m=0.0)).instances(frame, sequence=seq)
+    assert 0.0003 < planes[0].noise_m < 0.001  # 1 mm along the ray, about 0.64 mm off the plane
+    cut = DepthThresholdSegmenter(DepthThresholdParams(grow_sigmas=0.0, join_m=0.0)).instances(
+        frame, sequence=seq
+    )
     assert sorted(mask_iou(m, a) > 0.9 or mask_iou(m, b) > 0.9 for m in cut) == [True, True]
     whole = DepthThresholdSegmenter().instances(frame, sequence=seq)
     assert len(whole) == 1 and mask_iou(whole[0], a | bridge | b) > 0.9
-    assert np.count_nonzero(whole[0] & ~(a | bridge | b)) < 20        # the table's noise does not leak in
+    assert np.count_nonzero(whole[0] & ~(a | bridge | b)) < 20  # the table's noise does not leak in
 
 
 def scissors_scene(*, colour: tuple[int, int, int], height_m: float = 0.005) -> tuple[Frame, np.ndarray]:
@@ -298,7 +328,7 @@ def scissors_scene(*, colour: tuple[int, int, int], height_m: float = 0.005) -> 
     cv2.circle(shape, (38, 84), 7, 1, 3)
     scissors = shape > 0
     depth = tilted_table()
-    depth[scissors] = tilted_table(height_m=0.5 - height_m)[scissors]       # raised along the table's normal
+    depth[scissors] = tilted_table(height_m=0.5 - height_m)[scissors]  # raised along the table's normal
     depth = np.round(depth + rng.normal(0.0, 0.001, (H, W)), 3).astype(np.float32)
     rgb = np.empty((H, W, 3), np.float64)
     rgb[:] = (200, 200, 196)
@@ -318,19 +348,21 @@ def test_a_thin_object_lying_flat_is_found_by_its_colour():
     seq = ArraySequence([frame])
     found = DepthThresholdSegmenter().instances(frame, sequence=seq)
     assert len(found) == 1 and mask_iou(found[0], scissors) > 0.7
-    assert DepthThresholdSegmenter(DepthThresholdParams(thin_contrast=0.0)).instances(frame, sequence=seq) == []
+    assert (
+        DepthThresholdSegmenter(DepthThresholdParams(thin_contrast=0.0)).instances(frame, sequence=seq) == []
+    )
     bump, _ = scissors_scene(colour=(200, 200, 196))
     assert DepthThresholdSegmenter().instances(bump, sequence=ArraySequence([bump])) == []
 
 
 def test_instances_that_touch_in_3d_are_joined():
-    depth = np.full((H, W), 0.5, np.float32)             # a wall: one pixel is 3.3 mm across
+    depth = np.full((H, W), 0.5, np.float32)  # a wall: one pixel is 3.3 mm across
     left, right, far = (np.zeros((H, W), bool) for _ in range(3))
     left[40:60, 20:50], right[40:60, 51:80], far[40:60, 100:130] = True, True, True
     joined = join_touching([left, right, far], depth, INTR, join_m=0.01)
     assert [int(m.sum()) for m in joined] == [int((left | right).sum()), int(far.sum())]
     assert mask_iou(joined[0], left | right) == 1.0
-    depth[right] = 0.6                                     # 10 cm behind: not touching
+    depth[right] = 0.6  # 10 cm behind: not touching
     assert len(join_touching([left, right, far], depth, INTR, join_m=0.01)) == 3
     assert len(join_touching([left, right], np.full((H, W), 0.5, np.float32), INTR, join_m=0.0)) == 2
 
@@ -352,6 +384,7 @@ def test_a_hole_is_filled_where_its_rim_meets_the_object(rim_m, filled):
 
 # -- the depth_threshold segmenter on an in-memory sequence ----------------------------------------
 
+
 class CountingDepthThreshold(DepthThresholdSegmenter):
     """depth_threshold (same name, so the same disk-cache folder) that records its instances() calls."""
 
@@ -371,7 +404,7 @@ def test_depth_threshold_chooses_the_moving_box_in_every_frame():
         mask = seg.segment(seq[i], sequence=seq)
         assert mask is not None and mask.dtype == bool and mask.shape == (H, W)
         assert mask_iou(mask, truth[i]["b"]) > 0.95, f"frame {i}"
-    assert sorted(seg.calls) == list(range(len(seq)))     # each frame's instances computed once
+    assert sorted(seg.calls) == list(range(len(seq)))  # each frame's instances computed once
     seg.segment(seq[3], sequence=seq)
     assert len(seg.calls) == len(seq)
 
@@ -395,7 +428,9 @@ def test_depth_threshold_static_scene_gives_the_fallback_consistently():
 
 
 def test_depth_threshold_empty_scene_skips_the_frame():
-    frames = [Frame(i, f"{i}", np.zeros((H, W, 3), np.uint8), np.full((H, W), 1.0, np.float32)) for i in range(3)]
+    frames = [
+        Frame(i, f"{i}", np.zeros((H, W, 3), np.uint8), np.full((H, W), 1.0, np.float32)) for i in range(3)
+    ]
     frames.append(Frame(3, "3", np.zeros((H, W, 3), np.uint8), np.zeros((H, W), np.float32)))
     seq = ArraySequence(frames)
     seg = DepthThresholdSegmenter()
@@ -414,6 +449,7 @@ def test_state_is_kept_per_sequence():
 
 # -- the on-disk mask cache ------------------------------------------------------------------------
 
+
 def test_disk_cache_writes_pngs_outside_and_is_reused(tmp_path):
     seq, truth = box_sequence(6, moving="b")
     params = DepthThresholdParams(cache_dir=str(tmp_path / "cache"))
@@ -421,9 +457,9 @@ def test_disk_cache_writes_pngs_outside_and_is_reused(tmp_path):
     masks = [first.segment(seq[i], sequence=seq) for i in range(6)]
     files = sorted((tmp_path / "cache").rglob("*.png"))
     assert len(files) == 6 and f"depth_threshold-{params_hash(params)}" in str(files[0])
-    second = CountingDepthThreshold(params)      # a new object: nothing in memory
+    second = CountingDepthThreshold(params)  # a new object: nothing in memory
     again = [second.segment(seq[i], sequence=seq) for i in range(6)]
-    assert second.calls == []               # nothing recomputed
+    assert second.calls == []  # nothing recomputed
     assert all(np.array_equal(a, b) for a, b in zip(masks, again))
     # other parameters -> another folder
     other = DepthThresholdSegmenter(dataclasses.replace(params, min_change=0.2))
@@ -445,22 +481,27 @@ def test_disk_cache_refuses_a_folder_inside_the_sequence(tmp_path):
 
 # -- registration and the pipeline -------------------------------------------------------------------
 
+
 def test_hook_register_segmenters_registers_depth_threshold():
     registry = load_registry()
     assert registry.get("segmenter", "depth_threshold") is DepthThresholdSegmenter
     result = Pipeline(registry, Config(segmenter="depth_threshold").with_overrides(registry, {"k": "2"})).run(
-        box_sequence(6, moving="b")[0])
+        box_sequence(6, moving="b")[0]
+    )
     assert result.plugins["segmenter"] == "depth_threshold"
     assert all(f.skipped is None for f in result.frames)
 
 
 # -- real data: YCB-Video ----------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def ycbv_scenes():
     if not YCBV.is_dir():
-        pytest.skip(f"real data folder {YCBV} is absent (it sits next to the repository in the development "
-                    "and CI set-up)")
+        pytest.skip(
+            f"real data folder {YCBV} is absent (it sits next to the repository in the development "
+            "and CI set-up)"
+        )
     registry = load_registry()
     return {scene: open_sequences(registry, YCBV / scene, reader="ycbv") for scene in ("0000", "0001")}
 
@@ -488,7 +529,9 @@ def test_depth_threshold_on_ycbv_selects_the_labelled_objects(ycbv_scenes):
             rules.add(seg.choice(seq[i], sequence=seq).rule)
         assert np.mean(union_ious) > 0.48 and min(union_ious) > 0.29, (scene, union_ious)
         assert np.median(precisions) > 0.9 and min(precisions) > 0.5, (scene, precisions)
-        assert rules <= {"still, fallback", "still, kept"}, f"{scene}: a static scene was seen moving: {rules}"
+        assert rules <= {"still, fallback", "still, kept"}, (
+            f"{scene}: a static scene was seen moving: {rules}"
+        )
 
 
 def test_fill_dropouts_adds_only_enclosed_pixels_without_reading():
@@ -496,16 +539,17 @@ def test_fill_dropouts_adds_only_enclosed_pixels_without_reading():
     mask[40:80, 40:80] = True
     valid = np.ones((H, W), bool)
     mask[50:52, 50:52] = False
-    valid[50:52, 50:52] = False            # a dropout inside the object
-    mask[60:62, 60:62] = False             # a hole with a reading: background seen through
-    valid[10:20, 10:20] = False            # dropouts far away
+    valid[50:52, 50:52] = False  # a dropout inside the object
+    mask[60:62, 60:62] = False  # a hole with a reading: background seen through
+    valid[10:20, 10:20] = False  # dropouts far away
     filled = fill_dropouts([mask], valid, fill_px=2)[0]
     assert filled[50:52, 50:52].all() and not filled[60:62, 60:62].any() and not filled[10:20, 10:20].any()
     assert np.count_nonzero(filled) == np.count_nonzero(mask) + 4
-    assert mask[50:52, 50:52].sum() == 0   # the input is not modified
+    assert mask[50:52, 50:52].sum() == 0  # the input is not modified
 
 
 # -- synthetic sequences with ground-truth masks -------------------------------------------------
+
 
 def sample_sequences() -> list[Path]:
     folder = Path(__file__).resolve().parents[1] / "sample_data"

@@ -34,12 +34,22 @@ from artclass_core.sweep import (
 
 from conftest import ROOT
 
-pytestmark = pytest.mark.slow      # whole sweeps, two of them on a local Dask cluster
+pytestmark = pytest.mark.slow  # whole sweeps, two of them on a local Dask cluster
 
-OBJECTS = {"laptop_articulate": ("laptop", "articulate"), "mug_carry": ("mug", "carry"),
-           "cereal_box_static": ("cereal_box", "static")}
-TIMING = ("seconds", "time_read_s", "time_segment_s", "time_preprocess_s", "time_register_s", "time_decide_s",
-          "time_total_s")
+OBJECTS = {
+    "laptop_articulate": ("laptop", "articulate"),
+    "mug_carry": ("mug", "carry"),
+    "cereal_box_static": ("cereal_box", "static"),
+}
+TIMING = (
+    "seconds",
+    "time_read_s",
+    "time_segment_s",
+    "time_preprocess_s",
+    "time_register_s",
+    "time_decide_s",
+    "time_total_s",
+)
 
 
 @pytest.fixture(scope="module")
@@ -64,6 +74,7 @@ def results(table: pd.DataFrame) -> pd.DataFrame:
 
 # -- the grid ---------------------------------------------------------------------------------------
 
+
 def test_parse_grid():
     assert parse_grid(["q_bar=0.05, 0.1", "k=3,5,3"]) == {"q_bar": ["0.05", "0.1"], "k": ["3", "5"]}
     for bad in ("q_bar", "=1,2", "k="):
@@ -74,11 +85,17 @@ def test_parse_grid():
 
 
 def test_grid_settings_are_every_combination(registry):
-    settings = grid_settings(registry, {"q_bar": ["0.05", "0.2"], "k": ["3", "4", "5"]}, params={"w": "1"},
-                             rule="paper")
+    settings = grid_settings(
+        registry, {"q_bar": ["0.05", "0.2"], "k": ["3", "4", "5"]}, params={"w": "1"}, rule="paper"
+    )
     assert [s.label for s in settings] == [f"q_bar={q}, k={k}" for q in ("0.05", "0.2") for k in (3, 4, 5)]
     config = settings[4].config(registry)
-    assert (config.rule, config.rule_params.q_bar, config.pipeline.k, config.pipeline.w) == ("paper", 0.2, 4, 1)
+    assert (config.rule, config.rule_params.q_bar, config.pipeline.k, config.pipeline.w) == (
+        "paper",
+        0.2,
+        4,
+        1,
+    )
     assert len({s.recipe for s in settings}) == 6
     rules = grid_settings(registry, {"rule": ["robust", "paper"]})
     assert [s.config(registry).rule for s in rules] == ["robust", "paper"]
@@ -90,34 +107,59 @@ def test_grid_settings_are_every_combination(registry):
 
 def test_one_task_per_sequence_and_frame_stages(registry, sequences):
     decisions = grid_settings(registry, {"w": ["1", "3"], "k": ["3", "4"]})
-    assert [(i, chosen) for i, _, chosen in plan_tasks(registry, sequences, decisions)] == \
-        [(0, [0, 1, 2, 3]), (1, [0, 1, 2, 3]), (2, [0, 1, 2, 3])]
+    assert [(i, chosen) for i, _, chosen in plan_tasks(registry, sequences, decisions)] == [
+        (0, [0, 1, 2, 3]),
+        (1, [0, 1, 2, 3]),
+        (2, [0, 1, 2, 3]),
+    ]
     frames = grid_settings(registry, {"max_points": ["2000", "3000"], "w": ["1", "3"]})
-    tasks = plan_tasks(registry, sequences, frames, done={(str(sequences[0].path.resolve()), sequences[0].name,
-                                                            frames[0].recipe)})
-    assert [(i, chosen) for i, _, chosen in tasks] == [(0, [1]), (0, [2, 3]), (1, [0, 1]), (1, [2, 3]),
-                                                      (2, [0, 1]), (2, [2, 3])]
+    tasks = plan_tasks(
+        registry,
+        sequences,
+        frames,
+        done={(str(sequences[0].path.resolve()), sequences[0].name, frames[0].recipe)},
+    )
+    assert [(i, chosen) for i, _, chosen in tasks] == [
+        (0, [1]),
+        (0, [2, 3]),
+        (1, [0, 1]),
+        (1, [2, 3]),
+        (2, [0, 1]),
+        (2, [2, 3]),
+    ]
 
 
 # -- what a sweep computes ------------------------------------------------------------------------------
 
+
 def test_rows_equal_separate_runs(registry, sequences, tmp_path):
     """Decision, registration and prealignment settings sharing one cache give what fresh runs give."""
-    settings = grid_settings(registry, {"prealign": ["true", "false"], "x": ["auto", "0.03"],
-                                        "min_part_share": ["0.15", "0.4"]}, params={"k": "3"})
-    sequences = sequences[1:]                                         # an articulated and a carried object
+    settings = grid_settings(
+        registry,
+        {"prealign": ["true", "false"], "x": ["auto", "0.03"], "min_part_share": ["0.15", "0.4"]},
+        params={"k": "3"},
+    )
+    sequences = sequences[1:]  # an articulated and a carried object
     table = sweep(registry, sequences, settings, out=tmp_path / "t.parquet")
     assert len(table) == len(sequences) * len(settings) == 16
     assert table["error"].isna().all(), table["error"].dropna().tolist()
-    assert list(zip(table.sequence, table.setting)) == [(s.name, st.label) for s in sequences for st in settings]
+    assert list(zip(table.sequence, table.setting)) == [
+        (s.name, st.label) for s in sequences for st in settings
+    ]
     seen = set()
     for row in table.itertuples():
         seq = next(s for s in sequences if s.name == row.sequence)
         config = next(st for st in settings if st.label == row.setting).config(registry)
         fresh = Pipeline(registry, config).run(seq)
         truthful = [p for p in fresh.pairs if p.truth and p.decision != "skipped"]
-        assert (row.label, row.AM, row.RM, row.NM) == (fresh.label, *(fresh.fractions[d] for d in ("AM", "RM", "NM")))
-        assert (row.pair_correct, row.pair_total) == (sum(p.decision == p.truth for p in truthful), len(truthful))
+        assert (row.label, row.AM, row.RM, row.NM) == (
+            fresh.label,
+            *(fresh.fractions[d] for d in ("AM", "RM", "NM")),
+        )
+        assert (row.pair_correct, row.pair_total) == (
+            sum(p.decision == p.truth for p in truthful),
+            len(truthful),
+        )
         assert row.decisions == "".join({"skipped": "-"}.get(p.decision, p.decision[0]) for p in fresh.pairs)
         assert row.skipped_pairs == sum(p.decision == "skipped" for p in fresh.pairs)
         assert json.loads(row.params) == json.loads(json.dumps(fresh.params, default=str))
@@ -126,11 +168,14 @@ def test_rows_equal_separate_runs(registry, sequences, tmp_path):
 
 
 def test_failing_sequence_is_recorded_and_the_rest_goes_on(registry, sequences, tmp_path):
-    settings = grid_settings(registry, {"k": ["3", "9"]})            # 8 frames: k = 9 cannot run
+    settings = grid_settings(registry, {"k": ["3", "9"]})  # 8 frames: k = 9 cannot run
     table = sweep(registry, sequences, settings, out=tmp_path / "t.csv")
     failed = table[table.setting == "k=9"]
     assert len(failed) == len(sequences) and failed["label"].isna().all() and not failed["correct"].any()
-    assert all(e.endswith(f"{s}: sequence has 8 frames; k = 9 needs at least 10") for s, e in zip(failed.sequence, failed.error))
+    assert all(
+        e.endswith(f"{s}: sequence has 8 frames; k = 9 needs at least 10")
+        for s, e in zip(failed.sequence, failed.error)
+    )
     assert table[table.setting == "k=3"]["error"].isna().all()
     assert list(summary(table)["errors"]) == [0, len(sequences)]
     assert results(read_table(tmp_path / "t.csv")).equals(results(table)), "the CSV reads back as written"
@@ -140,7 +185,7 @@ def test_resume_skips_done_rows_and_force_redoes_them(registry, sequences, tmp_p
     out = tmp_path / "t.parquet"
     settings = grid_settings(registry, {"w": ["1", "3"]})
     first = sweep(registry, sequences[:2], settings, out=out)
-    again = sweep(registry, sequences, settings, out=out)             # one more sequence: only its rows run
+    again = sweep(registry, sequences, settings, out=out)  # one more sequence: only its rows run
     assert len(again) == 6
     assert again.iloc[:4].equals(first), "rows already done are kept exactly, timings included"
     forced = sweep(registry, sequences, settings, out=out, force=True)
@@ -148,11 +193,15 @@ def test_resume_skips_done_rows_and_force_redoes_them(registry, sequences, tmp_p
 
 
 def test_two_worker_local_cluster_gives_the_serial_table(registry, sequences, tmp_path):
-    distributed = pytest.importorskip("distributed", reason="Dask is in the test extra: pip install -e '.[test]'")
+    distributed = pytest.importorskip(
+        "distributed", reason="Dask is in the test extra: pip install -e '.[test]'"
+    )
     settings = grid_settings(registry, {"noise_factor": ["2", "4"], "k": ["2", "4"]})
     serial = sweep(registry, sequences, settings, out=tmp_path / "serial.parquet", workers=2)
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
+    with (
+        distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster,
+        distributed.Client(cluster) as client,
+    ):
         assert len(client.scheduler_info()["workers"]) == 2
         on_dask = sweep(registry, sequences, settings, out=tmp_path / "dask.parquet", scheduler=client)
     assert len(on_dask) == 12
@@ -162,12 +211,24 @@ def test_two_worker_local_cluster_gives_the_serial_table(registry, sequences, tm
 def test_interrupted_sweep_resumes_to_the_same_table(root, tmp_path):
     """Kill the command (SIGKILL: nothing gets to clean up) once the first rows are written; run it again."""
     script = Path(sys.executable).with_name("artclass")
-    argv = [str(script), "sweep", str(root), "--grid", "x=auto,0.03,0.05", "--grid", "w=1,3", "--workers", "1"]
+    argv = [
+        str(script),
+        "sweep",
+        str(root),
+        "--grid",
+        "x=auto,0.03,0.05",
+        "--grid",
+        "w=1,3",
+        "--workers",
+        "1",
+    ]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     whole = tmp_path / "whole.parquet"
     subprocess.run([*argv, "--out", str(whole)], check=True, capture_output=True, timeout=600, env=env)
     out = tmp_path / "cut.parquet"
-    proc = subprocess.Popen([*argv, "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    proc = subprocess.Popen(
+        [*argv, "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env
+    )
     try:
         deadline = time.monotonic() + 300
         while not (out.exists() and len(read_table(out)) >= 2) and proc.poll() is None:
@@ -182,43 +243,73 @@ def test_interrupted_sweep_resumes_to_the_same_table(root, tmp_path):
     done = subprocess.run([*argv, "--out", str(out)], capture_output=True, text=True, timeout=600, env=env)
     assert done.returncode == 0, done.stderr
     resumed = read_table(out)
-    assert resumed.iloc[:len(cut)][list(TIMING)].equals(cut[list(TIMING)]), "the finished rows were not run again"
+    assert resumed.iloc[: len(cut)][list(TIMING)].equals(cut[list(TIMING)]), (
+        "the finished rows were not run again"
+    )
     assert results(resumed).equals(results(read_table(whole)))
 
 
 # -- the command ----------------------------------------------------------------------------------------
 
+
 def test_sweep_command(capsys, root, tmp_path):
     out = tmp_path / "results.parquet"
-    status = main(["sweep", str(root), "--grid", "min_part_share=0.15,0.4", "--grid", "k=3,4", "--out", str(out)])
+    status = main(
+        ["sweep", str(root), "--grid", "min_part_share=0.15,0.4", "--grid", "k=3,4", "--out", str(out)]
+    )
     stdout, err = capsys.readouterr()
     assert status == 0, err
     table = read_table(out)
     assert len(table) == 12 and swept_names(table) == ["min_part_share", "k"]
     lines = stdout.splitlines()
-    assert lines[0].split() == ["setting", "sequences", "errors", "accuracy", "pair_accuracy", "AM", "RM", "NM",
-                                "seconds"]
-    assert [line.split(",")[0].strip() for line in lines[1:5]] == ["min_part_share=0.15"] * 2 + ["min_part_share=0.4"] * 2
+    assert lines[0].split() == [
+        "setting",
+        "sequences",
+        "errors",
+        "accuracy",
+        "pair_accuracy",
+        "AM",
+        "RM",
+        "NM",
+        "seconds",
+    ]
+    assert [line.split(",")[0].strip() for line in lines[1:5]] == ["min_part_share=0.15"] * 2 + [
+        "min_part_share=0.4"
+    ] * 2
     for line, (_, row) in zip(lines[1:5], summary(table).iterrows()):
         assert f"{row.accuracy:.1%}" in line and line.split()[2] == str(len(OBJECTS))
     html = out.with_suffix(".html").read_text()
     assert "min_part_share" in html and "<script src=" not in html, "plotly.js is inside: no internet needed"
     assert len(html) > 1_000_000
-    status = main(["sweep", str(root), "--grid", "min_part_share=0.15,0.4", "--grid", "k=3,4", "--out", str(out),
-                   "--json"])
+    status = main(
+        [
+            "sweep",
+            str(root),
+            "--grid",
+            "min_part_share=0.15,0.4",
+            "--grid",
+            "k=3,4",
+            "--out",
+            str(out),
+            "--json",
+        ]
+    )
     stdout, err = capsys.readouterr()
     assert status == 0, err
     assert [r["setting"] for r in json.loads(stdout)["summary"]] == list(summary(table)["setting"])
     assert read_table(out).equals(table), "a second run with nothing left to do changes nothing"
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--grid", "k"], "--grid 'k': expected NAME=V1,V2,..."),
-    (["--grid", "k=0,3"], "setting k=0: parameter k = 0 is out of bounds"),
-    (["--grid", "rule=nope"], "unknown rule 'nope'"),
-    (["--grid", "k=3", "--out", "results.xlsx"], "the table is written as .parquet or .csv"),
-    (["--grid", "k=3", "--workers", "0"], "workers = 0 must be a positive integer"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--grid", "k"], "--grid 'k': expected NAME=V1,V2,..."),
+        (["--grid", "k=0,3"], "setting k=0: parameter k = 0 is out of bounds"),
+        (["--grid", "rule=nope"], "unknown rule 'nope'"),
+        (["--grid", "k=3", "--out", "results.xlsx"], "the table is written as .parquet or .csv"),
+        (["--grid", "k=3", "--workers", "0"], "workers = 0 must be a positive integer"),
+    ],
+)
 def test_sweep_bad_options_give_one_line(capsys, root, tmp_path, monkeypatch, argv, message):
     monkeypatch.chdir(tmp_path)
     status = main(["sweep", str(root), *argv])
@@ -229,7 +320,7 @@ def test_sweep_bad_options_give_one_line(capsys, root, tmp_path, monkeypatch, ar
 
 @pytest.mark.parametrize("command", ["sweep", "evaluate"])
 def test_scheduler_without_dask_says_how_to_install_it(capsys, root, tmp_path, monkeypatch, command):
-    monkeypatch.setitem(sys.modules, "distributed", None)       # as if Dask were not installed
+    monkeypatch.setitem(sys.modules, "distributed", None)  # as if Dask were not installed
     grid = ["--grid", "k=3", "--out", str(tmp_path / "t.parquet")] if command == "sweep" else []
     status = main([command, str(root), *grid, "--scheduler", "local"])
     _, err = capsys.readouterr()
@@ -237,6 +328,7 @@ def test_scheduler_without_dask_says_how_to_install_it(capsys, root, tmp_path, m
 
 
 # -- the table and the figure ---------------------------------------------------------------------------
+
 
 def test_figure_has_a_panel_per_swept_name(registry, sequences, tmp_path):
     settings = grid_settings(registry, {"w": ["1", "3", "5"], "rule": ["robust", "paper"]})
@@ -247,7 +339,10 @@ def test_figure_has_a_panel_per_swept_name(registry, sequences, tmp_path):
     summ = summary(table)
     # Panel w: one sequence-accuracy line per rule, x the numeric values of w, y the setting's accuracy.
     w_lines = [t for t in fig.data if t.xaxis == "x" and t.name.startswith("sequence accuracy")]
-    assert sorted(t.name for t in w_lines) == ["sequence accuracy, rule=paper", "sequence accuracy, rule=robust"]
+    assert sorted(t.name for t in w_lines) == [
+        "sequence accuracy, rule=paper",
+        "sequence accuracy, rule=robust",
+    ]
     for t in w_lines:
         rule = t.name.split("=")[1]
         expected = summ[summ.rule == rule].assign(w=lambda d: d.w.astype(int)).sort_values("w")
@@ -268,21 +363,29 @@ def test_table_reader_names_the_file(tmp_path):
 
 # -- the app ---------------------------------------------------------------------------------------------
 
+
 def test_evaluate_page_opens_a_sweep_table(registry, sequences, root, tmp_path, monkeypatch):
     from streamlit.testing.v1 import AppTest
+
     monkeypatch.syspath_prepend(str(ROOT))
     monkeypatch.setenv("ARTCLASS_SAMPLE_DATA", str(root))
     monkeypatch.delenv("ARTCLASS_DATA_ROOTS", raising=False)
     monkeypatch.setenv("ARTCLASS_UPLOAD_DIR", str(tmp_path / "uploads"))
-    table = sweep(registry, sequences, grid_settings(registry, {"w": ["1", "5"]}, params={"k": "7"}),
-                  out=tmp_path / "t.parquet")
+    table = sweep(
+        registry,
+        sequences,
+        grid_settings(registry, {"w": ["1", "5"]}, params={"k": "7"}),
+        out=tmp_path / "t.parquet",
+    )
     app = AppTest.from_file(str(ROOT / "app" / "streamlit_app.py"), default_timeout=300)
     app.run()
     app.switch_page("app_pages/evaluate.py").run()
     app.radio(key="ev_source").set_value("Open a sweep table").run()
     assert not app.exception and not app.error
     assert not app.get("plotly_chart"), "no figure before a table is uploaded"
-    app.get("file_uploader")[0].set_value(("t.parquet", (tmp_path / "t.parquet").read_bytes(), "application/octet-stream")).run()
+    app.get("file_uploader")[0].set_value(
+        ("t.parquet", (tmp_path / "t.parquet").read_bytes(), "application/octet-stream")
+    ).run()
     assert not app.exception and not app.error, [e.value for e in app.error]
     shown = json.loads(app.get("plotly_chart")[0].proto.spec)
     assert shown == json.loads(figure(table).to_json()), "the page shows the figure the command writes"
@@ -294,8 +397,12 @@ def test_evaluate_page_opens_a_sweep_table(registry, sequences, root, tmp_path, 
 
 def test_docs_name_every_column(registry, sequences, tmp_path):
     text = (ROOT / "docs" / "datasets-and-clusters.md").read_text()
-    table = sweep(registry, sequences[:1], grid_settings(registry, {"w": ["1"]}, params={"k": "7"}),
-                  out=tmp_path / "t.parquet")
+    table = sweep(
+        registry,
+        sequences[:1],
+        grid_settings(registry, {"w": ["1"]}, params={"k": "7"}),
+        out=tmp_path / "t.parquet",
+    )
     undocumented = [c for c in table.columns if c != "w" and f"`{c}`" not in text]
     assert not undocumented, f"docs/datasets-and-clusters.md does not describe the columns {undocumented}"
     assert "datasets-and-clusters.md" in (ROOT / "docs" / "index.md").read_text()

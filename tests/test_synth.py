@@ -50,8 +50,13 @@ def _backproject(depth_m: np.ndarray, intr: Intrinsics) -> np.ndarray:
 
 def _plane_scene(distance_m: float, tilt_deg: float = 0.0) -> list[SceneMesh]:
     """A 4 m x 4 m slab whose near face is the plane z = distance_m (camera = world frame)."""
-    R = np.array([[1, 0, 0], [0, math.cos(math.radians(tilt_deg)), -math.sin(math.radians(tilt_deg))],
-                  [0, math.sin(math.radians(tilt_deg)), math.cos(math.radians(tilt_deg))]])
+    R = np.array(
+        [
+            [1, 0, 0],
+            [0, math.cos(math.radians(tilt_deg)), -math.sin(math.radians(tilt_deg))],
+            [0, math.sin(math.radians(tilt_deg)), math.cos(math.radians(tilt_deg))],
+        ]
+    )
     centre = R @ np.array([0.0, 0.0, 0.05]) + [0.0, 0.0, distance_m]
     piece = box((4.0, 4.0, 0.1), tuple(centre), (0.5, 0.5, 0.5), R=R)
     return [SceneMesh(piece.vertices_m, piece.triangles, -1, piece, np.eye(4))]
@@ -62,8 +67,11 @@ def _rotation_angle(R: np.ndarray) -> float:
 
 
 def _digest(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 # ---------------------------------------------------------------- catalogue
@@ -86,7 +94,7 @@ def test_intrinsics_scale_with_resolution():
     assert 525 <= full.fx_px <= 615 and full.fx_px == full.fy_px
     assert half.fx_px == pytest.approx(full.fx_px / 2)
     assert (half.cx_px + 0.5) == pytest.approx((full.cx_px + 0.5) / 2)
-    rs = Intrinsics.for_resolution(848, 480)     # RealSense-like, wider field of view
+    rs = Intrinsics.for_resolution(848, 480)  # RealSense-like, wider field of view
     assert (rs.fx_px, rs.fy_px, rs.cx_px, rs.cy_px) == (615.0, 615.0, 423.5, 239.5)
     assert 2 * math.degrees(math.atan(424 / rs.fx_px)) > 2 * math.degrees(math.atan(320 / full.fx_px))
 
@@ -120,8 +128,9 @@ def test_chains_compose_joint_by_joint():
 
 
 def test_every_joint_of_a_chain_moves():
-    seq = plan_sequence(object_name="folding_ruler", motion="articulate", noise="low", n_frames=10,
-                        seed=5, **SMALL)
+    seq = plan_sequence(
+        object_name="folding_ruler", motion="articulate", noise="low", n_frames=10, seed=5, **SMALL
+    )
     q = seq.trajectory.joint_positions
     assert q.shape == (10, 3)
     for k, joint in enumerate(OBJECTS["folding_ruler"].joints):
@@ -148,8 +157,7 @@ def test_plane_depth_with_sensor_noise_matches_within_noise():
     clean = render_clean(_plane_scene(1.0), T_camera_from_world=np.eye(4), intrinsics=intr)
     stds = {}
     for level in ("low", "high"):
-        depth, _ = add_sensor_noise(clean, noise=NOISE_LEVELS[level],
-                                    rng=np.random.default_rng(5))
+        depth, _ = add_sensor_noise(clean, noise=NOISE_LEVELS[level], rng=np.random.default_rng(5))
         valid = depth > 0
         assert valid.mean() > 0.97  # a frontal plane loses only random dropouts and speckle
         d = depth[valid]
@@ -164,8 +172,7 @@ def test_plane_depth_with_sensor_noise_matches_within_noise():
 
 def test_grazing_surfaces_drop_out():
     intr = Intrinsics.for_resolution(160, 120)
-    clean = render_clean(_plane_scene(1.0, tilt_deg=70.0), T_camera_from_world=np.eye(4),
-                         intrinsics=intr)
+    clean = render_clean(_plane_scene(1.0, tilt_deg=70.0), T_camera_from_world=np.eye(4), intrinsics=intr)
     level = NOISE_LEVELS["low"]
     depth, _ = add_sensor_noise(clean, noise=level, rng=np.random.default_rng(0))
     angle = np.degrees(np.arccos(clean.cos_incidence))
@@ -183,8 +190,9 @@ def test_box_back_projects_onto_its_surface():
     T_wo[:3, :3] = o3d.geometry.get_rotation_matrix_from_xyz((0.0, 0.0, 0.4))
     T_wo[:3, 3] = [0.05, -0.02, 0.0]
     T_cw = look_at([0.3, -0.7, 0.45], [0.05, 0.0, 0.14])
-    frame = render_clean(room_meshes() + object_meshes(spec, None, T_wo),
-                         T_camera_from_world=T_cw, intrinsics=intr)
+    frame = render_clean(
+        room_meshes() + object_meshes(spec, None, T_wo), T_camera_from_world=T_cw, intrinsics=intr
+    )
     mask = frame.mask
     assert mask.sum() > 2000
     pts_cam = _backproject(frame.depth_m, intr)[mask]
@@ -205,19 +213,18 @@ def test_box_back_projects_onto_its_surface():
 
 
 def test_mask_is_exactly_the_object_pixels():
-    seq = plan_sequence(object_name="laptop", motion="articulate", noise="none", n_frames=4,
-                        seed=11, width=320, height=240)
+    seq = plan_sequence(
+        object_name="laptop", motion="articulate", noise="none", n_frames=4, seed=11, width=320, height=240
+    )
     frame = seq.render(2)
     traj = seq.trajectory
     q = traj.joint_positions[2]
     obj = o3d.t.geometry.RaycastingScene()
     for m in object_meshes(OBJECTS["laptop"], q, traj.T_world_from_object[2]):
-        obj.add_triangles(o3d.core.Tensor(m.vertices_m.astype(np.float32)),
-                          o3d.core.Tensor(m.triangles))
+        obj.add_triangles(o3d.core.Tensor(m.vertices_m.astype(np.float32)), o3d.core.Tensor(m.triangles))
     room = o3d.t.geometry.RaycastingScene()
     for m in room_meshes():
-        room.add_triangles(o3d.core.Tensor(m.vertices_m.astype(np.float32)),
-                           o3d.core.Tensor(m.triangles))
+        room.add_triangles(o3d.core.Tensor(m.vertices_m.astype(np.float32)), o3d.core.Tensor(m.triangles))
     valid = frame.depth_m > 0
     T_wc = np.linalg.inv(traj.T_camera_from_world[2])
     pts = _backproject(frame.depth_m, seq.intrinsics)[valid]
@@ -234,8 +241,16 @@ def test_mask_is_exactly_the_object_pixels():
 
 
 def test_colour_channels_are_written_in_rgb_order(tmp_path):
-    out = generate_sequence(tmp_path / "mug", object_name="mug", motion="static", noise="low",
-                            n_frames=2, seed=1, width=320, height=240)
+    out = generate_sequence(
+        tmp_path / "mug",
+        object_name="mug",
+        motion="static",
+        noise="low",
+        n_frames=2,
+        seed=1,
+        width=320,
+        height=240,
+    )
     rgb = cv2.cvtColor(cv2.imread(str(out / "rgb" / "000000.png")), cv2.COLOR_BGR2RGB)
     mask = cv2.imread(str(out / "mask" / "000000.png"), cv2.IMREAD_UNCHANGED) == 255
     r, g, b = rgb[mask].astype(float).mean(0)
@@ -251,34 +266,45 @@ def _jump_scene():
 
 def test_flying_pixels_only_at_depth_edges():
     intr = Intrinsics.for_resolution(160, 120)
-    clean = render_clean(_jump_scene(), T_camera_from_world=np.eye(4), intrinsics=intr,
-                         projector_baseline_m=0.0)
-    edge_col = int(np.argmax(clean.depth_m[60] > 1.0))          # first column of the far wall
+    clean = render_clean(
+        _jump_scene(), T_camera_from_world=np.eye(4), intrinsics=intr, projector_baseline_m=0.0
+    )
+    edge_col = int(np.argmax(clean.depth_m[60] > 1.0))  # first column of the far wall
     assert 60 < edge_col < 100
     only_flying = dataclasses.replace(
-        NOISE_LEVELS["low"], name="flying only", axial_a_m=0.0, axial_b_per_m=0.0,
-        disparity_subpixel=0.0, grazing_drop_prob=0.0, edge_drop_prob=0.0, lateral_fraction=0.0,
-        random_drop_fraction=0.0, speckle_fraction=0.0, projector_shadow=False, flying_fraction=1.0)
+        NOISE_LEVELS["low"],
+        name="flying only",
+        axial_a_m=0.0,
+        axial_b_per_m=0.0,
+        disparity_subpixel=0.0,
+        grazing_drop_prob=0.0,
+        edge_drop_prob=0.0,
+        lateral_fraction=0.0,
+        random_drop_fraction=0.0,
+        speckle_fraction=0.0,
+        projector_shadow=False,
+        flying_fraction=1.0,
+    )
     depth, _ = add_sensor_noise(clean, noise=only_flying, rng=np.random.default_rng(3))
-    between = (depth > 0.805) & (depth < 1.195)                 # neither surface: flying
+    between = (depth > 0.805) & (depth < 1.195)  # neither surface: flying
     cols = np.nonzero(between)[1]
-    assert between.sum() >= 100                                 # the whole edge flies...
-    assert cols.min() >= edge_col - 2 and cols.max() <= edge_col + 1   # ...and nothing else does
-    none, _ = add_sensor_noise(clean, noise=dataclasses.replace(only_flying, flying_fraction=0.0),
-                               rng=np.random.default_rng(3))
+    assert between.sum() >= 100  # the whole edge flies...
+    assert cols.min() >= edge_col - 2 and cols.max() <= edge_col + 1  # ...and nothing else does
+    none, _ = add_sensor_noise(
+        clean, noise=dataclasses.replace(only_flying, flying_fraction=0.0), rng=np.random.default_rng(3)
+    )
     assert not ((none > 0.805) & (none < 1.195)).any()
 
 
 def test_depth_is_delivered_in_millimetres():
     intr = Intrinsics.for_resolution(160, 120)
-    clean = render_clean(_plane_scene(0.9, tilt_deg=30.0), T_camera_from_world=np.eye(4),
-                         intrinsics=intr)
+    clean = render_clean(_plane_scene(0.9, tilt_deg=30.0), T_camera_from_world=np.eye(4), intrinsics=intr)
     for level in ("low", "high"):
         depth, _ = add_sensor_noise(clean, noise=NOISE_LEVELS[level], rng=np.random.default_rng(1))
         mm = depth[depth > 0].astype(np.float64) * 1000.0
         assert len(mm) > 10000
         np.testing.assert_allclose(mm, np.rint(mm), atol=1e-3)
-        assert len(np.unique(np.rint(mm))) > 20                 # a tilted plane spans many steps
+        assert len(np.unique(np.rint(mm))) > 20  # a tilted plane spans many steps
 
 
 def test_plain_surfaces_are_uniform_colours():
@@ -295,18 +321,31 @@ def test_plain_surfaces_are_uniform_colours():
 # ---------------------------------------------------------------- hands
 
 
-@pytest.mark.parametrize("object_name, motion, hand", [
-    ("laptop", "articulate", "hand"), ("slide_case", "carry_articulate", "hand"),
-    ("book", "carry", "gripper"), ("mug", "static", "hand")])
+@pytest.mark.parametrize(
+    "object_name, motion, hand",
+    [
+        ("laptop", "articulate", "hand"),
+        ("slide_case", "carry_articulate", "hand"),
+        ("book", "carry", "gripper"),
+        ("mug", "static", "hand"),
+    ],
+)
 def test_hand_occludes_the_object_and_is_never_in_its_mask(tmp_path, object_name, motion, hand):
-    out = generate_sequence(tmp_path / "seq", object_name=object_name, motion=motion, noise="low",
-                            n_frames=4, seed=2, hand=hand, **SMALL)
+    out = generate_sequence(
+        tmp_path / "seq",
+        object_name=object_name,
+        motion=motion,
+        noise="low",
+        n_frames=4,
+        seed=2,
+        hand=hand,
+        **SMALL,
+    )
     truth = json.loads((out / "truth.json").read_text())
     assert len(truth["holders"]) == (2 if motion == "carry_articulate" else 1)
     assert {h["kind"] for h in truth["holders"]} == {hand}
     assert (truth["holders"][0]["holds"] is None) == (motion == "static")
-    bare = plan_sequence(object_name=object_name, motion=motion, noise="none", n_frames=4, seed=2,
-                         **SMALL)
+    bare = plan_sequence(object_name=object_name, motion=motion, noise="none", n_frames=4, seed=2, **SMALL)
     hidden = 0
     for i in range(4):
         mask = cv2.imread(str(out / "mask" / f"{i:06d}.png"), cv2.IMREAD_UNCHANGED) > 0
@@ -315,13 +354,14 @@ def test_hand_occludes_the_object_and_is_never_in_its_mask(tmp_path, object_name
         assert hand_px.sum() > 20 and not (hand_px & mask).any()
         np.testing.assert_array_equal(parts > 0, mask)
         hidden += int((bare.render(i).mask & hand_px).sum())
-    assert hidden > 0                                           # the hand hides part of the object
-    if motion == "static":                                      # it moves in front, not touching
+    assert hidden > 0  # the hand hides part of the object
+    if motion == "static":  # it moves in front, not touching
         poses = np.array(truth["object_poses"])
         np.testing.assert_allclose(poses[0][:3, :3], poses[-1][:3, :3], atol=1e-12)
         assert truth["joint_positions"] == [None] * 4
-        seq = plan_sequence(object_name=object_name, motion=motion, noise="low", n_frames=4, seed=2,
-                            hand=hand, **SMALL)
+        seq = plan_sequence(
+            object_name=object_name, motion=motion, noise="low", n_frames=4, seed=2, hand=hand, **SMALL
+        )
         for i in range(4):
             meshes = seq.meshes(i)
             obj = np.concatenate([m.vertices_m for m in meshes if m.part >= 0])
@@ -333,6 +373,7 @@ def test_hand_occludes_the_object_and_is_never_in_its_mask(tmp_path, object_name
 
 def test_hand_colours_span_human_skin():
     from artclass_plugins.synth.hands import SKIN_TONES, holder_pieces
+
     skins = [holder_pieces("hand", np.random.default_rng(s))[0].colour for s in range(200)]
     lightness = np.array([sum(c) / 3 for c in skins])
     assert lightness.min() < 0.35 and lightness.max() > 0.75
@@ -345,23 +386,32 @@ def test_hand_colours_span_human_skin():
 
 
 def test_joint_axes_in_the_first_camera_frame_explain_the_part_motion():
-    seq = plan_sequence(object_name="microwave", motion="articulate", noise="low", n_frames=6,
-                        seed=9, **SMALL)
+    seq = plan_sequence(
+        object_name="microwave", motion="articulate", noise="low", n_frames=6, seed=9, **SMALL
+    )
     (joint,) = seq.truth["joints"]
-    poses = np.array(seq.truth["part_poses"])               # camera_from_part, per frame
+    poses = np.array(seq.truth["part_poses"])  # camera_from_part, per frame
     door0, door5 = poses[0][1], poses[5][1]
     origin, axis = np.array(joint["origin_camera0_m"][5]), np.array(joint["axis_camera0"][5])
     dq = joint["state"][5] - joint["state"][0]
     R = rotation_about_axis(axis, dq)
     expect = np.eye(4)
     expect[:3, :3], expect[:3, 3] = R, origin - R @ origin
-    np.testing.assert_allclose(door5, expect @ door0, atol=1e-8)   # the camera does not move
+    np.testing.assert_allclose(door5, expect @ door0, atol=1e-8)  # the camera does not move
     assert abs(dq) > math.radians(15)
 
 
 def test_truth_carries_visible_points_per_part(tmp_path):
-    out = generate_sequence(tmp_path / "lamp", object_name="desk_lamp", motion="articulate",
-                            noise="low", n_frames=4, seed=1, hand="hand", **SMALL)
+    out = generate_sequence(
+        tmp_path / "lamp",
+        object_name="desk_lamp",
+        motion="articulate",
+        noise="low",
+        n_frames=4,
+        seed=1,
+        hand="hand",
+        **SMALL,
+    )
     truth = json.loads((out / "truth.json").read_text())
     assert [p["parent"] for p in truth["parts"]] == [-1, 0, 1]
     assert truth["sensor"]["fx_px"] == Intrinsics.for_resolution(160, 120).fx_px
@@ -380,7 +430,7 @@ def test_truth_carries_visible_points_per_part(tmp_path):
             v = np.rint(K.fy_px * cam[:, 1] / cam[:, 2] + K.cy_px).astype(int)
             assert (parts[v, u] == k + 1).all()
     seq = FolderReader().sequences(out)[0]
-    assert seq.pair_truth(0, 3) == seq.pair_truth_legacy(0, 3) == "AM"   # both arms turn 10-30 deg
+    assert seq.pair_truth(0, 3) == seq.pair_truth_legacy(0, 3) == "AM"  # both arms turn 10-30 deg
 
 
 # ---------------------------------------------------------------- motion and truth (continued)
@@ -390,8 +440,9 @@ def test_truth_carries_visible_points_per_part(tmp_path):
 def test_articulate_moves_the_joint_and_keeps_the_base(tmp_path):
     for name in ("laptop", "drawer"):
         spec = OBJECTS[name]
-        out = generate_sequence(tmp_path / name, object_name=name, motion="articulate",
-                                noise="low", n_frames=10, seed=3, **SMALL)
+        out = generate_sequence(
+            tmp_path / name, object_name=name, motion="articulate", noise="low", n_frames=10, seed=3, **SMALL
+        )
         truth = json.loads((out / "truth.json").read_text())
         meta = json.loads((out / "meta.json").read_text())
         assert meta["label"] == "articulated" and meta["joint_type"] == spec.joint_type
@@ -406,7 +457,7 @@ def test_articulate_moves_the_joint_and_keeps_the_base(tmp_path):
         # What the camera sees of the moving part, per frame, for the per-pair truth.
         seen = truth["part_visibility"]
         assert len(seen) == len(q) and all(0.0 < s["share"] < 1.0 for s in seen)
-        if name == "laptop":   # the lid's visible points reach centimetres from its hinge
+        if name == "laptop":  # the lid's visible points reach centimetres from its hinge
             assert all(0.03 < s["axis_distance_m"] < 0.5 for s in seen)
         # The moving part's poses realise exactly that joint travel.
         child = np.array(truth["moving_part_poses"])
@@ -424,8 +475,7 @@ def test_articulate_moves_the_joint_and_keeps_the_base(tmp_path):
 
 def test_carry_moves_the_object_rigidly():
     for name, motion in (("mug", "carry"), ("laptop", "carry"), ("pliers", "carry_articulate")):
-        seq = plan_sequence(object_name=name, motion=motion, noise="low", n_frames=12, seed=8,
-                            **SMALL)
+        seq = plan_sequence(object_name=name, motion=motion, noise="low", n_frames=12, seed=8, **SMALL)
         poses = np.array(seq.truth["object_poses"])
         rel = np.linalg.inv(poses[0]) @ poses[-1]
         angle = math.degrees(_rotation_angle(rel[:3, :3]))
@@ -448,8 +498,7 @@ def test_carry_moves_the_object_rigidly():
 
 
 def test_static_truth_has_no_motion():
-    seq = plan_sequence(object_name="microwave", motion="static", noise="high", n_frames=10,
-                        seed=2, **SMALL)
+    seq = plan_sequence(object_name="microwave", motion="static", noise="high", n_frames=10, seed=2, **SMALL)
     assert seq.meta["label"] == "static"
     q = seq.truth["joint_positions"]
     assert len(set(q)) == 1
@@ -462,8 +511,9 @@ def test_static_truth_has_no_motion():
 
 def test_rigid_objects_cannot_articulate(tmp_path):
     with pytest.raises(ValueError, match="rigid"):
-        generate_sequence(tmp_path / "x", object_name="mug", motion="articulate",
-                          noise="low", n_frames=4, seed=0, **SMALL)
+        generate_sequence(
+            tmp_path / "x", object_name="mug", motion="articulate", noise="low", n_frames=4, seed=0, **SMALL
+        )
     with pytest.raises(ValueError, match="noise"):
         plan_sequence(object_name="mug", motion="carry", noise="medium", n_frames=4, seed=0)
     assert not (tmp_path / "x").exists()
@@ -473,16 +523,48 @@ def test_rigid_objects_cannot_articulate(tmp_path):
 
 
 def test_native_layout(tmp_path):
-    out = generate_sequence(tmp_path / "seq", object_name="box_lid", motion="carry_articulate",
-                            noise="high", n_frames=5, seed=4, **SMALL)
-    assert sorted(p.name for p in out.iterdir()) == ["depth", "hand", "mask", "meta.json", "parts",
-                                                     "rgb", "truth.json"]
+    out = generate_sequence(
+        tmp_path / "seq",
+        object_name="box_lid",
+        motion="carry_articulate",
+        noise="high",
+        n_frames=5,
+        seed=4,
+        **SMALL,
+    )
+    assert sorted(p.name for p in out.iterdir()) == [
+        "depth",
+        "hand",
+        "mask",
+        "meta.json",
+        "parts",
+        "rgb",
+        "truth.json",
+    ]
     meta = json.loads((out / "meta.json").read_text())
-    assert set(meta) == {"fx", "fy", "cx", "cy", "depth_scale", "label", "object", "motion",
-                         "noise", "seed", "generator", "joint_type", "texture", "hand"}
+    assert set(meta) == {
+        "fx",
+        "fy",
+        "cx",
+        "cy",
+        "depth_scale",
+        "label",
+        "object",
+        "motion",
+        "noise",
+        "seed",
+        "generator",
+        "joint_type",
+        "texture",
+        "hand",
+    }
     intr = Intrinsics.for_resolution(160, 120)
     assert (meta["fx"], meta["fy"], meta["cx"], meta["cy"]) == (
-        intr.fx_px, intr.fy_px, intr.cx_px, intr.cy_px)
+        intr.fx_px,
+        intr.fy_px,
+        intr.cx_px,
+        intr.cy_px,
+    )
     assert meta["depth_scale"] == 1000 and meta["label"] == "articulated"
     assert meta["object"] == "box_lid" and meta["seed"] == 4 and meta["noise"] == "high"
     assert meta["generator"].startswith("artclass synth ")
@@ -509,8 +591,15 @@ def test_native_layout(tmp_path):
 
 
 def test_same_seed_same_bytes_different_seed_different(tmp_path):
-    kw = dict(object_name="pliers", motion="articulate", noise="high", n_frames=3, hand="hand",
-              texture="plain", **SMALL)
+    kw = dict(
+        object_name="pliers",
+        motion="articulate",
+        noise="high",
+        n_frames=3,
+        hand="hand",
+        texture="plain",
+        **SMALL,
+    )
     a = _digest(generate_sequence(tmp_path / "a", seed=7, **kw))
     b = _digest(generate_sequence(tmp_path / "b", seed=7, **kw))
     c = _digest(generate_sequence(tmp_path / "c", seed=8, **kw))
@@ -552,8 +641,9 @@ def test_smoke_preset(tmp_path):
         generate_set(tmp_path / "set", preset="smoke", seed=1)
 
 
-@pytest.mark.parametrize("preset, size", [("benchmark", (320, 240)), ("benchmark-vga", (640, 480)),
-                                          ("benchmark-rs", (848, 480))])
+@pytest.mark.parametrize(
+    "preset, size", [("benchmark", (320, 240)), ("benchmark-vga", (640, 480)), ("benchmark-rs", (848, 480))]
+)
 def test_benchmark_preset_is_balanced(preset, size):
     plans = preset_plans(preset)
     assert 60 <= len(plans) <= 70
@@ -563,14 +653,16 @@ def test_benchmark_preset_is_balanced(preset, size):
     assert 0.45 <= labels.count("articulated") / n <= 0.55
     assert 0.2 <= labels.count("rigid") / n <= 0.3
     assert 0.2 <= labels.count("static") / n <= 0.3
-    assert {p.object_name for p in plans} == set(OBJECTS)          # every object is in it
+    assert {p.object_name for p in plans} == set(OBJECTS)  # every object is in it
     assert {p.motion for p in plans} == set(MOTIONS)
     assert {p.noise for p in plans} == {"low", "high"}
     assert {p.texture for p in plans} == {"textured", "plain"}
-    assert 0.6 <= sum(p.hand != "none" for p in plans) / n <= 0.8    # most are handled
+    assert 0.6 <= sum(p.hand != "none" for p in plans) / n <= 0.8  # most are handled
     assert {p.hand for p in plans if p.motion == "static"} == set(HANDS)
-    assert {OBJECTS[p.object_name].joint_type for p in plans
-            if MOTIONS[p.motion].moves_joint} == {"revolute", "prismatic"}
+    assert {OBJECTS[p.object_name].joint_type for p in plans if MOTIONS[p.motion].moves_joint} == {
+        "revolute",
+        "prismatic",
+    }
     assert all((p.width, p.height) == size and 24 <= p.n_frames <= 30 for p in plans)
     assert [p.name for p in plans] == [p.name for p in preset_plans("benchmark")]
     assert len({p.name for p in plans}) == n
@@ -590,19 +682,28 @@ def test_sample_data_matches_the_sample_preset():
         assert len(list((root / e["name"] / "depth").iterdir())) == e["n_frames"]
         # The committed files were written by an earlier generator version: the current one draws
         # the same sequences (trajectories, truth, masks) from the same seeds, and adds truth fields.
-        seq = plan_sequence(object_name=e["object_name"], motion=e["motion"], noise=e["noise"],
-                            n_frames=e["n_frames"], seed=e["seed"], width=e["width"],
-                            height=e["height"])
+        seq = plan_sequence(
+            object_name=e["object_name"],
+            motion=e["motion"],
+            noise=e["noise"],
+            n_frames=e["n_frames"],
+            seed=e["seed"],
+            width=e["width"],
+            height=e["height"],
+        )
         written = json.loads((root / e["name"] / "truth.json").read_text())
         shared = set(written) & set(seq.truth)
         assert {"joint_positions", "object_poses", "moving_part_poses"} <= shared
         assert {k: written[k] for k in shared} == json.loads(json.dumps({k: seq.truth[k] for k in shared}))
         assert ("part_visibility" in written) == (seq.truth["joint_positions"][0] is not None)
         assert {k: v for k, v in meta.items() if k != "generator"} == {
-            k: v for k, v in seq.meta.items() if k in meta and k != "generator"}
+            k: v for k, v in seq.meta.items() if k in meta and k != "generator"
+        }
         frame = seq.render(e["n_frames"] - 1)
-        mask = cv2.imread(str(root / e["name"] / "mask" / f"{e['n_frames'] - 1:06d}.png"),
-                          cv2.IMREAD_UNCHANGED) > 0
+        mask = (
+            cv2.imread(str(root / e["name"] / "mask" / f"{e['n_frames'] - 1:06d}.png"), cv2.IMREAD_UNCHANGED)
+            > 0
+        )
         assert (mask == frame.mask).mean() > 0.999
 
 

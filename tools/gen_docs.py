@@ -30,8 +30,14 @@ from artclass_core.params import ParamSpec
 ROOT = Path(__file__).resolve().parents[1]
 OUTPUT = ROOT / "docs" / "parameters.md"
 DISTRIBUTION = "artclass"
-KIND_TITLES = {"reader": "Readers", "segmenter": "Segmenters", "preprocessor": "Preprocessors",
-               "registrar": "Registrars", "rule": "Decision rules", "joint_estimator": "Joint estimators"}
+KIND_TITLES = {
+    "reader": "Readers",
+    "segmenter": "Segmenters",
+    "preprocessor": "Preprocessors",
+    "registrar": "Registrars",
+    "rule": "Decision rules",
+    "joint_estimator": "Joint estimators",
+}
 
 
 def builtin_registry() -> Registry:
@@ -78,11 +84,19 @@ def param_table(params_cls: type) -> list[str]:
     specs = describe(params_cls)
     if not specs:
         return ["No parameters."]
-    rows = ["| parameter | symbol | type | default | unit | allowed | what it does |",
-            "|---|---|---|---|---|---|---|"]
+    rows = [
+        "| parameter | symbol | type | default | unit | allowed | what it does |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for s in specs:
-        rows.append("| " + " | ".join(_cell(v) for v in (
-            f"`{s.name}`", s.symbol, s.type.__name__, _default(s), _unit(s), _range(s), s.help)) + " |")
+        rows.append(
+            "| "
+            + " | ".join(
+                _cell(v)
+                for v in (f"`{s.name}`", s.symbol, s.type.__name__, _default(s), _unit(s), _range(s), s.help)
+            )
+            + " |"
+        )
     return rows
 
 
@@ -110,7 +124,7 @@ def render(registry: Registry | None = None) -> str:
         "```",
         "",
         "```python",
-        "config = Config().with_overrides(registry, {\"q_bar\": 0.2, \"k\": 3})",
+        'config = Config().with_overrides(registry, {"q_bar": 0.2, "k": 3})',
         "```",
         "",
         "## Pipeline (`artclass_core.PipelineParams`)",
@@ -127,10 +141,15 @@ def render(registry: Registry | None = None) -> str:
             out += ["None registered.", ""]
         for info in infos:
             cls = info.cls
-            out += [f"### `{info.name}`", "",
-                    f"{cls.description}. Class `{cls.__module__}.{cls.__qualname__}`, parameters "
-                    f"`{cls.Params.__module__}.{cls.Params.__qualname__}`.", "",
-                    *param_table(cls.Params), ""]
+            out += [
+                f"### `{info.name}`",
+                "",
+                f"{cls.description}. Class `{cls.__module__}.{cls.__qualname__}`, parameters "
+                f"`{cls.Params.__module__}.{cls.Params.__qualname__}`.",
+                "",
+                *param_table(cls.Params),
+                "",
+            ]
     return "\n".join(out).rstrip("\n") + "\n"
 
 

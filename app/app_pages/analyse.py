@@ -33,8 +33,10 @@ def choose_sequence(reg) -> Sequence | None:
     if source == SOURCES[0]:
         samples = _samples()
         if not samples:
-            raise InputError("no bundled samples found (generate them with `artclass sample`, or choose "
-                             "another source)", path=state.samples_dir())
+            raise InputError(
+                "no bundled samples found (generate them with `artclass sample`, or choose another source)",
+                path=state.samples_dir(),
+            )
         names = [s.name for s in samples]
         if st.session_state.get("an_sample") not in names:
             first = next((s.name for s in samples if s.label == "articulated"), names[0])
@@ -45,8 +47,12 @@ def choose_sequence(reg) -> Sequence | None:
     if source == SOURCES[1]:
         roots = state.data_roots()
         st.session_state.setdefault("an_folder", str(roots[0]) if roots else "")
-        text = sb.text_input("Folder", key="an_folder", help="A sequence folder (PATH#NAME picks one of several). "
-                             "Allowed under: " + ", ".join(str(r) for r in roots))
+        text = sb.text_input(
+            "Folder",
+            key="an_folder",
+            help="A sequence folder (PATH#NAME picks one of several). "
+            "Allowed under: " + ", ".join(str(r) for r in roots),
+        )
         path = uploads.confine(text, roots)
         found = state.open_path(path)
     else:
@@ -62,8 +68,10 @@ def choose_sequence(reg) -> Sequence | None:
         if not found:
             if errors:
                 raise errors[0]
-            raise InputError("no sequence in the zip that a reader recognises (expected meta.json, rgb/, depth/)",
-                             path=st.session_state.get("an_upload_name", "upload.zip"))
+            raise InputError(
+                "no sequence in the zip that a reader recognises (expected meta.json, rgb/, depth/)",
+                path=st.session_state.get("an_upload_name", "upload.zip"),
+            )
         sb.caption(f"Uploaded: {st.session_state.get('an_upload_name', '')}")
     if len(found) > 1:
         names = [s.name for s in found]
@@ -87,7 +95,9 @@ class StageProgress:
     def __call__(self, stage: str, done: int, total: int) -> None:
         if stage not in self.bars:
             self.bars[stage] = self.container.progress(0.0, text=self.TITLES.get(stage, stage))
-        self.bars[stage].progress(done / max(total, 1), text=f"{self.TITLES.get(stage, stage)}: {done}/{total}")
+        self.bars[stage].progress(
+            done / max(total, 1), text=f"{self.TITLES.get(stage, stage)}: {done}/{total}"
+        )
 
     def done(self) -> None:
         self.box.empty()
@@ -96,8 +106,11 @@ class StageProgress:
 def _sync_pair_with_click(result) -> None:
     """A click on the timeline selects that pair (the slider follows)."""
     event = st.session_state.get("an_timeline")
-    points = (event or {}).get("selection", {}).get("points", []) if isinstance(event, dict) else \
-        getattr(getattr(event, "selection", None), "points", []) or []
+    points = (
+        (event or {}).get("selection", {}).get("points", [])
+        if isinstance(event, dict)
+        else getattr(getattr(event, "selection", None), "points", []) or []
+    )
     if not points:
         return
     x = points[0].get("x")
@@ -116,14 +129,20 @@ def show_result(seq: Sequence, config, result) -> None:
     truth = seq.label
     c1, c2, c3, c4 = st.columns(4)
     c1.metric("Label", result.label)
-    c2.metric("Ground truth", truth or "unknown",
-              delta=None if not truth else ("correct" if result.label in seq.accepted_labels else "wrong"),
-              delta_color="normal" if truth and result.label in seq.accepted_labels else "inverse")
+    c2.metric(
+        "Ground truth",
+        truth or "unknown",
+        delta=None if not truth else ("correct" if result.label in seq.accepted_labels else "wrong"),
+        delta_color="normal" if truth and result.label in seq.accepted_labels else "inverse",
+    )
     c3.metric("Pairs decided", f"{len(decided)} / {len(pairs)}")
-    c4.metric("Run time", f"{result.timing_s.get('total', 0.0):.2f} s",
-              help="Wall time of this run, cached stages included (frames "
-                   f"{result.timing_s.get('frames', 0):.2f} s, registration {result.timing_s.get('register', 0):.2f} s, "
-                   f"decisions {result.timing_s.get('decide', 0):.2f} s).")
+    c4.metric(
+        "Run time",
+        f"{result.timing_s.get('total', 0.0):.2f} s",
+        help="Wall time of this run, cached stages included (frames "
+        f"{result.timing_s.get('frames', 0):.2f} s, registration {result.timing_s.get('register', 0):.2f} s, "
+        f"decisions {result.timing_s.get('decide', 0):.2f} s).",
+    )
     if not pairs:
         st.info("No pairs to show.")
         return
@@ -133,13 +152,23 @@ def show_result(seq: Sequence, config, result) -> None:
         st.session_state["an_pair"] = next((n for n, p in enumerate(pairs) if p.decision != "skipped"), 0)
     selected = st.session_state["an_pair"]
     timeline = figures.decision_timeline(result, selected=selected)
-    st.plotly_chart(timeline, key="an_timeline", on_select="rerun", selection_mode="points",
-                    config={"displaylogo": False}, theme=None)
+    st.plotly_chart(
+        timeline,
+        key="an_timeline",
+        on_select="rerun",
+        selection_mode="points",
+        config={"displaylogo": False},
+        theme=None,
+    )
     st.caption("Click a pair in the timeline, or use the slider, to see its cells below.")
     # The labels name the frames only: a label that changed with the decisions would make a new
     # widget (and lose the chosen pair) whenever a slider re-decides.
-    st.select_slider("Pair", options=list(range(n_pairs)), key="an_pair",
-                     format_func=lambda n: f"{pairs[n].i} → {pairs[n].j}")
+    st.select_slider(
+        "Pair",
+        options=list(range(n_pairs)),
+        key="an_pair",
+        format_func=lambda n: f"{pairs[n].i} → {pairs[n].j}",
+    )
     pair = pairs[st.session_state["an_pair"]]
     source, target = result.frames[pair.i], result.frames[pair.j]
     if pair.decision == "skipped" and not pair.cells and pair.evidence is None:
@@ -151,15 +180,19 @@ def show_result(seq: Sequence, config, result) -> None:
         if pair.evidence is not None and pair.labels is not None:
             motion = figures.motion_parts(pair, target.cloud)
             st.plotly_chart(motion, key="an_motion", config={"displaylogo": False}, theme=None)
-            st.caption(f"Rule reason: {pair.reason or '—'}. Points of frame {pair.i} coloured by the motion that "
-                       f"explains them (the pair's part segmentation), frame {pair.j} in grey; one arrow per "
-                       "motion, from its points' centre. Hover a point for its motion.")
+            st.caption(
+                f"Rule reason: {pair.reason or '—'}. Points of frame {pair.i} coloured by the motion that "
+                f"explains them (the pair's part segmentation), frame {pair.j} in grey; one arrow per "
+                "motion, from its points' centre. Hover a point for its motion."
+            )
         else:
             motion = figures.motion_arrows(pair, source.cloud, target.cloud)
             st.plotly_chart(motion, key="an_motion", config={"displaylogo": False}, theme=None)
-            st.caption(f"Rule reason: {pair.reason or '—'}. Arrows: motion of each cell's centre under its ICP "
-                       "transform, coloured by the motion cluster (hash key) the rule put it in. Hover a cell for "
-                       "its fitness, rotation and translation.")
+            st.caption(
+                f"Rule reason: {pair.reason or '—'}. Arrows: motion of each cell's centre under its ICP "
+                "transform, coloured by the motion cluster (hash key) the rule put it in. Hover a cell for "
+                "its fitness, rotation and translation."
+            )
     images = {}
     cols = st.columns(2)
     for col, fr in zip(cols, (source, target)):
@@ -167,7 +200,12 @@ def show_result(seq: Sequence, config, result) -> None:
             frame = seq[fr.index]
             mask = state.mask_of(seq, fr.index, config)
             images[fr.index] = figures.frame_images_with_hand(frame, mask, hand_of(seq, fr.index, config))
-            st.plotly_chart(images[fr.index], key=f"an_frame_{'ij'[fr is target]}", config={"displaylogo": False}, theme=None)
+            st.plotly_chart(
+                images[fr.index],
+                key=f"an_frame_{'ij'[fr is target]}",
+                config={"displaylogo": False},
+                theme=None,
+            )
             if fr.skipped:
                 st.caption(f"Frame {fr.index} skipped: {fr.skipped}")
     parts = show_parts(seq, config, result, pair)
@@ -175,12 +213,22 @@ def show_result(seq: Sequence, config, result) -> None:
         with st.expander(f"Motions of pair {pair.i} → {pair.j} ({len(pair.motions)})", expanded=False):
             st.dataframe(pd.DataFrame(figures.motions_table(pair)), hide_index=True, width="stretch")
     else:
-        with st.expander(f"Cells of pair {pair.i} → {pair.j} ({len(pair.cells)} cells, "
-                         f"{sum(c.matched for c in pair.cells)} matched)", expanded=False):
+        with st.expander(
+            f"Cells of pair {pair.i} → {pair.j} ({len(pair.cells)} cells, "
+            f"{sum(c.matched for c in pair.cells)} matched)",
+            expanded=False,
+        ):
             st.dataframe(pd.DataFrame(figures.cells_table(pair)), hide_index=True, width="stretch")
-    export(seq, result, {"Decision timeline": timeline,
-                         **({f"Pair {pair.i} → {pair.j} (3D motion)": motion} if motion is not None else {}),
-                         **{f"Frame {n}": f for n, f in images.items()}, **parts})
+    export(
+        seq,
+        result,
+        {
+            "Decision timeline": timeline,
+            **({f"Pair {pair.i} → {pair.j} (3D motion)": motion} if motion is not None else {}),
+            **{f"Frame {n}": f for n, f in images.items()},
+            **parts,
+        },
+    )
     with st.expander("Resolved automatic values and frame details"):
         st.dataframe(pd.DataFrame([f.to_dict() for f in result.frames]), hide_index=True, width="stretch")
 
@@ -205,14 +253,22 @@ def show_parts(seq: Sequence, config, result, pair) -> dict:
     st.markdown(f"**{articulation.summary()}**")
     figs = {"Parts and joints (3D)": figures.parts_3d(articulation)}
     left, right = st.columns([3, 2])
-    left.plotly_chart(figs["Parts and joints (3D)"], key="an_joints_3d", config={"displaylogo": False}, theme=None)
+    left.plotly_chart(
+        figs["Parts and joints (3D)"], key="an_joints_3d", config={"displaylogo": False}, theme=None
+    )
     figs[f"Frame {pair.i}: parts"] = figures.part_image(seq[pair.i], articulation.label_image(pair.i))
-    right.plotly_chart(figs[f"Frame {pair.i}: parts"], key="an_joints_image", config={"displaylogo": False}, theme=None)
+    right.plotly_chart(
+        figs[f"Frame {pair.i}: parts"], key="an_joints_image", config={"displaylogo": False}, theme=None
+    )
     if articulation.joints:
         figs["Joint states"] = figures.joint_states(articulation)
-        st.plotly_chart(figs["Joint states"], key="an_joints_states", config={"displaylogo": False}, theme=None)
-        st.caption("The joint's state in each frame, relative to the first frame where the part was seen moving "
-                   "(the band: one standard deviation). Axes are in the camera frame of the first frame.")
+        st.plotly_chart(
+            figs["Joint states"], key="an_joints_states", config={"displaylogo": False}, theme=None
+        )
+        st.caption(
+            "The joint's state in each frame, relative to the first frame where the part was seen moving "
+            "(the band: one standard deviation). Axes are in the camera frame of the first frame."
+        )
     return figs
 
 
@@ -227,22 +283,41 @@ def hand_of(seq: Sequence, i: int, config) -> np.ndarray | None:
 def export(seq: Sequence, result, figs: dict) -> None:
     st.subheader("Export")
     c1, c2, c3 = st.columns(3)
-    c1.download_button("Run result (JSON)", data=lambda: json.dumps(result.to_dict(), indent=1),
-                       file_name=f"{seq.name}_result.json", mime="application/json", on_click="ignore",
-                       key="an_dl_json", icon=":material/data_object:")
-    c2.download_button("Figures (HTML)", data=lambda: figures.figures_html(figs, title=f"artclass: {seq.name}"),
-                       file_name=f"{seq.name}_figures.html", mime="text/html", on_click="ignore",
-                       key="an_dl_html", icon=":material/insert_chart:")
+    c1.download_button(
+        "Run result (JSON)",
+        data=lambda: json.dumps(result.to_dict(), indent=1),
+        file_name=f"{seq.name}_result.json",
+        mime="application/json",
+        on_click="ignore",
+        key="an_dl_json",
+        icon=":material/data_object:",
+    )
+    c2.download_button(
+        "Figures (HTML)",
+        data=lambda: figures.figures_html(figs, title=f"artclass: {seq.name}"),
+        file_name=f"{seq.name}_figures.html",
+        mime="text/html",
+        on_click="ignore",
+        key="an_dl_html",
+        icon=":material/insert_chart:",
+    )
     if _has_kaleido():
-        c3.download_button("Timeline (PNG)", data=lambda: next(iter(figs.values())).to_image(format="png"),
-                           file_name=f"{seq.name}_timeline.png", mime="image/png", on_click="ignore",
-                           key="an_dl_png", icon=":material/image:")
+        c3.download_button(
+            "Timeline (PNG)",
+            data=lambda: next(iter(figs.values())).to_image(format="png"),
+            file_name=f"{seq.name}_timeline.png",
+            mime="image/png",
+            on_click="ignore",
+            key="an_dl_png",
+            icon=":material/image:",
+        )
     else:
         c3.caption("PNG export needs the optional package kaleido; the HTML export works offline.")
 
 
 def _has_kaleido() -> bool:
     import importlib.util
+
     return importlib.util.find_spec("kaleido") is not None
 
 
@@ -263,8 +338,10 @@ def main() -> None:
         st.error(str(seq_error))
         return
     st.title(seq.name)
-    st.caption(f"{seq.object_name} · {len(seq)} frames · {seq.intrinsics.width}×{seq.intrinsics.height} px · "
-               f"ground truth: {seq.label or 'unknown'} · `{seq.path}`")
+    st.caption(
+        f"{seq.object_name} · {len(seq)} frames · {seq.intrinsics.width}×{seq.intrinsics.height} px · "
+        f"ground truth: {seq.label or 'unknown'} · `{seq.path}`"
+    )
     if config is None:
         st.error(str(config_error))
         return
@@ -282,8 +359,8 @@ def main() -> None:
 
 try:
     main()
-except ArtclassError as exc:   # anything the user can fix that escaped the sections above
+except ArtclassError as exc:  # anything the user can fix that escaped the sections above
     st.error(str(exc))
-except Exception as exc:   # a bug: one line here, the traceback in the server log
+except Exception as exc:  # a bug: one line here, the traceback in the server log
     log.exception("unexpected error in the analyse page")
     st.error(f"Unexpected error ({type(exc).__name__}: {exc}). The details are in the server log.")

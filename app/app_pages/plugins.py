@@ -11,16 +11,27 @@ from artclass_core.cli import plugin_table
 
 reg = state.registry()
 st.title("Plugins")
-st.caption("Every plugin registered through the `artclass` entry points, built-in or third-party. A new plugin "
-           "appears here and in the sidebar without changes to the app.")
+st.caption(
+    "Every plugin registered through the `artclass` entry points, built-in or third-party. A new plugin "
+    "appears here and in the sidebar without changes to the app."
+)
 for name, err in reg.failures.items():
     st.warning(f"Plugin {name!r} failed to load: {err}")
 
 
 def _rows(specs) -> list[dict]:
-    return [dict(parameter=s.name, symbol=controls.symbol(s), unit=s.unit,
-                 default=("auto" if s.default is None else str(s.default)),
-                 bounds=f"[{s.bounds[0]}, {s.bounds[1]}]", auto=s.auto, help=s.help) for s in specs]
+    return [
+        dict(
+            parameter=s.name,
+            symbol=controls.symbol(s),
+            unit=s.unit,
+            default=("auto" if s.default is None else str(s.default)),
+            bounds=f"[{s.bounds[0]}, {s.bounds[1]}]",
+            auto=s.auto,
+            help=s.help,
+        )
+        for s in specs
+    ]
 
 
 for kind, items in plugin_table(reg).items():

@@ -35,8 +35,9 @@ def structure(gray: np.ndarray, *, window_px: int = 5) -> tuple[np.ndarray, np.n
     return (xx + yy) / 2 - half, (xx + yy) / 2 + half, 0.5 * np.arctan2(2 * xy, xx - yy)
 
 
-def flow_targets(source: Cloud, target: Cloud, *, min_texture: float,
-                 max_roundtrip_px: float) -> tuple[np.ndarray, np.ndarray]:
+def flow_targets(
+    source: Cloud, target: Cloud, *, min_texture: float, max_roundtrip_px: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Where optical flow takes each source point.
 
     Returns
@@ -68,10 +69,17 @@ def flow_targets(source: Cloud, target: Cloud, *, min_texture: float,
     iu = np.clip(np.rint(px).astype(int), 0, size[0] - 1)
     iv = np.clip(np.rint(py).astype(int), 0, size[1] - 1)
     f = forward[iv, iu]
-    back = cv2.remap(backward, (px + f[:, 0]).astype(np.float32)[:, None], (py + f[:, 1]).astype(np.float32)[:, None],
-                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)[:, 0]
-    small, large, angle = (m[source.pixels[:, 1] - r0, source.pixels[:, 0] - c0]
-                           for m in structure(a.gray[r0:r1, c0:c1]))
+    back = cv2.remap(
+        backward,
+        (px + f[:, 0]).astype(np.float32)[:, None],
+        (py + f[:, 1]).astype(np.float32)[:, None],
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=np.nan,
+    )[:, 0]
+    small, large, angle = (
+        m[source.pixels[:, 1] - r0, source.pixels[:, 0] - c0] for m in structure(a.gray[r0:r1, c0:c1])
+    )
     across = np.column_stack([np.cos(angle), np.sin(angle)])
     miss = np.column_stack([(f[:, 0] + back[:, 0]) / sx, (f[:, 1] + back[:, 1]) / sy])
     full = (small >= min_texture) & (np.hypot(miss[:, 0], miss[:, 1]) <= max_roundtrip_px)

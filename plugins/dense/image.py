@@ -36,23 +36,42 @@ MIN_POINTS = 10
 
 @dataclass(frozen=True)
 class ImageParams(Params):
-    depth_noise_m: float = param(0.0015, unit="m", bounds=(1e-5, 0.05),
-                                 help="Depth noise (one standard deviation) of the sensor at 1 m; it grows with "
-                                      "the square of the depth (structured-light and stereo sensors). The floor of "
-                                      "the noise measured on each frame and pair, and the scale of the registration's "
-                                      "reach.")
-    outlier_sigmas: float = param(3.0, symbol="s", unit="sigma", bounds=(0.5, 20.0),
-                                  help="Drop a pixel whose depth is more than this many noise sigmas (plus one "
-                                       "pixel's footprint) from the median of its 5x5 neighbourhood.")
-    smoothing_px: int = param(2, unit="px", bounds=(0, 10),
-                              help="Radius of the edge-preserving depth smoothing (0 = none).")
-    max_points: int = param(3000, unit="points", bounds=(50, 200000),
-                            help="The cloud keeps every n-th pixel of every n-th row, with n the smallest "
-                                 "stride that leaves at most this many points.")
-    edge_px: int | None = param(None, unit="px", bounds=(0, 50), auto="image width / 160 (4 px at 640x480)",
-                                help="Peel this many pixels off the mask first (a silhouette slides over the "
-                                     "surface when the view changes); where the object is thinner than twice "
-                                     "this, half of each side.")
+    depth_noise_m: float = param(
+        0.0015,
+        unit="m",
+        bounds=(1e-5, 0.05),
+        help="Depth noise (one standard deviation) of the sensor at 1 m; it grows with "
+        "the square of the depth (structured-light and stereo sensors). The floor of "
+        "the noise measured on each frame and pair, and the scale of the registration's "
+        "reach.",
+    )
+    outlier_sigmas: float = param(
+        3.0,
+        symbol="s",
+        unit="sigma",
+        bounds=(0.5, 20.0),
+        help="Drop a pixel whose depth is more than this many noise sigmas (plus one "
+        "pixel's footprint) from the median of its 5x5 neighbourhood.",
+    )
+    smoothing_px: int = param(
+        2, unit="px", bounds=(0, 10), help="Radius of the edge-preserving depth smoothing (0 = none)."
+    )
+    max_points: int = param(
+        3000,
+        unit="points",
+        bounds=(50, 200000),
+        help="The cloud keeps every n-th pixel of every n-th row, with n the smallest "
+        "stride that leaves at most this many points.",
+    )
+    edge_px: int | None = param(
+        None,
+        unit="px",
+        bounds=(0, 50),
+        auto="image width / 160 (4 px at 640x480)",
+        help="Peel this many pixels off the mask first (a silhouette slides over the "
+        "surface when the view changes); where the object is thinner than twice "
+        "this, half of each side.",
+    )
 
 
 def noise_m(depth_m: np.ndarray | float, at_1m: float) -> np.ndarray | float:
@@ -67,8 +86,10 @@ def bounding_box(mask: np.ndarray, *, margin_px: int = 0) -> tuple[tuple[int, in
     if w == 0:
         return None
     rows, cols = mask.shape[:2]
-    return ((max(v - margin_px, 0), min(v + h + margin_px, rows)),
-            (max(u - margin_px, 0), min(u + w + margin_px, cols)))
+    return (
+        (max(v - margin_px, 0), min(v + h + margin_px, rows)),
+        (max(u - margin_px, 0), min(u + w + margin_px, cols)),
+    )
 
 
 def vertex_map(depth_m: np.ndarray, intrinsics: Intrinsics, *, u0: int = 0, v0: int = 0) -> np.ndarray:
@@ -95,16 +116,25 @@ def normal_map(vertices: np.ndarray, *, window_px: int = 5, min_support: float =
     mean = cv2.blur(vertices * valid[..., None], k) / np.maximum(support, 1e-6)[..., None]
     h = window_px // 2
     normals = np.zeros_like(vertices)
-    dx = mean[h:-h, 2 * h:] - mean[h:-h, :-2 * h]
-    dy = mean[2 * h:, h:-h] - mean[:-2 * h, h:-h]
+    dx = mean[h:-h, 2 * h :] - mean[h:-h, : -2 * h]
+    dy = mean[2 * h :, h:-h] - mean[: -2 * h, h:-h]
     # dx x dy and its length, one image per component (numpy's cross and norm of (..., 3) arrays are
     # several times slower)
-    n = [dx[..., 1] * dy[..., 2] - dx[..., 2] * dy[..., 1], dx[..., 2] * dy[..., 0] - dx[..., 0] * dy[..., 2],
-         dx[..., 0] * dy[..., 1] - dx[..., 1] * dy[..., 0]]
+    n = [
+        dx[..., 1] * dy[..., 2] - dx[..., 2] * dy[..., 1],
+        dx[..., 2] * dy[..., 0] - dx[..., 0] * dy[..., 2],
+        dx[..., 0] * dy[..., 1] - dx[..., 1] * dy[..., 0],
+    ]
     length = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
-    ok = ((valid[h:-h, h:-h] > 0) & (length > 0) & (support[h:-h, h:-h] >= min_support)
-          & (support[h:-h, 2 * h:] >= min_support) & (support[h:-h, :-2 * h] >= min_support)
-          & (support[2 * h:, h:-h] >= min_support) & (support[:-2 * h, h:-h] >= min_support))
+    ok = (
+        (valid[h:-h, h:-h] > 0)
+        & (length > 0)
+        & (support[h:-h, h:-h] >= min_support)
+        & (support[h:-h, 2 * h :] >= min_support)
+        & (support[h:-h, : -2 * h] >= min_support)
+        & (support[2 * h :, h:-h] >= min_support)
+        & (support[: -2 * h, h:-h] >= min_support)
+    )
     length = np.maximum(length, 1e-12)
     n = [np.where(ok, c / length, 0).astype(np.float32) for c in n]
     centre = vertices[h:-h, h:-h]
@@ -120,7 +150,7 @@ def peel(mask: np.ndarray, edge_px: int) -> np.ndarray:
     there only the outer half of each side goes (a lever a few pixels wide keeps its middle)."""
     inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 3)
     kernel = np.ones((4 * edge_px + 1, 4 * edge_px + 1), np.uint8)
-    half_width = cv2.dilate(inside, kernel)            # the largest distance to the edge nearby
+    half_width = cv2.dilate(inside, kernel)  # the largest distance to the edge nearby
     return mask & (inside > np.minimum(edge_px, half_width / 2))
 
 
@@ -144,7 +174,9 @@ def measured_noise(depth_m: np.ndarray, valid: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(kept))))
 
 
-def filter_depth(depth_m: np.ndarray, valid: np.ndarray, *, tolerance_m: np.ndarray, smoothing_px: int) -> np.ndarray:
+def filter_depth(
+    depth_m: np.ndarray, valid: np.ndarray, *, tolerance_m: np.ndarray, smoothing_px: int
+) -> np.ndarray:
     """Depth with outliers removed (0) and, if ``smoothing_px``, smoothed within ``tolerance_m``."""
     depth = np.where(valid, depth_m, 0).astype(np.float32)
     median = cv2.medianBlur(depth, 5)
@@ -193,7 +225,7 @@ class ImagePreprocessor(Preprocessor):
             return _empty(frame.index, n_raw)
         stride = max(1, int(np.ceil(np.sqrt(n_usable / p.max_points))))
         grid = np.zeros_like(usable)
-        grid[(-v0) % stride::stride, (-u0) % stride::stride] = True
+        grid[(-v0) % stride :: stride, (-u0) % stride :: stride] = True
         rr, cc = np.nonzero(usable & grid)
         points = vertices[rr, cc].astype(np.float64)
         full_depth = np.zeros_like(raw)
@@ -201,19 +233,47 @@ class ImagePreprocessor(Preprocessor):
         full_normals = np.zeros(raw.shape + (3,), np.float32)
         full_normals[v0:v1, u0:u1] = normals
         pixels = np.column_stack([cc + u0, rr + v0])
-        view = View(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY), full_depth, intrinsics, raw, mask=mask,
-                    normals=full_normals)
-        info = dict(n_raw=n_raw, n_inliers=n_usable, n_points=len(points), stride_px=stride,
-                    edge_px=px, diameter_m=_extent(points), depth_m=float(np.median(points[:, 2])),
-                    noise_m=sigma, smoothed_noise_m=sigma / (2 * p.smoothing_px + 1), depth_noise_m=p.depth_noise_m)
-        return Cloud(frame.index, points, normals[rr, cc].astype(np.float64), info,
-                     colors=frame.rgb[rr + v0, cc + u0].astype(np.float64) / 255.0, view=view, pixels=pixels)
+        view = View(
+            cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY),
+            full_depth,
+            intrinsics,
+            raw,
+            mask=mask,
+            normals=full_normals,
+        )
+        info = dict(
+            n_raw=n_raw,
+            n_inliers=n_usable,
+            n_points=len(points),
+            stride_px=stride,
+            edge_px=px,
+            diameter_m=_extent(points),
+            depth_m=float(np.median(points[:, 2])),
+            noise_m=sigma,
+            smoothed_noise_m=sigma / (2 * p.smoothing_px + 1),
+            depth_noise_m=p.depth_noise_m,
+        )
+        return Cloud(
+            frame.index,
+            points,
+            normals[rr, cc].astype(np.float64),
+            info,
+            colors=frame.rgb[rr + v0, cc + u0].astype(np.float64) / 255.0,
+            view=view,
+            pixels=pixels,
+        )
 
 
 def _empty(index: int, n_raw: int) -> Cloud:
     """The cloud of a frame with too few usable pixels."""
-    return Cloud(index, np.zeros((0, 3)), np.zeros((0, 3)), dict(n_raw=n_raw), colors=np.zeros((0, 3)),
-                 pixels=np.zeros((0, 2), int))
+    return Cloud(
+        index,
+        np.zeros((0, 3)),
+        np.zeros((0, 3)),
+        dict(n_raw=n_raw),
+        colors=np.zeros((0, 3)),
+        pixels=np.zeros((0, 2), int),
+    )
 
 
 def _extent(points: np.ndarray) -> float:

@@ -33,17 +33,19 @@ class Target:
     """What the association looks up in the target frame (all images full-resolution)."""
 
     intrinsics: Intrinsics
-    scene_m: np.ndarray        # (H, W) the whole frame's depth, 0 = none
-    object_m: np.ndarray       # (H, W) the object's filtered depth, 0 outside it
-    normals: np.ndarray        # (H, W, 3) normals of object_m's pixels, 0 = none
-    outside_px: np.ndarray     # (H, W) distance to the object's mask, 0 inside, inf far from it
+    scene_m: np.ndarray  # (H, W) the whole frame's depth, 0 = none
+    object_m: np.ndarray  # (H, W) the object's filtered depth, 0 outside it
+    normals: np.ndarray  # (H, W, 3) normals of object_m's pixels, 0 = none
+    outside_px: np.ndarray  # (H, W) distance to the object's mask, 0 inside, inf far from it
 
     @classmethod
     def of(cls, cloud: Cloud) -> Target:
         view = cloud.view
         if view is None or view.normals is None or view.mask is None:
-            raise ArtclassError("the dense registrar needs clouds that keep their image (pixels, normals and mask), "
-                                "as the 'image' preprocessor gives; use it, or a per-cell registrar")
+            raise ArtclassError(
+                "the dense registrar needs clouds that keep their image (pixels, normals and mask), "
+                "as the 'image' preprocessor gives; use it, or a per-cell registrar"
+            )
         return cls(view.intrinsics, view.scene_depth_m, view.depth_m, view.normals, _outside(view.mask))
 
 
@@ -57,8 +59,9 @@ def _outside(mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def look_all(motions: np.ndarray, points: np.ndarray, target: Target, *, reach_m: np.ndarray,
-             off_object_px: float) -> tuple[np.ndarray, np.ndarray]:
+def look_all(
+    motions: np.ndarray, points: np.ndarray, target: Target, *, reach_m: np.ndarray, off_object_px: float
+) -> tuple[np.ndarray, np.ndarray]:
     """What each source point, moved by each motion hypothesis, finds at its target pixel.
 
     Parameters
@@ -77,14 +80,25 @@ def look_all(motions: np.ndarray, points: np.ndarray, target: Target, *, reach_m
     """
     status = np.empty((len(motions), len(points)), np.int8)
     residual = np.empty((len(motions), len(points)), np.float32)
-    _look_kernel(np.ascontiguousarray(motions, np.float64), np.ascontiguousarray(points, np.float64),
-                 target.scene_m, target.object_m, target.normals, target.outside_px, _camera(target.intrinsics),
-                 np.ascontiguousarray(reach_m, np.float64), float(off_object_px), status, residual)
+    _look_kernel(
+        np.ascontiguousarray(motions, np.float64),
+        np.ascontiguousarray(points, np.float64),
+        target.scene_m,
+        target.object_m,
+        target.normals,
+        target.outside_px,
+        _camera(target.intrinsics),
+        np.ascontiguousarray(reach_m, np.float64),
+        float(off_object_px),
+        status,
+        residual,
+    )
     return status, residual
 
 
-def flow_misfit(motions: np.ndarray, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray,
-                intrinsics: Intrinsics) -> np.ndarray:
+def flow_misfit(
+    motions: np.ndarray, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray, intrinsics: Intrinsics
+) -> np.ndarray:
     """How far (pixels) from where optical flow took each point each motion projects it.
 
     Parameters
@@ -101,15 +115,29 @@ def flow_misfit(motions: np.ndarray, points: np.ndarray, flow_px: np.ndarray, ac
     flow is unknown
     """
     out = np.empty((len(motions), len(points)), np.float32)
-    _flow_kernel(np.ascontiguousarray(motions, np.float64), np.ascontiguousarray(points, np.float64),
-                 np.ascontiguousarray(flow_px, np.float64), np.ascontiguousarray(across, np.float64),
-                 _camera(intrinsics), out)
+    _flow_kernel(
+        np.ascontiguousarray(motions, np.float64),
+        np.ascontiguousarray(points, np.float64),
+        np.ascontiguousarray(flow_px, np.float64),
+        np.ascontiguousarray(across, np.float64),
+        _camera(intrinsics),
+        out,
+    )
     return out
 
 
-def icp(points: np.ndarray, groups: np.ndarray, T: np.ndarray, target: Target, *, reach_m: list[float],
-        min_points: int = 6, flow_px: np.ndarray | None = None, across: np.ndarray | None = None,
-        metres_per_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def icp(
+    points: np.ndarray,
+    groups: np.ndarray,
+    T: np.ndarray,
+    target: Target,
+    *,
+    reach_m: list[float],
+    min_points: int = 6,
+    flow_px: np.ndarray | None = None,
+    across: np.ndarray | None = None,
+    metres_per_px: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """Projective point-to-plane ICP of several point groups at once, each with its own motion, with
     optical flow as a second term where it is known (as RGB-D odometry's hybrid term).
 
@@ -147,7 +175,10 @@ def icp(points: np.ndarray, groups: np.ndarray, T: np.ndarray, target: Target, *
     T = np.array(T, dtype=np.float64, copy=True)
     G = len(T)
     count = np.bincount(groups, minlength=G)
-    centre = np.stack([np.bincount(groups, points[:, d], minlength=G) for d in range(3)], 1) / np.maximum(count, 1)[:, None]
+    centre = (
+        np.stack([np.bincount(groups, points[:, d], minlength=G) for d in range(3)], 1)
+        / np.maximum(count, 1)[:, None]
+    )
     order = np.argsort(groups, kind="stable")
     rank = np.empty(len(groups), int)
     rank[order] = np.arange(len(groups)) - np.repeat(np.cumsum(count) - count, count)
@@ -155,11 +186,23 @@ def icp(points: np.ndarray, groups: np.ndarray, T: np.ndarray, target: Target, *
     use_flow = flow_px is not None and metres_per_px > 0
     unknown = np.full((len(points), 2), np.nan)
     inliers = np.zeros(G, np.int64)
-    _icp_kernel(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(groups, np.int64), T, centre, thin,
-                np.asarray(reach_m, np.float64), target.object_m, target.normals, _camera(target.intrinsics),
-                np.ascontiguousarray(flow_px if use_flow else unknown, np.float64),
-                np.ascontiguousarray(across if use_flow else unknown, np.float64),
-                float(metres_per_px) if use_flow else 0.0, _DAMPING, int(min_points), inliers)
+    _icp_kernel(
+        np.ascontiguousarray(points, np.float64),
+        np.ascontiguousarray(groups, np.int64),
+        T,
+        centre,
+        thin,
+        np.asarray(reach_m, np.float64),
+        target.object_m,
+        target.normals,
+        _camera(target.intrinsics),
+        np.ascontiguousarray(flow_px if use_flow else unknown, np.float64),
+        np.ascontiguousarray(across if use_flow else unknown, np.float64),
+        float(metres_per_px) if use_flow else 0.0,
+        _DAMPING,
+        int(min_points),
+        inliers,
+    )
     return T, inliers
 
 
@@ -196,9 +239,11 @@ def _plane_residual(q0, q1, q2, u, v, depth, normals, camera):
 @njit(cache=True, nogil=True)
 def _moved(T, p0, p1, p2):
     """A point moved by the rigid motion T (4, 4)."""
-    return (T[0, 0] * p0 + T[0, 1] * p1 + T[0, 2] * p2 + T[0, 3],
-            T[1, 0] * p0 + T[1, 1] * p1 + T[1, 2] * p2 + T[1, 3],
-            T[2, 0] * p0 + T[2, 1] * p1 + T[2, 2] * p2 + T[2, 3])
+    return (
+        T[0, 0] * p0 + T[0, 1] * p1 + T[0, 2] * p2 + T[0, 3],
+        T[1, 0] * p0 + T[1, 1] * p1 + T[1, 2] * p2 + T[1, 3],
+        T[2, 0] * p0 + T[2, 1] * p1 + T[2, 2] * p2 + T[2, 3],
+    )
 
 
 @njit(cache=True, nogil=True)
@@ -272,8 +317,24 @@ def _rotation(x0, x1, x2):
 
 
 @njit(cache=True, nogil=True)
-def _normal_equations(points, groups, T, centre, use, reach, depth, normals, camera, flow_px, across,
-                      metres_per_px, A, b, rows, inliers):
+def _normal_equations(
+    points,
+    groups,
+    T,
+    centre,
+    use,
+    reach,
+    depth,
+    normals,
+    camera,
+    flow_px,
+    across,
+    metres_per_px,
+    A,
+    b,
+    rows,
+    inliers,
+):
     """One pass over the points: each group's Gauss-Newton normal equations (the upper triangle of
     the sum of w J^T J in A, the sum of w J^T r in b), its number of rows and of depth matches."""
     h, w = depth.shape
@@ -288,13 +349,24 @@ def _normal_equations(points, groups, T, centre, use, reach, depth, normals, cam
         g = groups[i]
         q0, q1, q2 = _moved(T[g], points[i, 0], points[i, 1], points[i, 2])
         m0, m1, m2 = _moved(T[g], centre[g, 0], centre[g, 1], centre[g, 2])
-        a0, a1, a2 = q0 - m0, q1 - m1, q2 - m2              # lever arm about the moved centroid
+        a0, a1, a2 = q0 - m0, q1 - m1, q2 - m2  # lever arm about the moved centroid
         u, v = _pixel(q0, q1, q2, camera, h, w)
         if u >= 0:
             r = _plane_residual(q0, q1, q2, u, v, depth, normals, camera)
             if abs(r) < reach:
-                _add_row(A, b, g, a0, a1, a2, np.float64(normals[v, u, 0]), np.float64(normals[v, u, 1]),
-                         np.float64(normals[v, u, 2]), r, reach)
+                _add_row(
+                    A,
+                    b,
+                    g,
+                    a0,
+                    a1,
+                    a2,
+                    np.float64(normals[v, u, 0]),
+                    np.float64(normals[v, u, 1]),
+                    np.float64(normals[v, u, 2]),
+                    r,
+                    reach,
+                )
                 rows[g] += 1
                 inliers[g] += 1
         if metres_per_px > 0 and q2 > 0 and np.isfinite(flow_px[i, 0]):
@@ -302,10 +374,10 @@ def _normal_equations(points, groups, T, centre, use, reach, depth, normals, cam
             # gradients of the projected column (gu) and row (gv) per metre of motion.
             du = (fx * q0 / q2 + cx - flow_px[i, 0]) * metres_per_px
             dv = (fy * q1 / q2 + cy - flow_px[i, 1]) * metres_per_px
-            gu0, gu2 = fx / q2 * metres_per_px, -fx * q0 / q2 ** 2 * metres_per_px
-            gv1, gv2 = fy / q2 * metres_per_px, -fy * q1 / q2 ** 2 * metres_per_px
+            gu0, gu2 = fx / q2 * metres_per_px, -fx * q0 / q2**2 * metres_per_px
+            gv1, gv2 = fy / q2 * metres_per_px, -fy * q1 / q2**2 * metres_per_px
             e0, e1 = across[i, 0], across[i, 1]
-            if np.isfinite(e0):           # an edge point: across the edge only
+            if np.isfinite(e0):  # an edge point: across the edge only
                 r = du * e0 + dv * e1
                 if abs(r) < reach:
                     _add_row(A, b, g, a0, a1, a2, gu0 * e0, gv1 * e1, gu2 * e0 + gv2 * e1, r, reach)
@@ -320,8 +392,23 @@ def _normal_equations(points, groups, T, centre, use, reach, depth, normals, cam
 
 
 @njit(cache=True, nogil=True)
-def _icp_kernel(points, groups, T, centre, thin, reaches, depth, normals, camera, flow_px, across,
-                metres_per_px, damping, min_points, inliers):
+def _icp_kernel(
+    points,
+    groups,
+    T,
+    centre,
+    thin,
+    reaches,
+    depth,
+    normals,
+    camera,
+    flow_px,
+    across,
+    metres_per_px,
+    damping,
+    min_points,
+    inliers,
+):
     """The iterations of :func:`icp`; T (G, 4, 4) and inliers (G,) are updated in place."""
     G = T.shape[0]
     A = np.zeros((G, 6, 6))
@@ -331,8 +418,24 @@ def _icp_kernel(points, groups, T, centre, thin, reaches, depth, normals, camera
     can_thin = not thin.all()
     for reach in reaches:
         use = thin if (reach > 2 * reaches[-1] and can_thin) else everything
-        _normal_equations(points, groups, T, centre, use, reach, depth, normals, camera, flow_px, across,
-                          metres_per_px, A, b, rows, inliers)
+        _normal_equations(
+            points,
+            groups,
+            T,
+            centre,
+            use,
+            reach,
+            depth,
+            normals,
+            camera,
+            flow_px,
+            across,
+            metres_per_px,
+            A,
+            b,
+            rows,
+            inliers,
+        )
         if (rows < min_points).all():
             break
         for g in range(G):

@@ -36,31 +36,53 @@ _MIN_FLOW_MATCHES = 6
 
 @dataclass(frozen=True)
 class DenseParams(Params):
-    reach_sigmas: float = param(10.0, unit="sigma", bounds=(1.0, 100.0),
-                                help="A moved point within this many sensor noise sigmas (the preprocessor's "
-                                     "depth_noise_m at its depth) plus two pixels of the observed "
-                                     "depth is on that surface; farther in front, it is hidden; farther behind, "
-                                     "the camera sees through where it should be.")
-    cells_per_diameter: float = param(5.0, unit="1", bounds=(1.0, 50.0),
-                                      help="Local motions are seeded from cells of edge diameter / this (the paper's "
-                                           "x = D/5).")
-    min_seed_points: int = param(16, unit="points", bounds=(6, 10000),
-                                 help="A cell with fewer points seeds no motion.")
+    reach_sigmas: float = param(
+        10.0,
+        unit="sigma",
+        bounds=(1.0, 100.0),
+        help="A moved point within this many sensor noise sigmas (the preprocessor's "
+        "depth_noise_m at its depth) plus two pixels of the observed "
+        "depth is on that surface; farther in front, it is hidden; farther behind, "
+        "the camera sees through where it should be.",
+    )
+    cells_per_diameter: float = param(
+        5.0,
+        unit="1",
+        bounds=(1.0, 50.0),
+        help="Local motions are seeded from cells of edge diameter / this (the paper's x = D/5).",
+    )
+    min_seed_points: int = param(
+        16, unit="points", bounds=(6, 10000), help="A cell with fewer points seeds no motion."
+    )
     use_flow: bool = param(True, help="Use optical flow on textured surfaces (sees motion along a surface).")
-    min_texture: float = param(16.0, unit="(grey/px)^2", bounds=(0.0, 1e4),
-                               help="Flow is used where the smaller structure-tensor eigenvalue reaches this "
-                                    "(two-dimensional texture).")
-    max_roundtrip_px: float = param(1.0, unit="px", bounds=(0.1, 20.0),
-                                    help="Flow is used where the backward flow brings a point back within this.")
-    refine_rounds: int = param(1, unit="rounds", bounds=(0, 10),
-                               help="Rounds of refitting the selected motions on the points they explain.")
+    min_texture: float = param(
+        16.0,
+        unit="(grey/px)^2",
+        bounds=(0.0, 1e4),
+        help="Flow is used where the smaller structure-tensor eigenvalue reaches this "
+        "(two-dimensional texture).",
+    )
+    max_roundtrip_px: float = param(
+        1.0,
+        unit="px",
+        bounds=(0.1, 20.0),
+        help="Flow is used where the backward flow brings a point back within this.",
+    )
+    refine_rounds: int = param(
+        1,
+        unit="rounds",
+        bounds=(0, 10),
+        help="Rounds of refitting the selected motions on the points they explain.",
+    )
 
 
 class DenseRegistrar(PairRegistrar):
     """Motion hypotheses for the whole pair, from projective ICP and optical flow (see module docstring)."""
 
     name = "dense"
-    description = "dense motion hypotheses for a whole pair: projective ICP, flow, per-point evidence (default)"
+    description = (
+        "dense motion hypotheses for a whole pair: projective ICP, flow, per-point evidence (default)"
+    )
     Params = DenseParams
 
     def register_pair(self, source: Cloud, target: Cloud) -> MotionEvidence:
@@ -80,10 +102,13 @@ class DenseRegistrar(PairRegistrar):
         noise = max(np.sqrt(2) * max(c.info.get("smoothed_noise_m", 0.0) for c in (source, target)), sigma0)
         rule = DenseRuleParams()
         no_flow = np.full((len(points), 2), np.nan)
-        flow_px, across = (flow_targets(source, target, min_texture=p.min_texture, max_roundtrip_px=p.max_roundtrip_px)
-                           if p.use_flow else (no_flow, no_flow))
+        flow_px, across = (
+            flow_targets(source, target, min_texture=p.min_texture, max_roundtrip_px=p.max_roundtrip_px)
+            if p.use_flow
+            else (no_flow, no_flow)
+        )
         matched, matches = _flow_points(flow_px, tgt)
-        matched &= ~np.isfinite(across[:, 0])          # 3D matches only where the flow is known in full
+        matched &= ~np.isfinite(across[:, 0])  # 3D matches only where the flow is known in full
 
         shift = np.eye(4)
         shift[:3, 3] = np.median(target.points, axis=0) - np.median(points, axis=0)
@@ -92,7 +117,10 @@ class DenseRegistrar(PairRegistrar):
             inits.append(robust_kabsch(points[matched], matches[matched], inlier_m=fine))
         fit = _Fit(tgt, flow_px, across, noise / rule.flow_sigma_px)
         whole = fit.each(points, np.stack(inits), coarse)
-        hyps, names = [np.eye(4), *whole], ["identity", "object", "object (shift)", "object (flow)"][:1 + len(whole)]
+        hyps, names = (
+            [np.eye(4), *whole],
+            ["identity", "object", "object (shift)", "object (flow)"][: 1 + len(whole)],
+        )
 
         cells = _cells(points, size / p.cells_per_diameter, p.min_seed_points)
         if cells.max() >= 0:
@@ -100,8 +128,11 @@ class DenseRegistrar(PairRegistrar):
             best_whole = whole[-1]
             for c in range(cells.max() + 1):
                 own = (cells == c) & matched
-                seeds.append(robust_kabsch(points[own], matches[own], inlier_m=fine)
-                             if own.sum() >= _MIN_FLOW_MATCHES else best_whole)
+                seeds.append(
+                    robust_kabsch(points[own], matches[own], inlier_m=fine)
+                    if own.sum() >= _MIN_FLOW_MATCHES
+                    else best_whole
+                )
             used = cells >= 0
             local = fit(points, np.flatnonzero(used), cells[used], np.stack(seeds), coarse[1:])
             hyps += list(local)
@@ -112,8 +143,18 @@ class DenseRegistrar(PairRegistrar):
         flow_err = _flow_errors(hyps, points, flow_px, across, tgt)
 
         for r in range(p.refine_rounds):
-            ev = MotionEvidence(np.stack(hyps), names, residual, status, flow_err, noise, points, source.pixels,
-                                pixel_m, dict(stride_px=int(source.info.get("stride_px", 1))))
+            ev = MotionEvidence(
+                np.stack(hyps),
+                names,
+                residual,
+                status,
+                flow_err,
+                noise,
+                points,
+                source.pixels,
+                pixel_m,
+                dict(stride_px=int(source.info.get("stride_px", 1))),
+            )
             new, new_names = self._refits(ev, fit, rule, r, coarse)
             if not new:
                 break
@@ -127,14 +168,28 @@ class DenseRegistrar(PairRegistrar):
         # The other way round: each target point moved by each motion's inverse onto the source image.
         back = Target.of(source)
         inverse = np.linalg.inv(np.stack(hyps))
-        status_back, residual_back = _look_all(inverse, target.points, back, self._reach(target, back.intrinsics.fx))
-        info = dict(stride_px=int(source.info.get("stride_px", 1)), n_flow=int(matched.sum()),
-                    n_points=len(points), seconds=round(time.perf_counter() - t0, 4))
-        return MotionEvidence(np.stack(hyps), names, np.hstack([residual, residual_back]),
-                              np.hstack([status, status_back]),
-                              np.hstack([flow_err, np.full(status_back.shape, np.nan, np.float32)]), noise,
-                              np.vstack([points, target.points]), np.vstack([source.pixels, target.pixels]),
-                              pixel_m, info, n_source=len(points))
+        status_back, residual_back = _look_all(
+            inverse, target.points, back, self._reach(target, back.intrinsics.fx)
+        )
+        info = dict(
+            stride_px=int(source.info.get("stride_px", 1)),
+            n_flow=int(matched.sum()),
+            n_points=len(points),
+            seconds=round(time.perf_counter() - t0, 4),
+        )
+        return MotionEvidence(
+            np.stack(hyps),
+            names,
+            np.hstack([residual, residual_back]),
+            np.hstack([status, status_back]),
+            np.hstack([flow_err, np.full(status_back.shape, np.nan, np.float32)]),
+            noise,
+            np.vstack([points, target.points]),
+            np.vstack([source.pixels, target.pixels]),
+            pixel_m,
+            info,
+            n_source=len(points),
+        )
 
     def _reach(self, cloud: Cloud, fx: float) -> np.ndarray:
         """How far from the observed depth each moved point of ``cloud`` still counts as on that surface
@@ -142,8 +197,9 @@ class DenseRegistrar(PairRegistrar):
         z = cloud.points[:, 2]
         return self.params.reach_sigmas * noise_m(z, _sensor_noise(cloud)) + 2 * z / fx
 
-    def _refits(self, ev: MotionEvidence, fit: _Fit, rule: DenseRuleParams, round_: int,
-                reach: list[float]) -> tuple[list, list]:
+    def _refits(
+        self, ev: MotionEvidence, fit: _Fit, rule: DenseRuleParams, round_: int, reach: list[float]
+    ) -> tuple[list, list]:
         """The motions a default selection picks, refitted on the points they explain; and, for each
         of the largest image regions of points that none of them explains, motions fitted to that
         region from each selected motion (coarse to fine)."""
@@ -152,10 +208,16 @@ class DenseRegistrar(PairRegistrar):
         if seen.sum() < self.params.min_seed_points:
             return [], []
         n = int(seen.sum())
-        misfit = rule.noise_factor ** 2
-        chosen = select(costs[:, seen], ev.pixels[seen], penalty=6 * np.log(n), misfit=misfit,
-                        min_points=max(rule.min_part_points, int(rule.min_part_share * n)),
-                        min_coherence=rule.min_coherence, stride=int(ev.info["stride_px"]))
+        misfit = rule.noise_factor**2
+        chosen = select(
+            costs[:, seen],
+            ev.pixels[seen],
+            penalty=6 * np.log(n),
+            misfit=misfit,
+            min_points=max(rule.min_part_points, int(rule.min_part_share * n)),
+            min_coherence=rule.min_coherence,
+            stride=int(ev.info["stride_px"]),
+        )
         best = costs[chosen].min(axis=0)
         owner = np.asarray(chosen)[np.argmin(costs[chosen], axis=0)]
         members: list[np.ndarray] = []
@@ -172,8 +234,13 @@ class DenseRegistrar(PairRegistrar):
             for h in chosen:
                 members.append(everything)
                 inits.append(ev.motions[h])
-        for region in regions(seen & (best >= misfit), ev.pixels, int(ev.info["stride_px"]),
-                               min_points=self.params.min_seed_points, most=3):
+        for region in regions(
+            seen & (best >= misfit),
+            ev.pixels,
+            int(ev.info["stride_px"]),
+            min_points=self.params.min_seed_points,
+            most=3,
+        ):
             for h in chosen:
                 members.append(region)
                 inits.append(ev.motions[h])
@@ -208,11 +275,20 @@ class _Fit:
     def __init__(self, target: Target, flow_px: np.ndarray, across: np.ndarray, metres_per_px: float):
         self.target, self.flow_px, self.across, self.metres_per_px = target, flow_px, across, metres_per_px
 
-    def __call__(self, points: np.ndarray, index: np.ndarray, groups: np.ndarray, inits: np.ndarray,
-                 reach: list[float]) -> list[np.ndarray]:
+    def __call__(
+        self, points: np.ndarray, index: np.ndarray, groups: np.ndarray, inits: np.ndarray, reach: list[float]
+    ) -> list[np.ndarray]:
         """The motions of the groups of points ``points[index]``, from ``inits``."""
-        T, _ = icp(points[index], groups, inits, self.target, reach_m=reach, flow_px=self.flow_px[index],
-                   across=self.across[index], metres_per_px=self.metres_per_px)
+        T, _ = icp(
+            points[index],
+            groups,
+            inits,
+            self.target,
+            reach_m=reach,
+            flow_px=self.flow_px[index],
+            across=self.across[index],
+            metres_per_px=self.metres_per_px,
+        )
         return list(T)
 
     def each(self, points: np.ndarray, inits: np.ndarray, reach: list[float]) -> list[np.ndarray]:
@@ -240,9 +316,9 @@ def _distinct(hyps: list, names: list, points: np.ndarray, tolerance_m: float) -
     of where an earlier one does is dropped."""
     sample = points[:: max(1, len(points) // 200)]
     x = np.column_stack([sample, np.ones(len(sample))])
-    moment = x.T @ x / len(x)                                          # (4, 4) second moment
+    moment = x.T @ x / len(x)  # (4, 4) second moment
     T = np.stack(hyps)[:, :3]
-    D = T[:, None] - T[None]                                           # (H, H, 3, 4)
+    D = T[:, None] - T[None]  # (H, H, 3, 4)
     # The mean of |(T_i - T_j) x|^2 over the sample, from its second moment.
     rms = np.sqrt(np.maximum(np.einsum("ijak,kl,ijal->ij", D, moment, D), 0))
     keep: list[int] = []
@@ -256,7 +332,9 @@ def _look_all(hyps: list, points: np.ndarray, tgt: Target, reach: np.ndarray):
     return look_all(np.stack(hyps), points, tgt, reach_m=reach, off_object_px=2.0)
 
 
-def _flow_errors(hyps: list, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray, tgt: Target) -> np.ndarray:
+def _flow_errors(
+    hyps: list, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray, tgt: Target
+) -> np.ndarray:
     """Distance (H, N) in pixels between where each motion and where the flow put each point (across
     the edge only, at an edge point)."""
     return flow_misfit(np.stack(hyps), points, flow_px, across, tgt.intrinsics)

@@ -36,34 +36,60 @@ from artclass_core.types import FREE_SPACE, OFF_OBJECT, SURFACE
 
 @dataclass(frozen=True)
 class DenseRuleParams(Params):
-    noise_factor: float = param(3.0, unit="sigma", bounds=(0.5, 20.0),
-                                help="A residual beyond this many noise sigmas (measured on the pair) is a misfit; "
-                                     "a motion must move points by this much, plus a pixel, to count as one.")
-    flow_sigma_px: float = param(2.5, unit="px", bounds=(0.1, 20.0),
-                                 help="Typical error of the optical flow on texture, in pixels (the flow noise "
-                                      "measured on a pair is never taken below this).")
-    bic_factor: float = param(1.0, unit="1", bounds=(0.0, 100.0),
-                              help="A further motion must lower the total cost by this many times its BIC "
-                                   "penalty, 6 ln N (6 parameters, N points).")
-    min_part_share: float = param(0.03, unit="fraction", bounds=(0.0, 0.5),
-                                  help="A further motion must explain at least this share of the seen points "
-                                       "better than the motions already chosen.")
-    min_part_points: int = param(20, unit="points", bounds=(1, 100000),
-                                 help="... and at least this many points.")
-    min_coherence: float = param(0.6, unit="fraction", bounds=(0.0, 1.0),
-                                 help="A part is a region, not a scatter: its points' image neighbours must be "
-                                      "its own for at least this share on average (and so must those of the "
-                                      "points it explains that no chosen motion does).")
-    min_seen_share: float = param(0.3, unit="fraction", bounds=(0.0, 1.0),
-                                  help="A pair is skipped when fewer of its points land on a surface of the target "
-                                       "under the best motion.")
+    noise_factor: float = param(
+        3.0,
+        unit="sigma",
+        bounds=(0.5, 20.0),
+        help="A residual beyond this many noise sigmas (measured on the pair) is a misfit; "
+        "a motion must move points by this much, plus a pixel, to count as one.",
+    )
+    flow_sigma_px: float = param(
+        2.5,
+        unit="px",
+        bounds=(0.1, 20.0),
+        help="Typical error of the optical flow on texture, in pixels (the flow noise "
+        "measured on a pair is never taken below this).",
+    )
+    bic_factor: float = param(
+        1.0,
+        unit="1",
+        bounds=(0.0, 100.0),
+        help="A further motion must lower the total cost by this many times its BIC "
+        "penalty, 6 ln N (6 parameters, N points).",
+    )
+    min_part_share: float = param(
+        0.03,
+        unit="fraction",
+        bounds=(0.0, 0.5),
+        help="A further motion must explain at least this share of the seen points "
+        "better than the motions already chosen.",
+    )
+    min_part_points: int = param(
+        20, unit="points", bounds=(1, 100000), help="... and at least this many points."
+    )
+    min_coherence: float = param(
+        0.6,
+        unit="fraction",
+        bounds=(0.0, 1.0),
+        help="A part is a region, not a scatter: its points' image neighbours must be "
+        "its own for at least this share on average (and so must those of the "
+        "points it explains that no chosen motion does).",
+    )
+    min_seen_share: float = param(
+        0.3,
+        unit="fraction",
+        bounds=(0.0, 1.0),
+        help="A pair is skipped when fewer of its points land on a surface of the target "
+        "under the best motion.",
+    )
 
 
-def point_costs(ev: MotionEvidence, *, noise_factor: float, flow_sigma_px: float,
-                noise_m: float | None = None) -> np.ndarray:
+def point_costs(
+    ev: MotionEvidence, *, noise_factor: float, flow_sigma_px: float, noise_m: float | None = None
+) -> np.ndarray:
     """Cost (H, N) of explaining each point by each hypothesis, in squared noise units (depth noise
     ``noise_m``, default the evidence's own; flow noise ``flow_sigma_px``)."""
-    worst = noise_factor ** 2
+    worst = noise_factor**2
     with np.errstate(invalid="ignore"):
         fit = np.minimum(np.square(ev.residual_m / (noise_m or ev.noise_m)), worst)
         flow = np.minimum(np.square(ev.flow_px / flow_sigma_px), worst)
@@ -107,7 +133,9 @@ def label_coherence(labels: np.ndarray, pixels: np.ndarray, stride: int) -> np.n
         return same / present
 
 
-def regions(members: np.ndarray, pixels: np.ndarray, stride: int, *, min_points: int, most: int) -> list[np.ndarray]:
+def regions(
+    members: np.ndarray, pixels: np.ndarray, stride: int, *, min_points: int, most: int
+) -> list[np.ndarray]:
     """The ``most`` largest 8-connected image regions (indices of points) of the ``members`` points,
     each of at least ``min_points``."""
     if members.sum() < min_points:
@@ -117,12 +145,24 @@ def regions(members: np.ndarray, pixels: np.ndarray, stride: int, *, min_points:
     image[g[members, 1], g[members, 0]] = 1
     _, labels, stats, _ = cv2.connectedComponentsWithStats(image, connectivity=8)
     label = np.where(members, labels[g[:, 1], g[:, 0]], 0)
-    big = [c for c in np.argsort(-stats[:, cv2.CC_STAT_AREA], kind="stable") if c and stats[c, cv2.CC_STAT_AREA] >= min_points]
+    big = [
+        c
+        for c in np.argsort(-stats[:, cv2.CC_STAT_AREA], kind="stable")
+        if c and stats[c, cv2.CC_STAT_AREA] >= min_points
+    ]
     return [np.flatnonzero(label == c) for c in big[:most]]
 
 
-def select(costs: np.ndarray, pixels: np.ndarray, *, penalty: float, misfit: float, min_points: int,
-           min_coherence: float, stride: int) -> list[int]:
+def select(
+    costs: np.ndarray,
+    pixels: np.ndarray,
+    *,
+    penalty: float,
+    misfit: float,
+    min_points: int,
+    min_coherence: float,
+    stride: int,
+) -> list[int]:
     """Greedy model selection: the hypotheses (indices into ``costs``) the points need.
 
     Starts from the single hypothesis of least total cost and adds the one that saves most, while the
@@ -183,7 +223,11 @@ def _layout(ev: MotionEvidence) -> np.ndarray:
 
 def _displacement(points: np.ndarray, A: np.ndarray, B: np.ndarray) -> float:
     """Median distance between the points moved by A and by B (metres)."""
-    return float(np.median(np.linalg.norm(transform(points, A) - transform(points, B), axis=1))) if len(points) else 0.0
+    return (
+        float(np.median(np.linalg.norm(transform(points, A) - transform(points, B), axis=1)))
+        if len(points)
+        else 0.0
+    )
 
 
 class DenseRule(DecisionRule):
@@ -194,9 +238,15 @@ class DenseRule(DecisionRule):
     Params = DenseRuleParams
     needs = "motions"
 
-    def costs(self, ev: MotionEvidence, noise_m: float | None = None, flow_px: float | None = None) -> np.ndarray:
-        return point_costs(ev, noise_factor=self.params.noise_factor, noise_m=noise_m,
-                           flow_sigma_px=flow_px or self.params.flow_sigma_px)
+    def costs(
+        self, ev: MotionEvidence, noise_m: float | None = None, flow_px: float | None = None
+    ) -> np.ndarray:
+        return point_costs(
+            ev,
+            noise_factor=self.params.noise_factor,
+            noise_m=noise_m,
+            flow_sigma_px=flow_px or self.params.flow_sigma_px,
+        )
 
     def noise(self, ev: MotionEvidence, seen: np.ndarray) -> tuple[float, float, np.ndarray]:
         """The depth and flow noise of the pair, measured on the model: the robust spread (1.4826 MAD)
@@ -210,16 +260,26 @@ class DenseRule(DecisionRule):
         r = ev.residual_m[owner, point][seen & (ev.status[owner, point] == SURFACE)]
         f = ev.flow_px[owner, point][seen & np.isfinite(ev.flow_px[owner, point])]
         sigma = max(_spread(r), ev.noise_m) if len(r) >= 10 else ev.noise_m
-        flow = max(_spread(f, centred=False), self.params.flow_sigma_px) if len(f) >= 10 else self.params.flow_sigma_px
+        flow = (
+            max(_spread(f, centred=False), self.params.flow_sigma_px)
+            if len(f) >= 10
+            else self.params.flow_sigma_px
+        )
         return sigma, flow, self.costs(ev, sigma, flow)
 
     def choose(self, ev: MotionEvidence, costs: np.ndarray, seen: np.ndarray) -> list[int]:
         """The hypotheses selected for the seen points (indices into ``ev.motions``)."""
         p = self.params
         n = int(seen.sum())
-        return select(costs[:, seen], _layout(ev)[seen], penalty=p.bic_factor * 6 * np.log(max(n, 2)),
-                      misfit=p.noise_factor ** 2, min_points=max(p.min_part_points, int(p.min_part_share * n)),
-                      min_coherence=p.min_coherence, stride=int(ev.info.get("stride_px", 1)))
+        return select(
+            costs[:, seen],
+            _layout(ev)[seen],
+            penalty=p.bic_factor * 6 * np.log(max(n, 2)),
+            misfit=p.noise_factor**2,
+            min_points=max(p.min_part_points, int(p.min_part_share * n)),
+            min_coherence=p.min_coherence,
+            stride=int(ev.info.get("stride_px", 1)),
+        )
 
     def decide(self, ev: MotionEvidence, *, source=None, target=None) -> RuleDecision:
         p = self.params
@@ -231,8 +291,13 @@ class DenseRule(DecisionRule):
         first = int(np.argmin(costs.sum(axis=1)))
         share = float((ev.status[first, forward] == SURFACE).mean()) if forward.any() else 0.0
         if share < p.min_seen_share:
-            return RuleDecision("skipped", [], reason=f"only {share:.0%} of the points seen on the target surface "
-                                                      f"(alpha = {p.min_seen_share:g})", info=dict(seen_share=share))
+            return RuleDecision(
+                "skipped",
+                [],
+                reason=f"only {share:.0%} of the points seen on the target surface "
+                f"(alpha = {p.min_seen_share:g})",
+                info=dict(seen_share=share),
+            )
         chosen = self.choose(ev, costs, seen)
         labels = np.where(seen, np.asarray(chosen)[np.argmin(costs[chosen], axis=0)], -1)
         threshold = p.noise_factor * noise + ev.pixel_m
@@ -241,38 +306,77 @@ class DenseRule(DecisionRule):
         # Coherence counts the decisive points only: where one selected motion explains a point clearly
         # better than the others (a surface both explain, sliding in itself, belongs to neither).
         ranked = np.sort(costs[chosen], axis=0)
-        decisive = np.where(seen & (ranked[1] - ranked[0] >= p.noise_factor ** 2 / 2), labels, -3) if len(chosen) > 1 else labels
+        decisive = (
+            np.where(seen & (ranked[1] - ranked[0] >= p.noise_factor**2 / 2), labels, -3)
+            if len(chosen) > 1
+            else labels
+        )
         layout, stride = _layout(ev), int(ev.info.get("stride_px", 1))
         coherence = label_coherence(decisive, layout, stride)
-        misfit, enough = p.noise_factor ** 2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
+        misfit, enough = p.noise_factor**2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
         for h in chosen[1:]:
             own, rest = ev.points[forward & (labels == h)], ev.points[forward & (labels >= 0) & (labels != h)]
-            apart = min(_displacement(own, ev.motions[h], ev.motions[base]),
-                        _displacement(rest, ev.motions[h], ev.motions[base]))
+            apart = min(
+                _displacement(own, ev.motions[h], ev.motions[base]),
+                _displacement(rest, ev.motions[h], ev.motions[base]),
+            )
             # Each motion must fail points the other explains: two fits of one rigid body explain
             # nearly the same points, a part and its base do not.
-            needed = all(int((seen & (costs[a] < misfit / 2) & (costs[b] >= misfit)).sum()) >= enough
-                         for a, b in ((h, base), (base, h)))
+            needed = all(
+                int((seen & (costs[a] < misfit / 2) & (costs[b] >= misfit)).sum()) >= enough
+                for a, b in ((h, base), (base, h))
+            )
             # ... and a part is one region of the image where its motion is clearly the better one.
             region = regions(decisive == h, layout, stride, min_points=enough // 2, most=1)
-            if apart > threshold and needed and region and np.nanmean(coherence[decisive == h]) >= p.min_coherence:
+            if (
+                apart > threshold
+                and needed
+                and region
+                and np.nanmean(coherence[decisive == h]) >= p.min_coherence
+            ):
                 parts.append(h)
         kept = [base, *parts]
         labels = np.where(seen, np.asarray(kept)[np.argmin(costs[kept], axis=0)], -1)
-        motions = [Motion(ev.motions[h], ev.names[h], int((forward & (labels == h)).sum()),
-                          _displacement(ev.points[forward & (labels == h)], ev.motions[h], np.eye(4))) for h in kept]
+        motions = [
+            Motion(
+                ev.motions[h],
+                ev.names[h],
+                int((forward & (labels == h)).sum()),
+                _displacement(ev.points[forward & (labels == h)], ev.motions[h], np.eye(4)),
+            )
+            for h in kept
+        ]
         index = np.full(len(ev.motions), -1)
         index[kept] = np.arange(len(kept))
         labels = np.where(labels >= 0, index[labels], -1)
-        info = dict(noise_m=round(noise, 6), frame_noise_m=round(ev.noise_m, 6), flow_noise_px=round(flow_noise, 3), threshold_m=round(threshold, 6), seen_share=round(share, 4),
-                    n_hypotheses=len(ev.motions), selected=[ev.names[h] for h in chosen],
-                    part_shares=[round(m.n_points / max(int((seen & forward).sum()), 1), 4) for m in motions])
+        info = dict(
+            noise_m=round(noise, 6),
+            frame_noise_m=round(ev.noise_m, 6),
+            flow_noise_px=round(flow_noise, 3),
+            threshold_m=round(threshold, 6),
+            seen_share=round(share, 4),
+            n_hypotheses=len(ev.motions),
+            selected=[ev.names[h] for h in chosen],
+            part_shares=[round(m.n_points / max(int((seen & forward).sum()), 1), 4) for m in motions],
+        )
         if parts:
             shares = ", ".join(f"{s:.0%}" for s in info["part_shares"][1:])
-            return RuleDecision("AM", [], reason=f"{len(kept)} distinct motions (parts of {shares} of the points)",
-                                info=info, motions=motions, labels=labels)
+            return RuleDecision(
+                "AM",
+                [],
+                reason=f"{len(kept)} distinct motions (parts of {shares} of the points)",
+                info=info,
+                motions=motions,
+                labels=labels,
+            )
         moved = motions[0].displacement_m
         decision = "RM" if moved > threshold else "NM"
-        return RuleDecision(decision, [], reason=f"one motion, moving points by {moved * 1000:.1f} mm "
-                                                 f"(threshold {threshold * 1000:.1f} mm)",
-                            info=info, motions=motions, labels=labels)
+        return RuleDecision(
+            decision,
+            [],
+            reason=f"one motion, moving points by {moved * 1000:.1f} mm "
+            f"(threshold {threshold * 1000:.1f} mm)",
+            info=info,
+            motions=motions,
+            labels=labels,
+        )

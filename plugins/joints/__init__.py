@@ -15,7 +15,9 @@ class BICJointEstimator(JointEstimator):
     """Fixed, prismatic, revolute or screw joint, chosen by BIC (Sturm, Stachniss & Burgard 2011)."""
 
     name = "bic"
-    description = "fits fixed, prismatic, revolute and screw joints to the part's poses and keeps the best by BIC"
+    description = (
+        "fits fixed, prismatic, revolute and screw joints to the part's poses and keeps the best by BIC"
+    )
     Params = BICJointParams
 
     def estimate(self, poses) -> JointEstimate:
@@ -30,6 +32,7 @@ def register_joint_estimators(register):
 @hookimpl
 def register_commands(subparsers):
     from .export import register_commands as add_export  # imports the command line only when it is built
+
     add_export(subparsers)
 
 

@@ -38,35 +38,69 @@ MAX_EVALUATIONS = 50
 @dataclass(frozen=True)
 class BICJointParams(Params):
     sigma_position_m: float | None = param(
-        None, unit="m", bounds=(1e-5, 1.0),
+        None,
+        unit="m",
+        bounds=(1e-5, 1.0),
         auto="from the residuals of the screw model, within min/max_sigma_position_m",
-        help="Noise of the part's position in one pose (standard deviation per axis).")
+        help="Noise of the part's position in one pose (standard deviation per axis).",
+    )
     sigma_orientation_rad: float | None = param(
-        None, unit="rad", bounds=(1e-5, 1.0),
+        None,
+        unit="rad",
+        bounds=(1e-5, 1.0),
         auto="from the residuals of the screw model, within min/max_sigma_orientation_rad",
-        help="Noise of the part's orientation in one pose (standard deviation per axis of the rotation vector).")
-    min_sigma_position_m: float = param(0.0005, unit="m", bounds=(1e-6, 0.1),
-                                        help="Lowest position noise the estimate may assume: the depth resolution.")
-    min_sigma_orientation_rad: float = param(0.002, unit="rad", bounds=(1e-6, 0.5),
-                                             help="Lowest orientation noise the estimate may assume.")
-    max_sigma_position_m: float = param(0.01, unit="m", bounds=(1e-5, 1.0),
-                                        help="Highest position noise the estimate may assume: a part whose "
-                                             "poses scatter more about every joint moves freely.")
-    max_sigma_orientation_rad: float = param(0.09, unit="rad", bounds=(1e-5, 1.0),
-                                             help="Highest orientation noise the estimate may assume (0.09 rad "
-                                                  "is about 5 degrees).")
-    outlier_level: float = param(0.999, unit="fraction", bounds=(0.5, 0.999999),
-                                 help="A pose beyond this quantile of the chi-square distribution (6 dof) of the "
-                                      "screw model's residuals is an outlier, left out of every model's score.")
-    min_inlier_fraction: float = param(0.5, unit="fraction", bounds=(0.0, 1.0),
-                                       help="When the chosen model explains fewer of the poses than this, the "
-                                            "part's motion is reported as free.")
-    n_hypotheses: int = param(48, unit="pairs", bounds=(1, 10_000),
-                              help="Pose pairs drawn to start each model (least median of squares).")
-    distinct_sigmas: float = param(3.0, unit="sigma", bounds=(0.0, 100.0),
-                                   help="A model is chosen only where what sets it apart shows by more than this many "
-                                        "noise sigmas over the video: a revolute joint's turn, a prismatic joint's "
-                                        "travel, a screw's turn and its slide along the axis.")
+        help="Noise of the part's orientation in one pose (standard deviation per axis of the rotation vector).",
+    )
+    min_sigma_position_m: float = param(
+        0.0005,
+        unit="m",
+        bounds=(1e-6, 0.1),
+        help="Lowest position noise the estimate may assume: the depth resolution.",
+    )
+    min_sigma_orientation_rad: float = param(
+        0.002, unit="rad", bounds=(1e-6, 0.5), help="Lowest orientation noise the estimate may assume."
+    )
+    max_sigma_position_m: float = param(
+        0.01,
+        unit="m",
+        bounds=(1e-5, 1.0),
+        help="Highest position noise the estimate may assume: a part whose "
+        "poses scatter more about every joint moves freely.",
+    )
+    max_sigma_orientation_rad: float = param(
+        0.09,
+        unit="rad",
+        bounds=(1e-5, 1.0),
+        help="Highest orientation noise the estimate may assume (0.09 rad is about 5 degrees).",
+    )
+    outlier_level: float = param(
+        0.999,
+        unit="fraction",
+        bounds=(0.5, 0.999999),
+        help="A pose beyond this quantile of the chi-square distribution (6 dof) of the "
+        "screw model's residuals is an outlier, left out of every model's score.",
+    )
+    min_inlier_fraction: float = param(
+        0.5,
+        unit="fraction",
+        bounds=(0.0, 1.0),
+        help="When the chosen model explains fewer of the poses than this, the "
+        "part's motion is reported as free.",
+    )
+    n_hypotheses: int = param(
+        48,
+        unit="pairs",
+        bounds=(1, 10_000),
+        help="Pose pairs drawn to start each model (least median of squares).",
+    )
+    distinct_sigmas: float = param(
+        3.0,
+        unit="sigma",
+        bounds=(0.0, 100.0),
+        help="A model is chosen only where what sets it apart shows by more than this many "
+        "noise sigmas over the video: a revolute joint's turn, a prismatic joint's "
+        "travel, a screw's turn and its slide along the axis.",
+    )
     seed: int = param(0, unit="1", bounds=(0, 2**31 - 1), help="Seed of the drawing of pose pairs.")
 
 
@@ -74,10 +108,13 @@ class BICJointParams(Params):
 # scipy's Rotation does the same with about 0.1 ms of overhead a call; a fit evaluates its residuals
 # a few hundred times with a dozen rotation operations each, so the few operations it needs are here.
 
+
 def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Products a b of quaternions (..., 4), broadcast."""
     av, aw, bv, bw = a[..., :3], a[..., 3:], b[..., :3], b[..., 3:]
-    return np.concatenate([aw * bv + bw * av + _cross(av, bv), aw * bw - np.sum(av * bv, -1, keepdims=True)], -1)
+    return np.concatenate(
+        [aw * bv + bw * av + _cross(av, bv), aw * bw - np.sum(av * bv, -1, keepdims=True)], -1
+    )
 
 
 def _quat_inv(q: np.ndarray) -> np.ndarray:
@@ -110,11 +147,18 @@ def _quat_apply(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 # -- rigid motions ---------------------------------------------------------------------------------------
 
+
 def _hat(w: np.ndarray) -> np.ndarray:
     """Cross-product matrices, shape (..., 3, 3), of vectors (..., 3)."""
     z = np.zeros(w.shape[:-1])
-    return np.stack([np.stack([z, -w[..., 2], w[..., 1]], -1), np.stack([w[..., 2], z, -w[..., 0]], -1),
-                     np.stack([-w[..., 1], w[..., 0], z], -1)], -2)
+    return np.stack(
+        [
+            np.stack([z, -w[..., 2], w[..., 1]], -1),
+            np.stack([w[..., 2], z, -w[..., 0]], -1),
+            np.stack([-w[..., 1], w[..., 0], z], -1),
+        ],
+        -2,
+    )
 
 
 def _series_coefficients(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -128,8 +172,14 @@ def _series_coefficients(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross product of vectors (..., 3), broadcast (numpy's own is slow on small arrays)."""
-    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1], a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+    return np.stack(
+        [
+            a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+            a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+            a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
+        ],
+        axis=-1,
+    )
 
 
 def twist_exp(xi: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -165,14 +215,15 @@ def _tangent_basis(u: np.ndarray) -> np.ndarray:
 
 # -- the models ------------------------------------------------------------------------------------------
 
+
 @dataclass
 class _Shape:
     """One model's joint parameters as small steps g from a starting twist (so least squares sees no
     constraint): a unit direction moves in its tangent plane, an axis point across the axis."""
 
     name: str
-    start: np.ndarray            # starting twist (6,)
-    anchor: np.ndarray | None = None   # an axis position is varied across the axis at this point
+    start: np.ndarray  # starting twist (6,)
+    anchor: np.ndarray | None = None  # an axis position is varied across the axis at this point
 
     @property
     def n_joint(self) -> int:
@@ -223,7 +274,7 @@ def _shape_from_twist(name: str, xi: np.ndarray, displacement: np.ndarray) -> _S
     if theta == 0:
         return None
     u = w / theta
-    c = _cross(w, xi[3:]) / theta**2              # the point of the screw axis nearest the origin
+    c = _cross(w, xi[3:]) / theta**2  # the point of the screw axis nearest the origin
     return _Shape(name, np.concatenate([u, _cross(c, u)]))
 
 
@@ -231,8 +282,8 @@ def _shape_from_twist(name: str, xi: np.ndarray, displacement: np.ndarray) -> _S
 class _Poses:
     """The known poses, and the noise levels their residuals are divided by."""
 
-    R: np.ndarray                # (N, 4), quaternions
-    t: np.ndarray                # (N, 3), the part's origin
+    R: np.ndarray  # (N, 4), quaternions
+    t: np.ndarray  # (N, 3), the part's origin
     sigma_m: float
     sigma_rad: float
 
@@ -265,8 +316,8 @@ class _Fit:
     """A model's joint steps and pose at state 0 (a correction of R0, t0); the states follow by projection."""
 
     shape: _Shape
-    x: np.ndarray                # joint steps (n_joint), then the pose correction (6)
-    R0: np.ndarray               # (4,), quaternion
+    x: np.ndarray  # joint steps (n_joint), then the pose correction (6)
+    R0: np.ndarray  # (4,), quaternion
     t0: np.ndarray
     chi2: float = np.inf
     jac: np.ndarray | None = None
@@ -275,7 +326,11 @@ class _Fit:
         """(twist, R0, t0) from the parameter vector."""
         x = self.x if x is None else x
         n = self.shape.n_joint
-        return self.shape.twist(x[:n]), _quat_mul(_quat_from_rotvec(x[n:n + 3]), self.R0), self.t0 + x[n + 3:n + 6]
+        return (
+            self.shape.twist(x[:n]),
+            _quat_mul(_quat_from_rotvec(x[n : n + 3]), self.R0),
+            self.t0 + x[n + 3 : n + 6],
+        )
 
     def predict(self, poses: _Poses, x: np.ndarray | None = None):
         """States (N,) and predicted poses: rotations (N, 4) as quaternions, origins (N, 3)."""
@@ -301,7 +356,7 @@ class _Fit:
             return np.zeros(0)
         w, v = self.shape.start[:3], self.shape.start[3:]
         along = np.r_[w / poses.sigma_rad, (_cross(w, self.t0) + v) / poses.sigma_m]
-        rows = [x[n:n + 6] @ along / np.linalg.norm(along)]
+        rows = [x[n : n + 6] @ along / np.linalg.norm(along)]
         if self.shape.name == "screw":
             rows.append(x[:n] @ self.shape.start)
         return np.array(rows)
@@ -328,8 +383,9 @@ def _refine(fit: _Fit, poses: _Poses, *, robust: bool) -> _Fit:
     """Least squares over the joint's parameters and the pose at state 0: Levenberg-Marquardt, or the
     trust-region method with a Cauchy loss when some poses may be outliers."""
     method = dict(method="trf", tr_solver="exact", loss="cauchy") if robust else dict(method="lm")
-    result = least_squares(fit.residuals, fit.x, args=(poses,), ftol=1e-5, xtol=1e-6, max_nfev=MAX_EVALUATIONS,
-                           **method)
+    result = least_squares(
+        fit.residuals, fit.x, args=(poses,), ftol=1e-5, xtol=1e-6, max_nfev=MAX_EVALUATIONS, **method
+    )
     out = _Fit(fit.shape, result.x, fit.R0, fit.t0)
     out.chi2 = float(np.sum(out.pose_residuals(result.x, poses) ** 2))
     out.jac = result.jac
@@ -347,7 +403,10 @@ def _recentred(fit: _Fit, poses: _Poses) -> _Fit:
 
 # -- noise and outliers ----------------------------------------------------------------------------------
 
-def _noise_levels(per_pose: np.ndarray, poses: _Poses, *, n_fitted: int, params: BICJointParams) -> tuple[float, float]:
+
+def _noise_levels(
+    per_pose: np.ndarray, poses: _Poses, *, n_fitted: int, params: BICJointParams
+) -> tuple[float, float]:
     """Noise levels (m, rad) from the normalised residuals (N, 6) of the general model: the median
     squared position and rotation error against the median of chi-square with 3 degrees of freedom
     (robust to up to half the poses being outliers), scaled up for the ``n_fitted`` parameters that
@@ -373,6 +432,7 @@ def _draw_pairs(n: int, count: int, rng: np.random.Generator) -> np.ndarray:
 
 
 # -- the estimate ----------------------------------------------------------------------------------------
+
 
 def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -> JointEstimate:
     """Fit the fixed, prismatic, revolute and screw models to a part's poses and choose one by BIC.
@@ -426,16 +486,23 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
     if len(known) < 3:
         raise InputError(f"a joint needs at least 3 known poses, got {len(known)}")
     rng = np.random.default_rng(params.seed)
-    observed = _Poses(Rotation.from_matrix(poses[known, :3, :3]).as_quat(), poses[known, :3, 3],
-                      params.sigma_position_m or params.min_sigma_position_m,
-                      params.sigma_orientation_rad or params.min_sigma_orientation_rad)
+    observed = _Poses(
+        Rotation.from_matrix(poses[known, :3, :3]).as_quat(),
+        poses[known, :3, 3],
+        params.sigma_position_m or params.min_sigma_position_m,
+        params.sigma_orientation_rad or params.min_sigma_orientation_rad,
+    )
     pairs = _draw_pairs(len(known), params.n_hypotheses, rng)
 
     # 1. the general model, robustly: noise levels and outliers
     start = _best_start("screw", observed, pairs) or _best_start("fixed", observed, pairs)
     general = _refine(start, observed, robust=True)
-    sigma_m, sigma_rad = _noise_levels(general.pose_residuals(general.x, observed), observed,
-                                       n_fitted=_n_params(general.shape, len(known)), params=params)
+    sigma_m, sigma_rad = _noise_levels(
+        general.pose_residuals(general.x, observed),
+        observed,
+        n_fitted=_n_params(general.shape, len(known)),
+        params=params,
+    )
     limit = chi2.ppf(params.outlier_level, 6)
     scaled = _subset(observed, np.ones(len(known), bool), sigma_m, sigma_rad)
     inlier = np.sum(general.pose_residuals(general.x, scaled) ** 2, axis=1) <= limit
@@ -457,15 +524,30 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
     # the screw is the fallback: only when the simpler joint does not explain the poses within the
     # noise (its chi-square beyond the outlier_level quantile) and the screw pays for itself by BIC
     dof = max(6 * n - _n_params(fits[chosen].shape, n), 1)
-    if "screw" in shown and scores["screw"] < scores[chosen] and fits[chosen].chi2 > chi2.ppf(params.outlier_level, dof):
+    if (
+        "screw" in shown
+        and scores["screw"] < scores[chosen]
+        and fits[chosen].chi2 > chi2.ppf(params.outlier_level, dof)
+    ):
         chosen = "screw"
 
     # 3. the chosen model's parameters and their uncertainty
     best = _recentred(fits[chosen], fitted)
-    return _estimate(best, known=known, inlier=inlier, n_frames=len(poses), fitted=fitted,
-                     scores=scores, params=params,
-                     info=dict(sigma_position_m=float(sigma_m), sigma_orientation_rad=float(sigma_rad),
-                               n_known=int(len(known)), n_outliers=int((~inlier).sum())))
+    return _estimate(
+        best,
+        known=known,
+        inlier=inlier,
+        n_frames=len(poses),
+        fitted=fitted,
+        scores=scores,
+        params=params,
+        info=dict(
+            sigma_position_m=float(sigma_m),
+            sigma_orientation_rad=float(sigma_rad),
+            n_known=int(len(known)),
+            n_outliers=int((~inlier).sum()),
+        ),
+    )
 
 
 def _shows_itself(fit: _Fit, poses: _Poses, factor: float) -> bool:
@@ -490,13 +572,22 @@ def _n_params(shape: _Shape, n_poses: int) -> int:
     return 6 + shape.dof + (n_poses - 1 if shape.name != "fixed" else 0)
 
 
-def _estimate(fit: _Fit, *, known: np.ndarray, inlier: np.ndarray, n_frames: int, fitted: _Poses,
-              scores: dict, params: BICJointParams, info: dict) -> JointEstimate:
+def _estimate(
+    fit: _Fit,
+    *,
+    known: np.ndarray,
+    inlier: np.ndarray,
+    n_frames: int,
+    fitted: _Poses,
+    scores: dict,
+    params: BICJointParams,
+    info: dict,
+) -> JointEstimate:
     xi, R0, t0 = fit.unpack()
     name = fit.shape.name
     q, _, t_hat = fit.predict(fitted)
     q_std = fitted.state_std(xi, t_hat) if name != "fixed" else np.zeros(len(q))
-    q = q - q[0]                                       # relative to the first pose the model explains
+    q = q - q[0]  # relative to the first pose the model explains
     std = np.sqrt(np.clip(np.diag(np.linalg.pinv(fit.jac.T @ fit.jac)), 0.0, None))
     direction = point = None
     dir_std = point_std = float("nan")
@@ -505,7 +596,7 @@ def _estimate(fit: _Fit, *, known: np.ndarray, inlier: np.ndarray, n_frames: int
         scale = np.linalg.norm(w)
         direction, q, q_std = w / scale, q * scale, q_std * scale
         point = _cross(w, xi[3:]) / scale**2
-        point = point + direction * float((t0 - point) @ direction)    # nearest the part at state 0
+        point = point + direction * float((t0 - point) @ direction)  # nearest the part at state 0
         if name == "screw":
             info["pitch_m_per_rad"] = float(w @ xi[3:] / scale**2)
         else:
@@ -514,7 +605,7 @@ def _estimate(fit: _Fit, *, known: np.ndarray, inlier: np.ndarray, n_frames: int
         direction, point = xi[3:], t0
         dir_std = float(np.hypot(*std[:2]))
     if direction is not None and q[np.argmax(np.abs(q))] < 0:
-        direction, q = -direction, -q                  # positive states: the part moves along +axis
+        direction, q = -direction, -q  # positive states: the part moves along +axis
     states, states_std = np.full(n_frames, np.nan), np.full(n_frames, np.nan)
     inliers = np.zeros(n_frames, bool)
     inliers[known[inlier]] = True
@@ -523,5 +614,15 @@ def _estimate(fit: _Fit, *, known: np.ndarray, inlier: np.ndarray, n_frames: int
     if joint_type == "free":
         direction = point = None
         states[:], states_std[:] = np.nan, np.nan
-    return JointEstimate(joint_type, direction, point, states, inliers, dir_std, point_std, states_std,
-                         {k: float(v) for k, v in scores.items()}, info)
+    return JointEstimate(
+        joint_type,
+        direction,
+        point,
+        states,
+        inliers,
+        dir_std,
+        point_std,
+        states_std,
+        {k: float(v) for k, v in scores.items()},
+        info,
+    )

@@ -15,15 +15,23 @@ class SyntheticJoint:
     """A known joint and the poses it gives the part (parent's frame, metres, radians)."""
 
     type: str
-    direction: np.ndarray       # (3,), unit
-    point_m: np.ndarray         # (3,), on the axis (revolute) or the part's origin at state 0 (prismatic)
-    states: np.ndarray          # (N,), radians or metres, 0 in the first frame
-    poses: np.ndarray           # (N, 4, 4), with noise and outliers
-    outliers: np.ndarray        # (N,), bool
+    direction: np.ndarray  # (3,), unit
+    point_m: np.ndarray  # (3,), on the axis (revolute) or the part's origin at state 0 (prismatic)
+    states: np.ndarray  # (N,), radians or metres, 0 in the first frame
+    poses: np.ndarray  # (N, 4, 4), with noise and outliers
+    outliers: np.ndarray  # (N,), bool
 
 
-def synthetic_joint(kind: str, *, n_frames: int = 60, travel: float, noise_m: float, noise_rad: float,
-                    n_outliers: int = 0, seed: int = 0) -> SyntheticJoint:
+def synthetic_joint(
+    kind: str,
+    *,
+    n_frames: int = 60,
+    travel: float,
+    noise_m: float,
+    noise_rad: float,
+    n_outliers: int = 0,
+    seed: int = 0,
+) -> SyntheticJoint:
     """A part 20 cm from a tilted axis about 80 cm in front of the camera, moved through ``travel``
     (radians for ``revolute``, metres for ``prismatic``, ignored for ``fixed``) at an even pace.
 
@@ -46,7 +54,9 @@ def synthetic_joint(kind: str, *, n_frames: int = 60, travel: float, noise_m: fl
     quats, t = twist_exp(xi, states)
     R = Rotation.from_quat(quats)
     poses = np.tile(np.eye(4), (n_frames, 1, 1))
-    poses[:, :3, :3] = (Rotation.from_rotvec(rng.normal(0, noise_rad, (n_frames, 3))) * R * origin).as_matrix()
+    poses[:, :3, :3] = (
+        Rotation.from_rotvec(rng.normal(0, noise_rad, (n_frames, 3))) * R * origin
+    ).as_matrix()
     poses[:, :3, 3] = R.apply(part) + t + rng.normal(0, noise_m, (n_frames, 3))
     outliers = np.zeros(n_frames, bool)
     outliers[rng.choice(np.arange(1, n_frames), n_outliers, replace=False)] = True

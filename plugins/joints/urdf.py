@@ -84,7 +84,9 @@ def joint_from_estimate(estimate: JointEstimate, *, name: str, parent: str, chil
 def _hull_mesh(link: Link) -> o3d.geometry.TriangleMesh:
     points = np.asarray(link.points_m, float)
     if points.ndim != 2 or points.shape[1] != 3 or len(points) < 4:
-        raise InputError(f"link {link.name!r}: a mesh needs at least 4 points (N, 3), got shape {points.shape}")
+        raise InputError(
+            f"link {link.name!r}: a mesh needs at least 4 points (N, 3), got shape {points.shape}"
+        )
     try:
         hull, _ = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).compute_convex_hull()
     except RuntimeError as err:
@@ -94,9 +96,10 @@ def _hull_mesh(link: Link) -> o3d.geometry.TriangleMesh:
 
 
 def _origin(parent: ET.Element, T: np.ndarray) -> None:
-    rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz")   # URDF: fixed axes x, y, z (roll, pitch, yaw)
-    ET.SubElement(parent, "origin", xyz=" ".join(f"{v:.9g}" for v in T[:3, 3]),
-                  rpy=" ".join(f"{v:.9g}" for v in rpy))
+    rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz")  # URDF: fixed axes x, y, z (roll, pitch, yaw)
+    ET.SubElement(
+        parent, "origin", xyz=" ".join(f"{v:.9g}" for v in T[:3, 3]), rpy=" ".join(f"{v:.9g}" for v in rpy)
+    )
 
 
 def write_urdf(model: ArticulatedModel, folder: Path) -> Path:
@@ -126,8 +129,14 @@ def write_urdf(model: ArticulatedModel, folder: Path) -> Path:
         if joint.type in ("revolute", "prismatic"):
             axis = np.asarray(joint.axis, float) / np.linalg.norm(joint.axis)
             ET.SubElement(element, "axis", xyz=" ".join(f"{v:.9g}" for v in axis))
-            ET.SubElement(element, "limit", lower=f"{joint.limits[0]:.9g}", upper=f"{joint.limits[1]:.9g}",
-                          effort="0", velocity="0")
+            ET.SubElement(
+                element,
+                "limit",
+                lower=f"{joint.limits[0]:.9g}",
+                upper=f"{joint.limits[1]:.9g}",
+                effort="0",
+                velocity="0",
+            )
     ET.indent(robot)
     path = folder / f"{model.name}.urdf"
     ET.ElementTree(robot).write(path, encoding="utf-8", xml_declaration=True)
@@ -172,11 +181,15 @@ def model_from_articulation(articulation, *, name: str) -> ArticulatedModel:
             estimate = joint.estimate
             if estimate.type == "screw":
                 estimate = dataclasses.replace(estimate, type="revolute")
-            urdf_joint = joint_from_estimate(estimate, name=f"{names[joint.parent]}_to_{part.name}",
-                                             parent=names[joint.parent], child=part.name)
+            urdf_joint = joint_from_estimate(
+                estimate,
+                name=f"{names[joint.parent]}_to_{part.name}",
+                parent=names[joint.parent],
+                child=part.name,
+            )
             points = points - urdf_joint.T_parent_from_joint[:3, 3]
             joints.append(urdf_joint)
         elif part.index != 0:
-            continue                                  # a part without a joint is not in the tree
+            continue  # a part without a joint is not in the tree
         links.append(Link(part.name, points))
     return ArticulatedModel(name, tuple(links), tuple(joints))

@@ -45,7 +45,9 @@ AMBIGUOUS_SIGMAS = 1.0
 
 
 def _images(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) if folder.is_dir() else []
+    return (
+        sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) if folder.is_dir() else []
+    )
 
 
 Threshold = float | tuple[float, float]
@@ -57,8 +59,9 @@ def _exceeds(value: float, eps: Threshold) -> bool | None:
     return True if value > high else False if value <= low else None
 
 
-def pair_truth_from_states(joint_a, joint_b, pose_a, pose_b, *, joint_eps: Threshold, move_eps_m: Threshold,
-                           turn_eps_rad: Threshold) -> str | None:
+def pair_truth_from_states(
+    joint_a, joint_b, pose_a, pose_b, *, joint_eps: Threshold, move_eps_m: Threshold, turn_eps_rad: Threshold
+) -> str | None:
     """AM when the joint moved, else RM when the object moved, else NM; None when unknown or ambiguous.
 
     ``pose_*`` are 4x4 camera_from_object. The object "moved" when its points (taken 10 cm from the
@@ -148,14 +151,18 @@ def observable_joint_motions(truth: dict, i: int, j: int) -> list[dict]:
             px = truth["part_valid_px"][f]
             need = max(MIN_SIDE_PIXELS, MIN_SIDE_SHARE * sum(px))
             valid &= all(sum(px[k] for k in s) >= need for s in (moving, rest))
-        cam = {side: {f: np.asarray(truth["part_poses"][f][k], dtype=float) for f in (i, j)}
-               for side, k in (("parent", parent), ("child", child))}
+        cam = {
+            side: {f: np.asarray(truth["part_poses"][f][k], dtype=float) for f in (i, j)}
+            for side, k in (("parent", parent), ("child", child))
+        }
         T_pc = {f: np.linalg.inv(cam["parent"][f]) @ cam["child"][f] for f in (i, j)}
-        forward = T_pc[j] @ np.linalg.inv(T_pc[i])                  # in the parent's frame
-        forward_c = np.linalg.inv(T_pc[j]) @ T_pc[i]                # the rest's motion, child's frame
+        forward = T_pc[j] @ np.linalg.inv(T_pc[i])  # in the parent's frame
+        forward_c = np.linalg.inv(T_pc[j]) @ T_pc[i]  # the rest's motion, child's frame
         sides = {}
-        for name, members, ref, M in (("moving", moving, cam["parent"], forward),
-                                      ("rest", rest, cam["child"], forward_c)):
+        for name, members, ref, M in (
+            ("moving", moving, cam["parent"], forward),
+            ("rest", rest, cam["child"], forward_c),
+        ):
             a = _side_motion(truth, members, i, ref, M)
             b = _side_motion(truth, members, j, ref, np.linalg.inv(M))
             seen = [x for x in (a, b) if x is not None]
@@ -164,8 +171,9 @@ def observable_joint_motions(truth: dict, i: int, j: int) -> list[dict]:
                 continue
             z = max(x[1] for x in seen)
             sigma = sensor["axial_a_m"] + sensor["axial_b_per_m"] * (z - sensor["axial_reference_m"]) ** 2
-            sides[name] = dict(displacement_m=min(x[0] for x in seen), depth_m=z,
-                               sigma_m=max(sigma, step_sigma))
+            sides[name] = dict(
+                displacement_m=min(x[0] for x in seen), depth_m=z, sigma_m=max(sigma, step_sigma)
+            )
         out.append(dict(joint=part["joint"], valid=bool(valid and all(sides.values())), **sides))
     return out
 
@@ -191,8 +199,15 @@ def observable_pair_truth(truth: dict, i: int, j: int) -> str | None:
     if ambiguous:
         return None
     poses = truth.get("object_poses") or [None] * len(truth["part_poses"])
-    return pair_truth_from_states(None, None, poses[i], poses[j], joint_eps=PRISMATIC_BAND_M,
-                                  move_eps_m=MOVE_BAND_M, turn_eps_rad=TURN_BAND_RAD)
+    return pair_truth_from_states(
+        None,
+        None,
+        poses[i],
+        poses[j],
+        joint_eps=PRISMATIC_BAND_M,
+        move_eps_m=MOVE_BAND_M,
+        turn_eps_rad=TURN_BAND_RAD,
+    )
 
 
 #: truth.json keys the observable articulation truth needs.
@@ -200,28 +215,53 @@ OBSERVABLE_TRUTH_KEYS = ("parts", "part_poses", "part_valid_px", "part_points_m"
 
 
 class FolderSequence(Sequence):
-    def __init__(self, path: Path, meta: dict, rgb: list[Path], depth: list[Path], masks: list[Path],
-                 truth: dict | None, width: int, height: int):
+    def __init__(
+        self,
+        path: Path,
+        meta: dict,
+        rgb: list[Path],
+        depth: list[Path],
+        masks: list[Path],
+        truth: dict | None,
+        width: int,
+        height: int,
+    ):
         meta_path = path / "meta.json"
-        intr = Intrinsics(*(require_number(meta, k, path=meta_path) for k in ("fx", "fy", "cx", "cy")),
-                          width=width, height=height)
+        intr = Intrinsics(
+            *(require_number(meta, k, path=meta_path) for k in ("fx", "fy", "cx", "cy")),
+            width=width,
+            height=height,
+        )
         self.depth_scale = require_number(meta, "depth_scale", path=meta_path)
         label = meta.get("label")
         if label is not None and label not in LABELS:
             raise InputError(f"label {label!r} is not one of {', '.join(LABELS)}", path=meta_path)
-        super().__init__(name=path.name, path=path, intrinsics=intr, n_frames=len(rgb), label=label,
-                         object_name=meta.get("object"), has_masks=bool(masks), meta=meta)
+        super().__init__(
+            name=path.name,
+            path=path,
+            intrinsics=intr,
+            n_frames=len(rgb),
+            label=label,
+            object_name=meta.get("object"),
+            has_masks=bool(masks),
+            meta=meta,
+        )
         self.rgb_files, self.depth_files, self.mask_files, self.truth = rgb, depth, masks, truth
 
     def load(self, i: int) -> Frame:
         rgb = read_rgb(self.rgb_files[i])
         depth = read_depth(self.depth_files[i], units_per_metre=self.depth_scale)
         mask = read_mask(self.mask_files[i]) if self.mask_files else None
-        for what, image, path in (("colour", rgb, self.rgb_files[i]),
-                                  ("mask", mask, self.mask_files[i] if self.mask_files else None)):
+        for what, image, path in (
+            ("colour", rgb, self.rgb_files[i]),
+            ("mask", mask, self.mask_files[i] if self.mask_files else None),
+        ):
             if image is not None and image.shape[:2] != depth.shape:
-                raise InputError(f"{what} image is {image.shape[1]}x{image.shape[0]} but its depth image "
-                                 f"{self.depth_files[i].name} is {depth.shape[1]}x{depth.shape[0]}", path=path)
+                raise InputError(
+                    f"{what} image is {image.shape[1]}x{image.shape[0]} but its depth image "
+                    f"{self.depth_files[i].name} is {depth.shape[1]}x{depth.shape[0]}",
+                    path=path,
+                )
         return Frame(i, self.rgb_files[i].stem, rgb, depth, mask)
 
     def pair_truth(self, i: int, j: int) -> str | None:
@@ -249,8 +289,9 @@ class FolderSequence(Sequence):
             reach = min(seen[i]["axis_distance_m"], seen[j]["axis_distance_m"])
             a, b = 0.0, 2.0 * reach * np.sin(abs(b - a) / 2.0) if revolute else abs(b - a)
             joint_eps = PRISMATIC_BAND_M
-        return pair_truth_from_states(a, b, poses[i], poses[j], joint_eps=joint_eps,
-                                      move_eps_m=MOVE_BAND_M, turn_eps_rad=TURN_BAND_RAD)
+        return pair_truth_from_states(
+            a, b, poses[i], poses[j], joint_eps=joint_eps, move_eps_m=MOVE_BAND_M, turn_eps_rad=TURN_BAND_RAD
+        )
 
 
 class FolderReader(Reader):
@@ -264,7 +305,7 @@ class FolderReader(Reader):
         if not (path.is_dir() and (path / "meta.json").is_file() and (path / "depth").is_dir()):
             return []
         if (path / "rgb.txt").is_file() and (path / "depth.txt").is_file():
-            return []   # a TUM RGB-D folder whose meta.json only gives intrinsics: the tum reader's
+            return []  # a TUM RGB-D folder whose meta.json only gives intrinsics: the tum reader's
         meta = read_json(path / "meta.json")
         rgb, depth, masks = _images(path / "rgb"), _images(path / "depth"), _images(path / "mask")
         if not rgb:
@@ -275,4 +316,6 @@ class FolderReader(Reader):
             raise InputError(f"{len(masks)} masks for {len(rgb)} frames", path=path / "mask")
         truth = read_json(path / "truth.json") if (path / "truth.json").is_file() else None
         first = read_depth(depth[0], units_per_metre=1.0)
-        return [FolderSequence(path, meta, rgb, depth, masks, truth, width=first.shape[1], height=first.shape[0])]
+        return [
+            FolderSequence(path, meta, rgb, depth, masks, truth, width=first.shape[1], height=first.shape[0])
+        ]

@@ -111,14 +111,20 @@ def read_joint_states(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     if len(rows) < 2:
         raise InputError("no joint states (expected a header row and data rows)", path=path)
     header = [h.strip() for h in rows[0]]
-    pos_cols = {int(m.group(1)): c for c, h in enumerate(header) if (m := re.fullmatch(r"field\.position(\d+)", h))}
-    name_cols = {int(m.group(1)): c for c, h in enumerate(header) if (m := re.fullmatch(r"field\.name(\d+)", h))}
+    pos_cols = {
+        int(m.group(1)): c for c, h in enumerate(header) if (m := re.fullmatch(r"field\.position(\d+)", h))
+    }
+    name_cols = {
+        int(m.group(1)): c for c, h in enumerate(header) if (m := re.fullmatch(r"field\.name(\d+)", h))
+    }
     if not pos_cols:
         raise InputError("no field.position<k> column in the header", path=path)
     time_col = header.index("field.header.stamp") if "field.header.stamp" in header else 2
     times, values = [], []
-    names = {k: (rows[1][name_cols[k]] if k in name_cols and name_cols[k] < len(rows[1]) else f"joint{k}")
-             for k in sorted(pos_cols)}
+    names = {
+        k: (rows[1][name_cols[k]] if k in name_cols and name_cols[k] < len(rows[1]) else f"joint{k}")
+        for k in sorted(pos_cols)
+    }
     for n, row in enumerate(rows[1:], start=2):
         if not row:
             continue
@@ -126,8 +132,9 @@ def read_joint_states(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
             times.append(float(row[time_col]) / 1e9)
             values.append([float(row[pos_cols[k]]) for k in sorted(pos_cols)])
         except (ValueError, IndexError):
-            raise InputError(f"line {n}: time (column {time_col + 1}, ns) or a joint position is not a number",
-                             path=path) from None
+            raise InputError(
+                f"line {n}: time (column {time_col + 1}, ns) or a joint position is not a number", path=path
+            ) from None
     t = np.asarray(times)
     order = np.argsort(t, kind="stable")
     v = np.asarray(values, dtype=float)[order]
@@ -138,37 +145,73 @@ def read_joint_states(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
 
 @dataclass(frozen=True)
 class RboParams(Params):
-    max_time_diff_s: float = param(0.02, unit="s", bounds=(0.0, 1.0),
-                                   help="A colour image is paired with the closest depth map no further apart in "
-                                        "time than this; colour images without one are dropped.")
-    joint_eps: float = param(0.01, unit="rad or m", bounds=(0.0, 10.0),
-                             help="Pair truth: AM when a joint moved more than this between frames i and j "
-                                  "(0.01 rad = 0.57 deg for a revolute joint, 1 cm for a prismatic one).")
-    label_joint_range: float = param(0.05, unit="rad or m", bounds=(0.0, 10.0),
-                                     help="Sequence truth: articulated when a joint's position spans more than this "
-                                          "over the frames, else static.")
+    max_time_diff_s: float = param(
+        0.02,
+        unit="s",
+        bounds=(0.0, 1.0),
+        help="A colour image is paired with the closest depth map no further apart in "
+        "time than this; colour images without one are dropped.",
+    )
+    joint_eps: float = param(
+        0.01,
+        unit="rad or m",
+        bounds=(0.0, 10.0),
+        help="Pair truth: AM when a joint moved more than this between frames i and j "
+        "(0.01 rad = 0.57 deg for a revolute joint, 1 cm for a prismatic one).",
+    )
+    label_joint_range: float = param(
+        0.05,
+        unit="rad or m",
+        bounds=(0.0, 10.0),
+        help="Sequence truth: articulated when a joint's position spans more than this "
+        "over the frames, else static.",
+    )
 
 
 class RboSequence(Sequence):
     """One RBO interaction."""
 
-    def __init__(self, path: Path, *, rgb: list[Path], depth: list[Path], times_s: np.ndarray,
-                 intrinsics: Intrinsics, joints: dict[str, np.ndarray] | None, label: str | None,
-                 object_name: str, params: RboParams, meta: dict):
-        super().__init__(name=path.name, path=path, intrinsics=intrinsics, n_frames=len(rgb), label=label,
-                         object_name=object_name, has_masks=False,
-                         accepted_labels=("static", "rigid") if label == "static" else None, meta=meta)
+    def __init__(
+        self,
+        path: Path,
+        *,
+        rgb: list[Path],
+        depth: list[Path],
+        times_s: np.ndarray,
+        intrinsics: Intrinsics,
+        joints: dict[str, np.ndarray] | None,
+        label: str | None,
+        object_name: str,
+        params: RboParams,
+        meta: dict,
+    ):
+        super().__init__(
+            name=path.name,
+            path=path,
+            intrinsics=intrinsics,
+            n_frames=len(rgb),
+            label=label,
+            object_name=object_name,
+            has_masks=False,
+            accepted_labels=("static", "rigid") if label == "static" else None,
+            meta=meta,
+        )
         self.rgb_files, self.depth_files, self.times_s = rgb, depth, times_s
-        self.joints = joints   # name -> (n_frames,) position at each frame's time, NaN outside the record
+        self.joints = joints  # name -> (n_frames,) position at each frame's time, NaN outside the record
         self.params = params
 
     def load(self, i: int) -> Frame:
         rgb = read_rgb(self.rgb_files[i])
         depth = read_depth_txt(self.depth_files[i])
         if rgb.shape[:2] != depth.shape:
-            raise InputError(f"depth matrix is {depth.shape[1]}x{depth.shape[0]} but the colour image "
-                             f"{self.rgb_files[i].name} is {rgb.shape[1]}x{rgb.shape[0]}", path=self.depth_files[i])
-        return Frame(i, self.rgb_files[i].stem, rgb, depth, None, time_s=float(self.times_s[i] - self.times_s[0]))
+            raise InputError(
+                f"depth matrix is {depth.shape[1]}x{depth.shape[0]} but the colour image "
+                f"{self.rgb_files[i].name} is {rgb.shape[1]}x{rgb.shape[0]}",
+                path=self.depth_files[i],
+            )
+        return Frame(
+            i, self.rgb_files[i].stem, rgb, depth, None, time_s=float(self.times_s[i] - self.times_s[0])
+        )
 
     def joint_positions(self, i: int) -> dict[str, float]:
         """Interpolated joint positions (rad or m) at frame i; empty without joint states."""
@@ -188,17 +231,25 @@ class RboReader(Reader):
     """Reads one RBO interaction folder (see module docstring)."""
 
     name = "rbo"
-    description = ("RBO articulated-objects interaction: camera_rgb/*.png, camera_depth_registered/*.txt (m), "
-                   "*camera_info.csv, *_joint_states.csv")
+    description = (
+        "RBO articulated-objects interaction: camera_rgb/*.png, camera_depth_registered/*.txt (m), "
+        "*camera_info.csv, *_joint_states.csv"
+    )
     Params = RboParams
 
     def sequences(self, path: Path) -> list[Sequence]:
         path = Path(path)
-        if not (path.is_dir() and (path / "camera_rgb").is_dir() and (path / "camera_depth_registered").is_dir()):
+        if not (
+            path.is_dir() and (path / "camera_rgb").is_dir() and (path / "camera_depth_registered").is_dir()
+        ):
             return []
-        rgb = sorted((p for p in (path / "camera_rgb").iterdir() if p.suffix.lower() == ".png"), key=stamp_seconds)
-        depth = sorted((p for p in (path / "camera_depth_registered").iterdir() if p.suffix.lower() == ".txt"),
-                       key=stamp_seconds)
+        rgb = sorted(
+            (p for p in (path / "camera_rgb").iterdir() if p.suffix.lower() == ".png"), key=stamp_seconds
+        )
+        depth = sorted(
+            (p for p in (path / "camera_depth_registered").iterdir() if p.suffix.lower() == ".txt"),
+            key=stamp_seconds,
+        )
         if not rgb:
             raise InputError("no colour images (*.png)", path=path / "camera_rgb")
         if not depth:
@@ -213,14 +264,20 @@ class RboReader(Reader):
         info_path = next((path / n for n in CAMERA_INFO_FILES if (path / n).is_file()), None)
         info_path = info_path or next(iter(sorted(path.glob("*camera_info.csv"))), None)
         if info_path is None:
-            raise InputError(f"no camera intrinsics: expected {CAMERA_INFO_FILES[0]} (ROS CameraInfo CSV "
-                             f"with field.K0..K8)", path=path)
+            raise InputError(
+                f"no camera intrinsics: expected {CAMERA_INFO_FILES[0]} (ROS CameraInfo CSV "
+                f"with field.K0..K8)",
+                path=path,
+            )
         info = read_camera_info(info_path)
         first = read_rgb(rgb[pairs[0][0]])
         width, height = int(info.get("width", first.shape[1])), int(info.get("height", first.shape[0]))
         if (width, height) != (first.shape[1], first.shape[0]):
-            raise InputError(f"camera info is for {width}x{height} images but {rgb[pairs[0][0]].name} is "
-                             f"{first.shape[1]}x{first.shape[0]}", path=info_path)
+            raise InputError(
+                f"camera info is for {width}x{height} images but {rgb[pairs[0][0]].name} is "
+                f"{first.shape[1]}x{first.shape[0]}",
+                path=info_path,
+            )
         intrinsics = Intrinsics(info["fx"], info["fy"], info["cx"], info["cy"], width=width, height=height)
 
         joint_files = sorted(path.glob("*_joint_states.csv"))
@@ -234,9 +291,26 @@ class RboReader(Reader):
             spans = [np.nanmax(v) - np.nanmin(v) for v in joints.values() if np.any(np.isfinite(v))]
             if spans:
                 label = "articulated" if max(spans) > self.params.label_joint_range else "static"
-        meta = dict(dataset="rbo", depth_unit="metres (millimetres detected per frame)",
-                    camera_info=info_path.name, joint_states=joint_files[0].name if joint_files else None,
-                    n_rgb=len(rgb), n_depth=len(depth), n_associated=len(pairs))
-        return [RboSequence(path, rgb=[rgb[a] for a, _ in pairs], depth=[depth[b] for _, b in pairs],
-                            times_s=times, intrinsics=intrinsics, joints=joints, label=label,
-                            object_name=object_name, params=self.params, meta=meta)]
+        meta = dict(
+            dataset="rbo",
+            depth_unit="metres (millimetres detected per frame)",
+            camera_info=info_path.name,
+            joint_states=joint_files[0].name if joint_files else None,
+            n_rgb=len(rgb),
+            n_depth=len(depth),
+            n_associated=len(pairs),
+        )
+        return [
+            RboSequence(
+                path,
+                rgb=[rgb[a] for a, _ in pairs],
+                depth=[depth[b] for _, b in pairs],
+                times_s=times,
+                intrinsics=intrinsics,
+                joints=joints,
+                label=label,
+                object_name=object_name,
+                params=self.params,
+                meta=meta,
+            )
+        ]

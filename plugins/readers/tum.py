@@ -109,28 +109,52 @@ def read_list(path: Path, *, columns: int) -> list[list[str]]:
             if len(fields) < columns:
                 raise ValueError
         except ValueError:
-            raise InputError(f"line {n} is not 'timestamp{' filename' if columns == 2 else ' values...'}': "
-                             f"{line[:60]!r}", path=path) from None
+            raise InputError(
+                f"line {n} is not 'timestamp{' filename' if columns == 2 else ' values...'}': {line[:60]!r}",
+                path=path,
+            ) from None
         rows.append(fields)
     return rows
 
 
 @dataclass(frozen=True)
 class TumParams(Params):
-    max_time_diff_s: float = param(0.02, unit="s", bounds=(0.0, 1.0),
-                                   help="Colour and depth frames further apart in time than this are not paired "
-                                        "(TUM's associate.py default).")
+    max_time_diff_s: float = param(
+        0.02,
+        unit="s",
+        bounds=(0.0, 1.0),
+        help="Colour and depth frames further apart in time than this are not paired "
+        "(TUM's associate.py default).",
+    )
 
 
 class TumSequence(Sequence):
     """One TUM RGB-D sequence folder."""
 
-    def __init__(self, path: Path, *, rgb: list[tuple[float, Path]], depth: list[tuple[float, Path]],
-                 intrinsics: Intrinsics, depth_scale: float, config: dict, groundtruth: np.ndarray | None,
-                 max_time_diff_s: float, meta: dict):
+    def __init__(
+        self,
+        path: Path,
+        *,
+        rgb: list[tuple[float, Path]],
+        depth: list[tuple[float, Path]],
+        intrinsics: Intrinsics,
+        depth_scale: float,
+        config: dict,
+        groundtruth: np.ndarray | None,
+        max_time_diff_s: float,
+        meta: dict,
+    ):
         label = config.get("label")
-        super().__init__(name=path.name, path=path, intrinsics=intrinsics, n_frames=len(rgb), label=label,
-                         object_name=config.get("object"), has_masks=False, meta=meta)
+        super().__init__(
+            name=path.name,
+            path=path,
+            intrinsics=intrinsics,
+            n_frames=len(rgb),
+            label=label,
+            object_name=config.get("object"),
+            has_masks=False,
+            meta=meta,
+        )
         self.rgb, self.depth, self.depth_scale = rgb, depth, depth_scale
         self.start_time_s = rgb[0][0]
         self.groundtruth = groundtruth
@@ -142,8 +166,11 @@ class TumSequence(Sequence):
         rgb = read_rgb(rgb_file)
         depth = read_depth(depth_file, units_per_metre=self.depth_scale)
         if rgb.shape[:2] != depth.shape:
-            raise InputError(f"colour image is {rgb.shape[1]}x{rgb.shape[0]} but its depth image "
-                             f"{depth_file.name} is {depth.shape[1]}x{depth.shape[0]}", path=rgb_file)
+            raise InputError(
+                f"colour image is {rgb.shape[1]}x{rgb.shape[0]} but its depth image "
+                f"{depth_file.name} is {depth.shape[1]}x{depth.shape[0]}",
+                path=rgb_file,
+            )
         return Frame(i, rgb_file.stem, rgb, depth, None, time_s=t - self.start_time_s)
 
     def world_from_camera(self, i: int) -> np.ndarray | None:
@@ -170,7 +197,9 @@ class TumReader(Reader):
     """Reads a TUM RGB-D sequence folder (see module docstring)."""
 
     name = "tum"
-    description = "TUM RGB-D folder: rgb.txt, depth.txt, rgb/, depth/ (16-bit, 1/5000 m), optional groundtruth.txt"
+    description = (
+        "TUM RGB-D folder: rgb.txt, depth.txt, rgb/, depth/ (16-bit, 1/5000 m), optional groundtruth.txt"
+    )
     Params = TumParams
 
     def sequences(self, path: Path) -> list[Sequence]:
@@ -186,8 +215,11 @@ class TumReader(Reader):
         n_listed = len(rgb)
         pairs = associate([t for t, _ in rgb], [t for t, _ in depth], max_diff_s=dt)
         if not pairs:
-            raise InputError(f"no colour frame has a depth frame within {dt:g} s "
-                             f"(rgb.txt and depth.txt timestamps do not overlap)", path=path)
+            raise InputError(
+                f"no colour frame has a depth frame within {dt:g} s "
+                f"(rgb.txt and depth.txt timestamps do not overlap)",
+                path=path,
+            )
         rgb = [rgb[a] for a, _ in pairs]
         depth = [depth[b] for _, b in pairs]
 
@@ -197,8 +229,10 @@ class TumReader(Reader):
         if label is not None and label not in LABELS:
             raise InputError(f"label {label!r} is not one of {', '.join(LABELS)}", path=config_path)
         if config_path and any(k in config for k in ("fx", "fy", "cx", "cy")):
-            fx, fy, cx, cy = (require_number(config, k, path=config_path, positive=k in ("fx", "fy"))
-                              for k in ("fx", "fy", "cx", "cy"))
+            fx, fy, cx, cy = (
+                require_number(config, k, path=config_path, positive=k in ("fx", "fy"))
+                for k in ("fx", "fy", "cx", "cy")
+            )
             source = config_path.name
         else:
             camera = re.search(r"freiburg([123])", path.name)
@@ -208,8 +242,11 @@ class TumReader(Reader):
             else:
                 source = "ros_default"
                 fx, fy, cx, cy = ROS_DEFAULT_INTRINSICS
-        depth_scale = (require_number(config, "depth_scale", path=config_path)
-                       if "depth_scale" in config else TUM_DEPTH_SCALE)
+        depth_scale = (
+            require_number(config, "depth_scale", path=config_path)
+            if "depth_scale" in config
+            else TUM_DEPTH_SCALE
+        )
 
         first = read_depth(depth[0][1], units_per_metre=depth_scale)
         intrinsics = Intrinsics(fx, fy, cx, cy, width=first.shape[1], height=first.shape[0])
@@ -220,11 +257,30 @@ class TumReader(Reader):
             try:
                 groundtruth = np.array([[float(v) for v in r[:8]] for r in rows], dtype=float).reshape(-1, 8)
             except ValueError:
-                raise InputError("expected 'timestamp tx ty tz qx qy qz qw' numbers on every line",
-                                 path=path / "groundtruth.txt") from None
+                raise InputError(
+                    "expected 'timestamp tx ty tz qx qy qz qw' numbers on every line",
+                    path=path / "groundtruth.txt",
+                ) from None
 
-        meta = dict(config, dataset="tum", intrinsics_source=source, depth_units_per_metre=depth_scale,
-                    n_rgb_listed=n_listed, n_associated=len(pairs),
-                    has_groundtruth=groundtruth is not None)
-        return [TumSequence(path, rgb=rgb, depth=depth, intrinsics=intrinsics, depth_scale=depth_scale,
-                            config=config, groundtruth=groundtruth, max_time_diff_s=dt, meta=meta)]
+        meta = dict(
+            config,
+            dataset="tum",
+            intrinsics_source=source,
+            depth_units_per_metre=depth_scale,
+            n_rgb_listed=n_listed,
+            n_associated=len(pairs),
+            has_groundtruth=groundtruth is not None,
+        )
+        return [
+            TumSequence(
+                path,
+                rgb=rgb,
+                depth=depth,
+                intrinsics=intrinsics,
+                depth_scale=depth_scale,
+                config=config,
+                groundtruth=groundtruth,
+                max_time_diff_s=dt,
+                meta=meta,
+            )
+        ]

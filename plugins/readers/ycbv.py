@@ -44,10 +44,27 @@ from .folder import pair_truth_from_states
 
 # Class order of YCB-Video (ids 1..21), as in the dataset's classes.txt.
 CLASSES: tuple[str, ...] = (
-    "002_master_chef_can", "003_cracker_box", "004_sugar_box", "005_tomato_soup_can", "006_mustard_bottle",
-    "007_tuna_fish_can", "008_pudding_box", "009_gelatin_box", "010_potted_meat_can", "011_banana",
-    "019_pitcher_base", "021_bleach_cleanser", "024_bowl", "025_mug", "035_power_drill", "036_wood_block",
-    "037_scissors", "040_large_marker", "051_large_clamp", "052_extra_large_clamp", "061_foam_brick",
+    "002_master_chef_can",
+    "003_cracker_box",
+    "004_sugar_box",
+    "005_tomato_soup_can",
+    "006_mustard_bottle",
+    "007_tuna_fish_can",
+    "008_pudding_box",
+    "009_gelatin_box",
+    "010_potted_meat_can",
+    "011_banana",
+    "019_pitcher_base",
+    "021_bleach_cleanser",
+    "024_bowl",
+    "025_mug",
+    "035_power_drill",
+    "036_wood_block",
+    "037_scissors",
+    "040_large_marker",
+    "051_large_clamp",
+    "052_extra_large_clamp",
+    "061_foam_brick",
 )
 FRAME_RE = re.compile(r"^(\d{6})-meta\.mat$")
 PARTS = ("color", "depth", "label", "meta")
@@ -85,21 +102,33 @@ def intrinsics_from_meta(meta: dict, *, path: Path, width: int, height: int) -> 
         raise InputError(f"'intrinsic_matrix' must be a finite 3x3 matrix, got shape {K.shape}", path=path)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     if fx <= 0 or fy <= 0:
-        raise InputError(f"'intrinsic_matrix' has fx={fx:g}, fy={fy:g}; focal lengths must be positive", path=path)
+        raise InputError(
+            f"'intrinsic_matrix' has fx={fx:g}, fy={fy:g}; focal lengths must be positive", path=path
+        )
     factor = np.asarray(meta["factor_depth"], dtype=float).ravel()
     if factor.size != 1 or not np.isfinite(factor[0]) or factor[0] <= 0:
         raise InputError(f"'factor_depth' must be one positive number, got {factor.tolist()}", path=path)
-    return Intrinsics(float(fx), float(fy), float(cx), float(cy), width=width, height=height), float(factor[0])
+    return Intrinsics(float(fx), float(fy), float(cx), float(cy), width=width, height=height), float(
+        factor[0]
+    )
 
 
 @dataclass(frozen=True)
 class YcbvParams(Params):
-    move_eps_m: float = param(0.002, unit="m", bounds=(0.0, 1.0),
-                              help="Pair truth: the object moved (RM) when a point 10 cm from its origin moved "
-                                   "more than this relative to the camera between the two frames.")
-    turn_eps_rad: float = param(float(np.radians(0.5)), unit="rad", bounds=(0.0, np.pi),
-                                help="Pair truth: the object moved (RM) when it turned more than this relative "
-                                     "to the camera between the two frames.")
+    move_eps_m: float = param(
+        0.002,
+        unit="m",
+        bounds=(0.0, 1.0),
+        help="Pair truth: the object moved (RM) when a point 10 cm from its origin moved "
+        "more than this relative to the camera between the two frames.",
+    )
+    turn_eps_rad: float = param(
+        float(np.radians(0.5)),
+        unit="rad",
+        bounds=(0.0, np.pi),
+        help="Pair truth: the object moved (RM) when it turned more than this relative "
+        "to the camera between the two frames.",
+    )
 
 
 class YcbvScene:
@@ -126,11 +155,13 @@ class YcbvScene:
         if object_id not in ids:
             return None
         poses = np.asarray(meta["poses"], dtype=float)
-        if poses.ndim == 2:   # a single object: MATLAB drops the trailing dimension
+        if poses.ndim == 2:  # a single object: MATLAB drops the trailing dimension
             poses = poses[:, :, None]
         k = ids.index(object_id)
         if poses.shape[:2] != (3, 4) or k >= poses.shape[2]:
-            raise InputError(f"'poses' has shape {poses.shape}, expected 3x4x{len(ids)}", path=self.file(i, "meta"))
+            raise InputError(
+                f"'poses' has shape {poses.shape}, expected 3x4x{len(ids)}", path=self.file(i, "meta")
+            )
         T = np.eye(4)
         T[:3] = poses[:, :, k]
         return T
@@ -139,48 +170,84 @@ class YcbvScene:
 class YcbvSequence(Sequence):
     """One object of a YCB-Video scene."""
 
-    def __init__(self, scene: YcbvScene, object_id: int, *, intrinsics: Intrinsics, factor_depth: float,
-                 params: YcbvParams):
+    def __init__(
+        self,
+        scene: YcbvScene,
+        object_id: int,
+        *,
+        intrinsics: Intrinsics,
+        factor_depth: float,
+        params: YcbvParams,
+    ):
         name = class_name(object_id)
-        super().__init__(name=f"{scene.path.name}/{name}", path=scene.path, intrinsics=intrinsics,
-                         n_frames=len(scene.stems), label="rigid", object_name=name, has_masks=True,
-                         accepted_labels=("rigid", "static"),
-                         meta=dict(dataset="ycbv", object_id=object_id, depth_units_per_metre=factor_depth,
-                                   truth="object pose relative to the camera (meta.mat poses)"))
+        super().__init__(
+            name=f"{scene.path.name}/{name}",
+            path=scene.path,
+            intrinsics=intrinsics,
+            n_frames=len(scene.stems),
+            label="rigid",
+            object_name=name,
+            has_masks=True,
+            accepted_labels=("rigid", "static"),
+            meta=dict(
+                dataset="ycbv",
+                object_id=object_id,
+                depth_units_per_metre=factor_depth,
+                truth="object pose relative to the camera (meta.mat poses)",
+            ),
+        )
         self.scene, self.object_id, self.params = scene, object_id, params
 
     def load(self, i: int) -> Frame:
         scene = self.scene
         meta = scene.meta(i)
-        intr, factor = intrinsics_from_meta(meta, path=scene.file(i, "meta"), width=self.intrinsics.width,
-                                            height=self.intrinsics.height)
-        if not np.allclose([intr.fx, intr.fy, intr.cx, intr.cy],
-                           [self.intrinsics.fx, self.intrinsics.fy, self.intrinsics.cx, self.intrinsics.cy],
-                           rtol=1e-6, atol=1e-6):
-            raise InputError("intrinsic_matrix differs from the first frame's; one sequence needs one camera",
-                             path=scene.file(i, "meta"))
+        intr, factor = intrinsics_from_meta(
+            meta, path=scene.file(i, "meta"), width=self.intrinsics.width, height=self.intrinsics.height
+        )
+        if not np.allclose(
+            [intr.fx, intr.fy, intr.cx, intr.cy],
+            [self.intrinsics.fx, self.intrinsics.fy, self.intrinsics.cx, self.intrinsics.cy],
+            rtol=1e-6,
+            atol=1e-6,
+        ):
+            raise InputError(
+                "intrinsic_matrix differs from the first frame's; one sequence needs one camera",
+                path=scene.file(i, "meta"),
+            )
         rgb = read_rgb(scene.file(i, "color"))
         depth = read_depth(scene.file(i, "depth"), units_per_metre=factor)
         label = read_label(scene.file(i, "label"))
         for part, what, image in (("color", "colour", rgb), ("label", "label", label)):
             if image.shape[:2] != depth.shape:
-                raise InputError(f"{what} image is {image.shape[1]}x{image.shape[0]} but the depth image is "
-                                 f"{depth.shape[1]}x{depth.shape[0]}", path=scene.file(i, part))
+                raise InputError(
+                    f"{what} image is {image.shape[1]}x{image.shape[0]} but the depth image is "
+                    f"{depth.shape[1]}x{depth.shape[0]}",
+                    path=scene.file(i, part),
+                )
         return Frame(i, scene.stems[i], rgb, depth, label == self.object_id)
 
     def pair_truth(self, i: int, j: int) -> str | None:
         pose_i, pose_j = self.scene.pose(i, self.object_id), self.scene.pose(j, self.object_id)
         if pose_i is None or pose_j is None:
             return None
-        return pair_truth_from_states(None, None, pose_i, pose_j, joint_eps=np.inf,
-                                      move_eps_m=self.params.move_eps_m, turn_eps_rad=self.params.turn_eps_rad)
+        return pair_truth_from_states(
+            None,
+            None,
+            pose_i,
+            pose_j,
+            joint_eps=np.inf,
+            move_eps_m=self.params.move_eps_m,
+            turn_eps_rad=self.params.turn_eps_rad,
+        )
 
 
 class YcbvReader(Reader):
     """Reads a YCB-Video scene folder (see module docstring): one sequence per object."""
 
     name = "ycbv"
-    description = "YCB-Video scene folder NNNN/ with NNNNNN-{color,depth,label}.png + meta.mat; one sequence per object"
+    description = (
+        "YCB-Video scene folder NNNN/ with NNNNNN-{color,depth,label}.png + meta.mat; one sequence per object"
+    )
     Params = YcbvParams
 
     def sequences(self, path: Path) -> list[Sequence]:
@@ -202,10 +269,13 @@ class YcbvReader(Reader):
                     raise InputError(f"frame {stem} has no {fname}", path=path / fname)
         scene = YcbvScene(path, stems)
         depth0 = read_depth(scene.file(0, "depth"), units_per_metre=1.0)
-        intr, factor = intrinsics_from_meta(scene.meta(0), path=scene.file(0, "meta"),
-                                            width=depth0.shape[1], height=depth0.shape[0])
+        intr, factor = intrinsics_from_meta(
+            scene.meta(0), path=scene.file(0, "meta"), width=depth0.shape[1], height=depth0.shape[0]
+        )
         ids: set[int] = set()
         for i in sorted({0, len(stems) // 2, len(stems) - 1}):
             ids.update(scene.ids(i))
-        return [YcbvSequence(scene, oid, intrinsics=intr, factor_depth=factor, params=self.params)
-                for oid in sorted(ids)]
+        return [
+            YcbvSequence(scene, oid, intrinsics=intr, factor_depth=factor, params=self.params)
+            for oid in sorted(ids)
+        ]

@@ -108,11 +108,20 @@ class FlowEvidence:
         K, z = self.intrinsics, np.abs(moved[ei, 2])
         u, v = K.pixels(P)
         # d(pixel across the edge)/dP, scaled by z/fx into metres at the point's depth
-        g_edge = np.column_stack([n[:, 0] * K.fx / z, n[:, 1] * K.fy / z,
-                                  -(n[:, 0] * (u - K.cx) + n[:, 1] * (v - K.cy)) / z]) * (z / K.fx)[:, None]
-        b_edge = (n[:, 0] * (self.pixel[rows[ei], 0] - u) + n[:, 1] * (self.pixel[rows[ei], 1] - v)) * z / K.fx
-        return (np.concatenate([np.repeat(fi, 3), ei]), np.concatenate([g_full, g_edge]),
-                np.concatenate([b_full, b_edge]))
+        g_edge = (
+            np.column_stack(
+                [n[:, 0] * K.fx / z, n[:, 1] * K.fy / z, -(n[:, 0] * (u - K.cx) + n[:, 1] * (v - K.cy)) / z]
+            )
+            * (z / K.fx)[:, None]
+        )
+        b_edge = (
+            (n[:, 0] * (self.pixel[rows[ei], 0] - u) + n[:, 1] * (self.pixel[rows[ei], 1] - v)) * z / K.fx
+        )
+        return (
+            np.concatenate([np.repeat(fi, 3), ei]),
+            np.concatenate([g_full, g_edge]),
+            np.concatenate([b_full, b_edge]),
+        )
 
     def _across(self, moved: np.ndarray, pixel: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Distance (m, at the moved points' depth) between the moved points' pixels and ``pixel``,
@@ -122,8 +131,15 @@ class FlowEvidence:
         return off * np.abs(moved[..., 2]) / self.intrinsics.fx
 
 
-def flow_targets(source: Cloud, target: Cloud, points: np.ndarray, *, between: Sequence[Cloud] = (),
-                 min_gradient: float = 1.0, scratch: dict | None = None) -> FlowEvidence:
+def flow_targets(
+    source: Cloud,
+    target: Cloud,
+    points: np.ndarray,
+    *,
+    between: Sequence[Cloud] = (),
+    min_gradient: float = 1.0,
+    scratch: dict | None = None,
+) -> FlowEvidence:
     """Where the optical flow says source ``points`` (P, 3) went (see :class:`FlowEvidence`), and how
     far from there (m) each may truly have gone: FLOW_ERROR_PX pixels of the flow's image per flow step
     plus FLOW_ERROR_SHARE of the displacement. Measured on the rigid carries of the 640x480 benchmark
@@ -163,9 +179,12 @@ def flow_targets(source: Cloud, target: Cloud, points: np.ndarray, *, between: S
     full &= depth > 0
     ok &= full | ~corner
     edge = ok & ~corner
-    shift_px = offset_px(u - u0, v - v0, normal)               # along an edge the flow is a guess
-    tol = np.where(ok, (FLOW_ERROR_PX * np.sqrt(steps) / first.scale + FLOW_ERROR_SHARE * shift_px)
-                   * points[:, 2] / K.fx, 0.0)
+    shift_px = offset_px(u - u0, v - v0, normal)  # along an edge the flow is a guess
+    tol = np.where(
+        ok,
+        (FLOW_ERROR_PX * np.sqrt(steps) / first.scale + FLOW_ERROR_SHARE * shift_px) * points[:, 2] / K.fx,
+        0.0,
+    )
     pixel = np.where(ok[:, None], np.stack([u, v], axis=1), np.nan)
     target_pts = np.full((len(points), 3), np.nan)
     target_pts[full] = K.points(u[full], v[full], depth[full])
@@ -202,10 +221,12 @@ class _Flow:
             return
         self.y0, y1 = max(0, ys.min() - _MARGIN_PX), min(h, ys.max() + _MARGIN_PX + 1)
         self.x0, x1 = max(0, xs.min() - _MARGIN_PX), min(w, xs.max() + _MARGIN_PX + 1)
-        ga, gb = (np.ascontiguousarray(g[self.y0:y1, self.x0:x1]) for g in (a.gray, b.gray))
+        ga, gb = (np.ascontiguousarray(g[self.y0 : y1, self.x0 : x1]) for g in (a.gray, b.gray))
         if self.scale < 1.0:
-            ga, gb = (cv2.resize(g, None, fx=self.scale, fy=self.scale, interpolation=cv2.INTER_AREA)
-                      for g in (ga, gb))
+            ga, gb = (
+                cv2.resize(g, None, fx=self.scale, fy=self.scale, interpolation=cv2.INTER_AREA)
+                for g in (ga, gb)
+            )
         dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
         self.forward, self.backward = dis.calc(ga, gb, None), dis.calc(gb, ga, None)
         self.tensor = _structure_tensor(ga)
@@ -224,17 +245,24 @@ class _Flow:
             return corner, normal
         xs, ys, inside = self._image_xy(u, v)
         xx, yy, xy = _sample(self.tensor, xs[inside], ys[inside]).T
-        half = np.sqrt(((xx - yy) / 2) ** 2 + xy ** 2)
+        half = np.sqrt(((xx - yy) / 2) ** 2 + xy**2)
         big, small = (xx + yy) / 2 + half, (xx + yy) / 2 - half
         idx = np.flatnonzero(inside)
-        corner[idx] = small >= min_gradient ** 2
+        corner[idx] = small >= min_gradient**2
         edge = ~corner[idx] & (big >= (EDGE_FACTOR * min_gradient) ** 2)
-        angle = 0.5 * np.arctan2(2 * xy[edge], xx[edge] - yy[edge])     # the gradient's direction
+        angle = 0.5 * np.arctan2(2 * xy[edge], xx[edge] - yy[edge])  # the gradient's direction
         normal[idx[edge]] = np.stack([np.cos(angle), np.sin(angle)], axis=1)
         return corner, normal
 
-    def follow(self, u: np.ndarray, v: np.ndarray, ok: np.ndarray, normal: np.ndarray, *,
-               max_round_trip_px: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def follow(
+        self,
+        u: np.ndarray,
+        v: np.ndarray,
+        ok: np.ndarray,
+        normal: np.ndarray,
+        *,
+        max_round_trip_px: float = 1.0,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Move the ``ok`` full-image pixels (u, v) along the flow; kept are those whose backward flow
         brings them back within ``max_round_trip_px`` of the flow's image (across the edge, at rows
         with an edge ``normal``). Returns the moved u, v and which were kept."""

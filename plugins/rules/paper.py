@@ -16,12 +16,25 @@ _NUDGE = 1e-9
 
 @dataclass(frozen=True)
 class PaperRuleParams(Params):
-    q_bar: float = param(0.1, symbol="q_bar", unit="1", bounds=(1e-4, 2.0),
-                         help="Quantisation step of the quaternion components.")
-    t_bar: float = param(0.1, symbol="t_bar", unit="m", bounds=(1e-5, 10.0),
-                         help="Quantisation step of the translation components.")
-    rounding: str = param("floor", choices=("floor", "round"),
-                          help="Quantiser: floor, as written in Algorithm 2, or round to the nearest step.")
+    q_bar: float = param(
+        0.1,
+        symbol="q_bar",
+        unit="1",
+        bounds=(1e-4, 2.0),
+        help="Quantisation step of the quaternion components.",
+    )
+    t_bar: float = param(
+        0.1,
+        symbol="t_bar",
+        unit="m",
+        bounds=(1e-5, 10.0),
+        help="Quantisation step of the translation components.",
+    )
+    rounding: str = param(
+        "floor",
+        choices=("floor", "round"),
+        help="Quantiser: floor, as written in Algorithm 2, or round to the nearest step.",
+    )
 
 
 def quantise(values: np.ndarray, step: float, rounding: str) -> tuple[int, ...]:
@@ -52,7 +65,9 @@ class PaperRule(DecisionRule):
 
     def key(self, T: np.ndarray) -> tuple[int, ...]:
         p = self.params
-        return quantise(quaternion_wxyz(T[:3, :3]), p.q_bar, p.rounding) + quantise(T[:3, 3], p.t_bar, p.rounding)
+        return quantise(quaternion_wxyz(T[:3, :3]), p.q_bar, p.rounding) + quantise(
+            T[:3, 3], p.t_bar, p.rounding
+        )
 
     def decide(self, cells: list[CellMotion], *, source: Cloud, target: Cloud) -> RuleDecision:
         table: dict[tuple[int, ...], int] = {}
@@ -70,8 +85,9 @@ class PaperRule(DecisionRule):
             decision = "NM" if zero in table else "RM"
         else:
             return RuleDecision("skipped", clusters, keys, reason="no matched cell")
-        return RuleDecision(decision, clusters, keys, reason=f"{len(table)} distinct key(s)",
-                            info=dict(n_keys=len(table)))
+        return RuleDecision(
+            decision, clusters, keys, reason=f"{len(table)} distinct key(s)", info=dict(n_keys=len(table))
+        )
 
     def _readable(self, key: tuple[int, ...]) -> str:
         p = self.params

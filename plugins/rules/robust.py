@@ -87,7 +87,7 @@ from ..preprocessors import to_o3d
 from .flow import FlowEvidence, flow_targets, kabsch
 
 MIN_FLOW_POINTS = 6
-MIN_CELL_POINTS = 8       # a cell with fewer source points says nothing of its own
+MIN_CELL_POINTS = 8  # a cell with fewer source points says nothing of its own
 JOINT_MIN_TURN_RAD, JOINT_MAX_SLIDE = np.radians(3.0), 0.1
 
 reg = o3d.pipelines.registration
@@ -97,36 +97,72 @@ reg = o3d.pipelines.registration
 
 @dataclass(frozen=True)
 class RobustRuleParams(Params):
-    noise_floor_m: float = param(0.002, unit="m", bounds=(1e-5, 0.1),
-                                 help="Smallest inlier distance tau: below this, misfit is sensor noise.")
-    noise_factor: float = param(3.0, unit="sigma", bounds=(0.5, 20.0),
-                                help="tau is this many times the depth noise measured on the pair (spread of "
-                                     "points about their local planes, times sqrt 2).")
-    explain_margin: float = param(0.05, unit="fraction", bounds=(0.0, 1.0),
-                                  help="A motion explains a cell when its inlier share is within this, plus two "
-                                       "standard errors of the difference of two shares, of the best share any "
-                                       "motion reaches on the cell.")
-    min_cell_score: float = param(0.5, unit="fraction", bounds=(0.0, 1.0),
-                                  help="Cells whose best inlier share is below this (occluded, out of view) "
-                                       "carry no evidence.")
-    static_share: float = param(0.9, unit="fraction", bounds=(0.5, 1.0),
-                                help="No motion when the identity explains this share of the informative points.")
-    min_part_cells: int = param(2, unit="cells", bounds=(1, 100),
-                                help="A second motion needs at least this many cells of its own.")
-    min_part_share: float = param(0.15, unit="fraction", bounds=(0.0, 0.5),
-                                  help="A second motion needs at least this share of the informative points.")
-    min_still_part_share: float = param(0.05, unit="fraction", bounds=(0.0, 0.5),
-                                        help="The same when the object as a whole did not move (its first motion "
-                                             "moves no point by more than tau): no motion of its own then hides "
-                                             "or shows its surfaces to fake a part.")
-    use_flow: bool = param(True, help="Use optical flow between the two colour images as evidence of motions "
-                                      "that keep a surface in place (sliding, spinning).")
-    max_points_per_cell: int = param(48, unit="points", bounds=(4, 10000),
-                                     help="Points per cell used for scoring (evenly subsampled, for speed).")
+    noise_floor_m: float = param(
+        0.002,
+        unit="m",
+        bounds=(1e-5, 0.1),
+        help="Smallest inlier distance tau: below this, misfit is sensor noise.",
+    )
+    noise_factor: float = param(
+        3.0,
+        unit="sigma",
+        bounds=(0.5, 20.0),
+        help="tau is this many times the depth noise measured on the pair (spread of "
+        "points about their local planes, times sqrt 2).",
+    )
+    explain_margin: float = param(
+        0.05,
+        unit="fraction",
+        bounds=(0.0, 1.0),
+        help="A motion explains a cell when its inlier share is within this, plus two "
+        "standard errors of the difference of two shares, of the best share any "
+        "motion reaches on the cell.",
+    )
+    min_cell_score: float = param(
+        0.5,
+        unit="fraction",
+        bounds=(0.0, 1.0),
+        help="Cells whose best inlier share is below this (occluded, out of view) carry no evidence.",
+    )
+    static_share: float = param(
+        0.9,
+        unit="fraction",
+        bounds=(0.5, 1.0),
+        help="No motion when the identity explains this share of the informative points.",
+    )
+    min_part_cells: int = param(
+        2, unit="cells", bounds=(1, 100), help="A second motion needs at least this many cells of its own."
+    )
+    min_part_share: float = param(
+        0.15,
+        unit="fraction",
+        bounds=(0.0, 0.5),
+        help="A second motion needs at least this share of the informative points.",
+    )
+    min_still_part_share: float = param(
+        0.05,
+        unit="fraction",
+        bounds=(0.0, 0.5),
+        help="The same when the object as a whole did not move (its first motion "
+        "moves no point by more than tau): no motion of its own then hides "
+        "or shows its surfaces to fake a part.",
+    )
+    use_flow: bool = param(
+        True,
+        help="Use optical flow between the two colour images as evidence of motions "
+        "that keep a surface in place (sliding, spinning).",
+    )
+    max_points_per_cell: int = param(
+        48,
+        unit="points",
+        bounds=(4, 10000),
+        help="Points per cell used for scoring (evenly subsampled, for speed).",
+    )
 
 
-def icp_point_to_plane(source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, init: np.ndarray,
-                       distances_m) -> np.ndarray:
+def icp_point_to_plane(
+    source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, init: np.ndarray, distances_m
+) -> np.ndarray:
     """Point-to-plane ICP run coarse to fine over ``distances_m``; returns T_target_from_source.
 
     Solved about the source's centroid: point-to-plane ICP linearises the rotation about the origin,
@@ -139,41 +175,69 @@ def icp_point_to_plane(source: o3d.geometry.PointCloud, target: o3d.geometry.Poi
     src, tgt = o3d.geometry.PointCloud(source).translate(-c), o3d.geometry.PointCloud(target).translate(-c)
     T = shift @ init @ unshift
     for d in distances_m:
-        T = reg.registration_icp(src, tgt, d, T, reg.TransformationEstimationPointToPlane(),
-                                 reg.ICPConvergenceCriteria(max_iteration=30)).transformation
+        T = reg.registration_icp(
+            src,
+            tgt,
+            d,
+            T,
+            reg.TransformationEstimationPointToPlane(),
+            reg.ICPConvergenceCriteria(max_iteration=30),
+        ).transformation
     return unshift @ np.array(T) @ shift
 
 
 class RobustRule(DecisionRule):
     __doc__ = __doc__
     name = "robust"
-    description = "counts the rigid motions needed to explain the points, with noise-scaled thresholds (default)"
+    description = (
+        "counts the rigid motions needed to explain the points, with noise-scaled thresholds (default)"
+    )
     Params = RobustRuleParams
-    uses_frames_between = True    # optical flow is followed from frame to frame where it cannot jump
-    uses_scratch = True           # the evidence below is kept in the pair's scratch dict
+    uses_frames_between = True  # optical flow is followed from frame to frame where it cannot jump
+    uses_scratch = True  # the evidence below is kept in the pair's scratch dict
 
-    def decide(self, cells: list[CellMotion], *, source: Cloud, target: Cloud,
-               between: tuple[Cloud, ...] = (), scratch: dict | None = None) -> RuleDecision:
+    def decide(
+        self,
+        cells: list[CellMotion],
+        *,
+        source: Cloud,
+        target: Cloud,
+        between: tuple[Cloud, ...] = (),
+        scratch: dict | None = None,
+    ) -> RuleDecision:
         p = self.params
         matched = [n for n, c in enumerate(cells) if c.matched]
         if not matched or source.normals is None or target.normals is None:
             return RuleDecision("skipped", [None] * len(cells), reason="no matched cell with normals")
         # What the thresholds do not change is computed once per pair and found again on re-deciding.
         memo = {} if scratch is None else scratch
-        key = ("robust", p.max_points_per_cell, p.use_flow, tuple(c.frame_index for c in between),
-               tuple((cells[n].cell, id(cells[n].registration)) for n in matched))
+        key = (
+            "robust",
+            p.max_points_per_cell,
+            p.use_flow,
+            tuple(c.frame_index for c in between),
+            tuple((cells[n].cell, id(cells[n].registration)) for n in matched),
+        )
         ev = memo.get(key)
         if ev is None:
-            ev = memo[key] = _Evidence(cells, matched, source, target, max_points=p.max_points_per_cell,
-                                       use_flow=p.use_flow, between=between, scratch=memo)
+            ev = memo[key] = _Evidence(
+                cells,
+                matched,
+                source,
+                target,
+                max_points=p.max_points_per_cell,
+                use_flow=p.use_flow,
+                between=between,
+                scratch=memo,
+            )
         owner, counts = ev.owner, ev.counts
 
         tau = max(p.noise_floor_m, p.noise_factor * ev.sigma)
         hyps = list(ev.hyps)
-        score = _per_cell(ev.geo <= tau, owner, counts)                    # (H, C) inlier share
+        score = _per_cell(ev.geo <= tau, owner, counts)  # (H, C) inlier share
 
         # Cells the best whole-object motion leaves unexplained get local hypotheses of their own.
-        g = 1 + int(np.argmax(score[1:ev.n_global] @ counts))
+        g = 1 + int(np.argmax(score[1 : ev.n_global] @ counts))
         best = score.max(axis=0)
         poor = np.flatnonzero(score[g] < np.maximum(best, p.min_cell_score) - p.explain_margin)
         extra = [ev.local(c, g) for c in poor]
@@ -188,14 +252,14 @@ class RobustRule(DecisionRule):
             """Which motions explain which cells, and the first motion (step 4)."""
             best = score.max(axis=0)
             informative = best >= p.min_cell_score
-            explains = _explains(score, best, counts, p.explain_margin) & informative   # (H, C)
+            explains = _explains(score, best, counts, p.explain_margin) & informative  # (H, C)
             weight = counts * informative
             # When the identity explains nearly everything, the object as a whole stood still; a part may not have.
             still = (explains[0] * weight).sum() >= p.static_share * weight.sum()
             # A further motion is a part's, and only the whole object's motion may hide points behind itself:
             # a part is scored on the whole-object hypotheses without that excuse.
             as_part = explains.copy()
-            as_part[:ev.n_global] = _explains(plain, best, counts, p.explain_margin) & informative
+            as_part[: ev.n_global] = _explains(plain, best, counts, p.explain_margin) & informative
             first = 0 if still else int(np.argmax(explains @ weight))
             return best, informative, explains, weight, still, as_part, first
 
@@ -215,8 +279,12 @@ class RobustRule(DecisionRule):
             hyps += [T for T, _ in joint]
             score = np.vstack([score, _per_cell(np.stack([r for _, r in joint]) <= tau, owner, counts)])
             best, informative, explains, weight, still, as_part, first = weigh(score)
-        info = dict(tau_m=round(tau, 6), sigma_m=round(float(ev.sigma), 6), n_informative=int(informative.sum()),
-                    n_hypotheses=len(hyps))
+        info = dict(
+            tau_m=round(tau, 6),
+            sigma_m=round(float(ev.sigma), 6),
+            n_informative=int(informative.sum()),
+            n_hypotheses=len(hyps),
+        )
         clusters: list[int | None] = [None] * len(cells)
         if not informative.any():
             return RuleDecision("skipped", clusters, reason="no cell is explained by any motion", info=info)
@@ -231,14 +299,16 @@ class RobustRule(DecisionRule):
                 return None
             return joint_like(A, B, ev.pts.mean(0), ev.extent)
 
-        chosen, members, passed = self._cover(explains, as_part, weight, total, informative, part_share, first,
-                                              distinct)
+        chosen, members, passed = self._cover(
+            explains, as_part, weight, total, informative, part_share, first, distinct
+        )
         motions = [hyps[h] for h in chosen]
         if passed:
             info["passed_over"] = passed
         if len(motions) >= 2:
-            merged = self._single_motion(ev, hyps, list(range(ev.n_global)) + chosen, members, best, weight, tau,
-                                         part_share)
+            merged = self._single_motion(
+                ev, hyps, list(range(ev.n_global)) + chosen, members, best, weight, tau, part_share
+            )
             if merged is not None:
                 motions, members = [merged[0]], [merged[1]]
                 info["merged"] = True
@@ -255,10 +325,17 @@ class RobustRule(DecisionRule):
             for n in gone:
                 clusters[n] = 1
             info["seen_through"] = len(gone)
-            return RuleDecision("AM", clusters, keys + ["moved off"], info=info,
-                                reason=f"the camera sees through {len(gone)} cells where the motion puts them: a part moved off")
+            return RuleDecision(
+                "AM",
+                clusters,
+                keys + ["moved off"],
+                info=info,
+                reason=f"the camera sees through {len(gone)} cells where the motion puts them: a part moved off",
+            )
         if still:
-            return RuleDecision("NM", clusters, ["no motion"], reason="the identity explains the points", info=info)
+            return RuleDecision(
+                "NM", clusters, ["no motion"], reason="the identity explains the points", info=info
+            )
         shift_m = _displacement(ev.pts, motions[0])
         info["max_displacement_m"] = round(shift_m, 6)
         if shift_m <= tau:
@@ -289,7 +366,7 @@ class RobustRule(DecisionRule):
                 left[cs] = False
                 continue
             n_passed += 1
-            if verdict is None:         # these cells moved as the first motion did, as far as the data tells
+            if verdict is None:  # these cells moved as the first motion did, as far as the data tells
                 members[0] = np.concatenate([members[0], cs])
                 left[cs] = False
             else:
@@ -329,16 +406,26 @@ class _Evidence:
     hypotheses and every point's residual under each, the measured noise, and the ICP refits done so
     far (memoised, so re-deciding under other thresholds repeats none of this work)."""
 
-    def __init__(self, cells: list[CellMotion], matched: list[int], source: Cloud, target: Cloud, *,
-                 max_points: int, use_flow: bool = True, between: tuple[Cloud, ...] = (),
-                 scratch: dict | None = None):
+    def __init__(
+        self,
+        cells: list[CellMotion],
+        matched: list[int],
+        source: Cloud,
+        target: Cloud,
+        *,
+        max_points: int,
+        use_flow: bool = True,
+        between: tuple[Cloud, ...] = (),
+        scratch: dict | None = None,
+    ):
         # Arrays, never the clouds themselves: this lives in the pair's scratch dict, which must not keep
         # them alive (a streaming run drops each cloud as soon as its pairs are done).
         self.src_points, self.src_normals, self.src_view = source.points, source.normals, source.view
         self.tgt_points, self.tgt_normals, self.tgt_view = target.points, target.normals, target.view
         self.tree, self.source_tree = cKDTree(target.points), cKDTree(source.points)
-        self.spacing = float(source.info.get("v_m")
-                             or np.median(self.source_tree.query(source.points, k=2)[0][:, 1]))
+        self.spacing = float(
+            source.info.get("v_m") or np.median(self.source_tree.query(source.points, k=2)[0][:, 1])
+        )
         self.extent = float(np.linalg.norm(np.ptp(np.concatenate([source.points, target.points]), axis=0)))
         self.tgt = to_o3d(target.points, target.normals)
         self.cell_idx = [cells[n].source_idx for n in matched]
@@ -359,11 +446,17 @@ class _Evidence:
         steps = [self.extent / 5, self.extent / 10, self.extent / 20, 3 * self.spacing]
         shift = np.eye(4)
         shift[:3, 3] = target.points.mean(0) - source.points.mean(0)
-        self.hyps = [np.eye(4), icp_point_to_plane(src_all, self.tgt, np.eye(4), steps),
-                     icp_point_to_plane(src_all, self.tgt, shift, steps)]
+        self.hyps = [
+            np.eye(4),
+            icp_point_to_plane(src_all, self.tgt, np.eye(4), steps),
+            icp_point_to_plane(src_all, self.tgt, shift, steps),
+        ]
         # Where the optical flow says each scoring point went, and how far from there it may be.
-        self.flow = flow_targets(source, target, self.pts, between=between, scratch=scratch) if use_flow else \
-            FlowEvidence.none(len(self.pts))
+        self.flow = (
+            flow_targets(source, target, self.pts, between=between, scratch=scratch)
+            if use_flow
+            else FlowEvidence.none(len(self.pts))
+        )
         self.has_flow = self.flow.full
         seen = self.has_flow | self.flow.edge
         if self.has_flow.sum() >= MIN_FLOW_POINTS:
@@ -372,12 +465,14 @@ class _Evidence:
         own = [cells[n].registration.T_target_from_source for n in matched]
         whole = self.hyps[1:3] if seen.sum() >= MIN_FLOW_POINTS else []
         fits = [c for c in range(len(matched)) if (seen & (self.owner == c)).sum() >= MIN_FLOW_POINTS]
-        refined = self.flow_fit(whole + [own[c] for c in fits], [np.arange(len(self.pts))] * len(whole)
-                                + [np.flatnonzero(self.owner == c) for c in fits])
-        self.hyps += refined[:len(whole)]
+        refined = self.flow_fit(
+            whole + [own[c] for c in fits],
+            [np.arange(len(self.pts))] * len(whole) + [np.flatnonzero(self.owner == c) for c in fits],
+        )
+        self.hyps += refined[: len(whole)]
         self.n_global = len(self.hyps)
         self.hyps += own
-        refined_own = dict(zip(fits, refined[len(whole):]))
+        refined_own = dict(zip(fits, refined[len(whole) :]))
         for c in range(len(matched)):
             use = self.has_flow & (self.owner == c)
             if use.sum() >= MIN_FLOW_POINTS:
@@ -385,9 +480,13 @@ class _Evidence:
             if c in refined_own:
                 self.hyps.append(refined_own[c])
         plain = self.residuals(self.hyps)
-        self.plain = plain[:self.n_global]                  # whole-object motions scored as a part's
-        self.geo = np.stack([self.excuse(r, T) if h < self.n_global else r                  # (H, P) metres
-                             for h, (T, r) in enumerate(zip(self.hyps, plain))])
+        self.plain = plain[: self.n_global]  # whole-object motions scored as a part's
+        self.geo = np.stack(
+            [
+                self.excuse(r, T) if h < self.n_global else r  # (H, P) metres
+                for h, (T, r) in enumerate(zip(self.hyps, plain))
+            ]
+        )
         # Noise measured on the data, independent of any motion: the spread of the target's points about
         # their local planes; two noisy samplings of one surface differ by sqrt(2) of that.
         self.sigma = np.sqrt(2.0) * surface_noise(target.points, self.tree)
@@ -404,11 +503,14 @@ class _Evidence:
         moved = np.einsum("hij,pj->hpi", Ts[:, :3, :3], self.pts) + Ts[:, None, :3, 3]
         flat = moved.reshape(-1, 3)
         d, j = self.tree.query(flat)
-        r = np.maximum(np.abs(np.einsum("ij,ij->i", flat - self.tgt_points[j], self.tgt_normals[j])),
-                       d - self.spacing)
+        r = np.maximum(
+            np.abs(np.einsum("ij,ij->i", flat - self.tgt_points[j], self.tgt_normals[j])), d - self.spacing
+        )
         return np.maximum(r.reshape(moved.shape[:2]), self.flow.misfit(moved))
 
-    def flow_fit(self, T0: list[np.ndarray], groups: list[np.ndarray], *, rounds: int = 4) -> list[np.ndarray]:
+    def flow_fit(
+        self, T0: list[np.ndarray], groups: list[np.ndarray], *, rounds: int = 4
+    ) -> list[np.ndarray]:
         """Each motion T0[i] refined on the scoring points ``groups[i]`` (indices) to agree with the depth
         (each moved point on the tangent plane of its nearest target point) and with the optical flow
         (where it says the point went; across the edge only, on an edge): damped Gauss-Newton steps
@@ -428,11 +530,16 @@ class _Evidence:
             at, g, b = self.flow.constraints(moved, rows)
             at, g = np.concatenate([np.arange(len(rows)), at]), np.concatenate([m, g])
             b = np.concatenate([np.einsum("ij,ij->i", m, self.tgt_points[j] - moved), b])
-            c = np.stack([np.bincount(group, weights=moved[:, k], minlength=n) for k in range(3)], axis=1) / size
+            c = (
+                np.stack([np.bincount(group, weights=moved[:, k], minlength=n) for k in range(3)], axis=1)
+                / size
+            )
             eq = group[at]
-            A = np.hstack([np.cross(moved[at] - c[eq], g), g])          # g . (w x (p - c) + t) = b
+            A = np.hstack([np.cross(moved[at] - c[eq], g), g])  # g . (w x (p - c) + t) = b
             w = 1.0 / np.maximum(1.0, np.abs(b) / self.spacing)
-            H = _sum_by(eq, (w[:, None, None] * A[:, :, None] * A[:, None, :]).reshape(-1, 36), n).reshape(n, 6, 6)
+            H = _sum_by(eq, (w[:, None, None] * A[:, :, None] * A[:, None, :]).reshape(-1, 36), n).reshape(
+                n, 6, 6
+            )
             H += (1e-3 * np.trace(H, axis1=1, axis2=2) / 6)[:, None, None] * np.eye(6)
             x = np.linalg.solve(H, _sum_by(eq, (w * b)[:, None] * A, n)[..., None])[..., 0]
             step = np.tile(np.eye(4), (n, 1, 1))
@@ -453,10 +560,12 @@ class _Evidence:
         K = view.intrinsics
         r = max(1, int(round(self.spacing * K.fx / np.median(self.tgt_points[:, 2]))))
         depth = np.where(view.scene_depth_m > 0, view.scene_depth_m, np.inf).astype(np.float32)
-        near = cv2.erode(depth, np.ones((2 * r + 1, 2 * r + 1), np.uint8))   # not kept: 1 ms, 1 MB a pair
+        near = cv2.erode(depth, np.ones((2 * r + 1, 2 * r + 1), np.uint8))  # not kept: 1 ms, 1 MB a pair
         gap = _in_front(np.where(np.isfinite(near), near, 0.0), K, transform(self.loose_pts, T))[0]
         through = np.isfinite(gap) & (-gap > 2 * self.spacing)
-        return np.bincount(self.loose_owner, weights=through, minlength=len(out)) / np.maximum(self.loose_counts, 1)
+        return np.bincount(self.loose_owner, weights=through, minlength=len(out)) / np.maximum(
+            self.loose_counts, 1
+        )
 
     def excuse(self, r: np.ndarray, T: np.ndarray) -> np.ndarray:
         """Residuals ``r`` under a motion T of the whole object, which is not faulted for the points
@@ -503,7 +612,10 @@ class _Evidence:
             i = self.cell_idx[c]
             src = to_o3d(self.src_points[i], self.src_normals[i])
             near = [4 * self.spacing, 2 * self.spacing]
-            Ts = [icp_point_to_plane(src, self.tgt, self.hyps[g], near), icp_point_to_plane(src, self.tgt, np.eye(4), near)]
+            Ts = [
+                icp_point_to_plane(src, self.tgt, self.hyps[g], near),
+                icp_point_to_plane(src, self.tgt, np.eye(4), near),
+            ]
             self._local[(c, g)] = list(zip(Ts, self.residuals(Ts)))
         return self._local[(c, g)]
 
@@ -514,7 +626,7 @@ class _Evidence:
         if key not in self._unions:
             group = np.flatnonzero(np.isin(self.owner, cells))
             use = group[self.has_flow[group]]
-            direct = []                 # what the flow alone says: a rigid fit, and a plain slide
+            direct = []  # what the flow alone says: a rigid fit, and a plain slide
             if len(use) >= MIN_FLOW_POINTS:
                 slide = np.eye(4)
                 slide[:3, 3] = np.median(self.flow.target[use] - self.pts[use], axis=0)
@@ -530,8 +642,11 @@ class _Evidence:
         key = (cells, T0.tobytes())
         if key not in self._refits:
             src = to_o3d(self.pts[np.isin(self.owner, cells)])
-            self._refits[key] = (src, icp_point_to_plane(src, self.tgt, T0, [self.extent / 10, 2 * self.spacing,
-                                                                               self.spacing]), {})
+            self._refits[key] = (
+                src,
+                icp_point_to_plane(src, self.tgt, T0, [self.extent / 10, 2 * self.spacing, self.spacing]),
+                {},
+            )
         src, coarse, fine = self._refits[key]
         if tau not in fine:
             T = icp_point_to_plane(src, self.tgt, coarse, [2 * tau])
@@ -545,7 +660,7 @@ def trimmed_kabsch(p: np.ndarray, q: np.ndarray, *, keep: float = 0.7, rounds: i
     for _ in range(rounds):
         T = kabsch(p[use], q[use])
         err = np.linalg.norm(transform(p, T) - q, axis=1)
-        use = np.argsort(err)[:max(3, int(keep * len(p)))]
+        use = np.argsort(err)[: max(3, int(keep * len(p)))]
     return T
 
 
@@ -562,9 +677,11 @@ def joint_like(A: np.ndarray, B: np.ndarray, centre: np.ndarray, size: float) ->
         return True
     axis, t = rotvec / turn, T[:3, 3]
     slide = float(t @ axis)
-    point = np.linalg.lstsq(np.eye(3) - T[:3, :3], t - slide * axis, rcond=None)[0]   # a point on the axis
+    point = np.linalg.lstsq(np.eye(3) - T[:3, :3], t - slide * axis, rcond=None)[0]  # a point on the axis
     off = centre - point
-    return bool(abs(slide) <= JOINT_MAX_SLIDE * size and np.linalg.norm(off - (off @ axis) * axis) <= 0.5 * size)
+    return bool(
+        abs(slide) <= JOINT_MAX_SLIDE * size and np.linalg.norm(off - (off @ axis) * axis) <= 0.5 * size
+    )
 
 
 def _in_front(depth_m: np.ndarray, K, points: np.ndarray):
@@ -602,10 +719,10 @@ def surface_noise(points: np.ndarray, tree: cKDTree, *, n_samples: int = 400, k:
         return 0.0
     sample = points[np.linspace(0, len(points) - 1, min(n_samples, len(points))).astype(int)]
     _, nn = tree.query(sample, k=k)
-    hood = points[nn] - points[nn].mean(axis=1, keepdims=True)              # (S, k, 3)
+    hood = points[nn] - points[nn].mean(axis=1, keepdims=True)  # (S, k, 3)
     _, s, vt = np.linalg.svd(hood, full_matrices=False)
-    off = np.abs(np.einsum("skj,sj->sk", hood, vt[:, 2, :]))                  # distances to the plane
-    return float(1.4826 * np.median(off) * np.sqrt(k / (k - 3)))             # 3 dof used by the fit
+    off = np.abs(np.einsum("skj,sj->sk", hood, vt[:, 2, :]))  # distances to the plane
+    return float(1.4826 * np.median(off) * np.sqrt(k / (k - 3)))  # 3 dof used by the fit
 
 
 def _sum_by(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:

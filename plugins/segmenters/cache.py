@@ -21,7 +21,7 @@ class PackedMask:
     """A boolean mask stored as the bits of its bounding box (a few kB instead of W*H bytes)."""
 
     shape: tuple[int, int]
-    box: tuple[int, int, int, int]     # y0, x0, y1, x1 (exclusive ends); empty mask: all 0
+    box: tuple[int, int, int, int]  # y0, x0, y1, x1 (exclusive ends); empty mask: all 0
     bits: bytes
 
     @classmethod
@@ -41,7 +41,9 @@ class PackedMask:
         """The mask inside its bounding box, shape (y1 - y0, x1 - x0)."""
         y0, x0, y1, x1 = self.box
         n = (y1 - y0) * (x1 - x0)
-        return np.unpackbits(np.frombuffer(self.bits, np.uint8), count=n).reshape(y1 - y0, x1 - x0).astype(bool)
+        return (
+            np.unpackbits(np.frombuffer(self.bits, np.uint8), count=n).reshape(y1 - y0, x1 - x0).astype(bool)
+        )
 
     def unpack(self) -> np.ndarray:
         """The full mask, ndarray of bool, shape ``self.shape``."""
@@ -76,8 +78,11 @@ class DiskMaskCache:
         seq = Path(sequence_path).expanduser().resolve()
         root = self.root.resolve()
         if root == seq or seq in root.parents:
-            raise InputError(f"cache_dir {self.root} is inside the sequence folder; choose a folder outside "
-                             "the input data (artclass never writes into an input folder)", path=sequence_path)
+            raise InputError(
+                f"cache_dir {self.root} is inside the sequence folder; choose a folder outside "
+                "the input data (artclass never writes into an input folder)",
+                path=sequence_path,
+            )
 
     def _file(self, sequence_path: Path, sequence_name: str, frame_name: str) -> Path:
         key = hashlib.sha256(str(Path(sequence_path).expanduser().resolve()).encode()).hexdigest()[:12]

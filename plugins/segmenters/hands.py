@@ -48,9 +48,22 @@ from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, par
 
 from .support import DEPTH_STEP_M, Plane, clean_depth, label_regions, plane_height_m
 
-__all__ = ["HandParams", "SKIN_CR", "SKIN_CB", "skin_mask", "hsv_mask", "parse_hsv", "hand_regions",
-           "held", "load_hand_mask", "find_hands", "widen", "arms", "on_plane",
-           "rests"]
+__all__ = [
+    "HandParams",
+    "SKIN_CR",
+    "SKIN_CB",
+    "skin_mask",
+    "hsv_mask",
+    "parse_hsv",
+    "hand_regions",
+    "held",
+    "load_hand_mask",
+    "find_hands",
+    "widen",
+    "arms",
+    "on_plane",
+    "rests",
+]
 
 # Chai & Ngan (1999): the skin-colour map in YCrCb, 8-bit (OpenCV's YCrCb has the same offsets).
 SKIN_CR = (133, 173)
@@ -72,8 +85,10 @@ def parse_hsv(text: str) -> tuple[tuple[int, int, int], tuple[int, int, int]] | 
     highs = (180, 255, 255)
     in_range = len(v) == 6 and all(0 <= x <= highs[k % 3] for k, x in enumerate(v))
     if not in_range or any(v[k] > v[k + 3] for k in range(3)):
-        raise ParamError(f"parameter gripper_hsv = {text!r} is not 'h0,s0,v0,h1,s1,v1' with 0 <= h <= 180, "
-                         "0 <= s, v <= 255 and each low <= its high")
+        raise ParamError(
+            f"parameter gripper_hsv = {text!r} is not 'h0,s0,v0,h1,s1,v1' with 0 <= h <= 180, "
+            "0 <= s, v <= 255 and each low <= its high"
+        )
     return (v[0], v[1], v[2]), (v[3], v[4], v[5])
 
 
@@ -81,29 +96,50 @@ def parse_hsv(text: str) -> tuple[tuple[int, int, int], tuple[int, int, int]] | 
 class HandParams(Params):
     """Which pixels are a hand or gripper, removed from the objects (shared by the mask-free segmenters)."""
 
-    exclude_hands: bool = param(True, help="Remove hands (skin colour, regions reaching the image border), the arms "
-                                           "or sleeves that hold them (of any colour: entering from the border "
-                                           "above the table) and the configured gripper from the objects, and "
-                                           "prefer the object a hand holds; off = every region is an object "
-                                           "candidate.")
-    hand_min_area_m2: float = param(0.003, unit="m^2", bounds=(0.0, 1.0),
-                                    help="Skin- or gripper-coloured regions whose surface (seen from the camera, "
-                                         "measured with depth) is smaller are not a hand: about two fingers, "
-                                         "30 cm^2; patches of skin colour on objects are smaller.")
-    hand_margin_px: int = param(2, unit="px", bounds=(0, 20),
-                                help="The hand mask grows by this radius before it is removed: the mixed-colour "
-                                     "pixels of its outline.")
-    hand_touch_m: float = param(0.02, unit="m", bounds=(0.0, 0.5),
-                                help="An object whose pixels next to the hand lie within this depth of the hand's "
-                                     "is held (about a finger's thickness); held objects are chosen first. An "
-                                     "arm joins a hand it comes this close to in 3-D.")
-    gripper_hsv: str = param("", help="The gripper's colour as an HSV box 'h0,s0,v0,h1,s1,v1' in OpenCV units "
-                                      "(H 0-180, S and V 0-255), e.g. '0,0,0,180,100,100' for a dark grey "
-                                      "gripper; its regions that reach the image border are removed like "
-                                      "hands. Empty = none.")
-    hand_masks: str = param("", help="Folder of hand or gripper masks, one PNG per frame named like the frame "
-                                     "(non-zero = hand), relative to the sequence folder; added to the hand "
-                                     "mask. Empty = none.")
+    exclude_hands: bool = param(
+        True,
+        help="Remove hands (skin colour, regions reaching the image border), the arms "
+        "or sleeves that hold them (of any colour: entering from the border "
+        "above the table) and the configured gripper from the objects, and "
+        "prefer the object a hand holds; off = every region is an object "
+        "candidate.",
+    )
+    hand_min_area_m2: float = param(
+        0.003,
+        unit="m^2",
+        bounds=(0.0, 1.0),
+        help="Skin- or gripper-coloured regions whose surface (seen from the camera, "
+        "measured with depth) is smaller are not a hand: about two fingers, "
+        "30 cm^2; patches of skin colour on objects are smaller.",
+    )
+    hand_margin_px: int = param(
+        2,
+        unit="px",
+        bounds=(0, 20),
+        help="The hand mask grows by this radius before it is removed: the mixed-colour "
+        "pixels of its outline.",
+    )
+    hand_touch_m: float = param(
+        0.02,
+        unit="m",
+        bounds=(0.0, 0.5),
+        help="An object whose pixels next to the hand lie within this depth of the hand's "
+        "is held (about a finger's thickness); held objects are chosen first. An "
+        "arm joins a hand it comes this close to in 3-D.",
+    )
+    gripper_hsv: str = param(
+        "",
+        help="The gripper's colour as an HSV box 'h0,s0,v0,h1,s1,v1' in OpenCV units "
+        "(H 0-180, S and V 0-255), e.g. '0,0,0,180,100,100' for a dark grey "
+        "gripper; its regions that reach the image border are removed like "
+        "hands. Empty = none.",
+    )
+    hand_masks: str = param(
+        "",
+        help="Folder of hand or gripper masks, one PNG per frame named like the frame "
+        "(non-zero = hand), relative to the sequence folder; added to the hand "
+        "mask. Empty = none.",
+    )
 
     def __post_init__(self):
         super().__post_init__()
@@ -142,8 +178,14 @@ def _at_border(stats: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return (x == 0) | (y == 0) | (x + bw == shape[1]) | (y + bh == shape[0])
 
 
-def hand_regions(candidates: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, *,
-                 min_area_m2: float, border: bool = True) -> np.ndarray:
+def hand_regions(
+    candidates: np.ndarray,
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    min_area_m2: float,
+    border: bool = True,
+) -> np.ndarray:
     """The connected regions (8-connected, after a 3x3 opening) of ``candidates`` that reach the image
     border (any region when ``border`` is False) and whose surface is at least ``min_area_m2``.
 
@@ -170,14 +212,16 @@ def hand_regions(candidates: np.ndarray, depth_m: np.ndarray, intrinsics: Intrin
     d = clean_depth(depth_m)
     out = np.zeros(candidates.shape, bool)
     for k in kept:
-        box = np.s_[y[k - 1]:y[k - 1] + bh[k - 1], x[k - 1]:x[k - 1] + bw[k - 1]]
+        box = np.s_[y[k - 1] : y[k - 1] + bh[k - 1], x[k - 1] : x[k - 1] + bw[k - 1]]
         region = labels[box] == k
         z = d[box][region]
         z = z[z > 0]
         if not len(z):
             continue
         # the surface of the pixels with a reading, plus those without one at the mean depth
-        area = (float(np.sum(z * z)) + (count[k - 1] - len(z)) * float(z.mean()) ** 2) / (intrinsics.fx * intrinsics.fy)
+        area = (float(np.sum(z * z)) + (count[k - 1] - len(z)) * float(z.mean()) ** 2) / (
+            intrinsics.fx * intrinsics.fy
+        )
         if area >= min_area_m2:
             out[box] |= region
     return out
@@ -194,14 +238,24 @@ def load_hand_mask(folder: Path, frame: Frame) -> np.ndarray:
     if image is None:
         raise InputError("hand mask missing or unreadable (hand_masks needs one PNG per frame)", path=path)
     if image.shape[:2] != frame.depth_m.shape[:2]:
-        raise InputError(f"hand mask is {image.shape[1]}x{image.shape[0]}, the frame "
-                         f"{frame.depth_m.shape[1]}x{frame.depth_m.shape[0]}", path=path)
+        raise InputError(
+            f"hand mask is {image.shape[1]}x{image.shape[0]}, the frame "
+            f"{frame.depth_m.shape[1]}x{frame.depth_m.shape[0]}",
+            path=path,
+        )
     return (image.max(axis=2) if image.ndim == 3 else image) > 0
 
 
-def find_hands(frame: Frame, background: np.ndarray, intrinsics: Intrinsics, *, params: HandParams,
-               sequence_path: Path | str, support: Plane | None = None, plane_distance_m: float = 0.0
-               ) -> np.ndarray:
+def find_hands(
+    frame: Frame,
+    background: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    params: HandParams,
+    sequence_path: Path | str,
+    support: Plane | None = None,
+    plane_distance_m: float = 0.0,
+) -> np.ndarray:
     """The hand (and gripper) mask of a frame, with the arms that hold them (see the module
     docstring), not yet grown by its margin.
 
@@ -230,24 +284,35 @@ def find_hands(frame: Frame, background: np.ndarray, intrinsics: Intrinsics, *, 
     d, touch = clean_depth(frame.depth_m), params.hand_touch_m
     near, far = _depth_range(d, np.ones(background.shape, bool), 1)
     candidates &= ~background
-    step = far - near > touch                          # no readings around: -inf, not a step
+    step = far - near > touch  # no readings around: -inf, not a step
     if support is None:
         hand = hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2)
     else:
-        regions = _regions(hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2,
-                                        border=False))
+        regions = _regions(
+            hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2, border=False)
+        )
         contact = on_plane(d, intrinsics, support, step=step, plane_distance_m=plane_distance_m)
         hand = np.zeros(d.shape, bool)
-        held_out = [r for r in regions if not rests(r, contact)]     # a skin-coloured object lies on the table
+        held_out = [r for r in regions if not rests(r, contact)]  # a skin-coloured object lies on the table
         for r in regions:
             if r[0].any() or r[-1].any() or r[:, 0].any() or r[:, -1].any():
                 hand |= r
-        arm = arms(~background & ~candidates & ~step & (d > 0), np.logical_or.reduce(held_out), d, intrinsics,
-                   contact=contact, touch_m=touch) if held_out else hand
+        arm = (
+            arms(
+                ~background & ~candidates & ~step & (d > 0),
+                np.logical_or.reduce(held_out),
+                d,
+                intrinsics,
+                contact=contact,
+                touch_m=touch,
+            )
+            if held_out
+            else hand
+        )
         if arm.any():
             hand |= arm
             for r, on_arm in zip(held_out, _touching(held_out, arm, d, intrinsics, touch_m=touch)):
-                if on_arm:                                               # held out by an arm
+                if on_arm:  # held out by an arm
                     hand |= r
     if hand.any():
         near, far = _depth_range(d, hand, 1)
@@ -269,16 +334,25 @@ CONTACT_SIGMAS = 3.0
 CONTACT_PIXELS = 2.0
 
 
-def on_plane(depth_m: np.ndarray, intrinsics: Intrinsics, support: Plane, *, step: np.ndarray,
-             plane_distance_m: float) -> np.ndarray:
+def on_plane(
+    depth_m: np.ndarray, intrinsics: Intrinsics, support: Plane, *, step: np.ndarray, plane_distance_m: float
+) -> np.ndarray:
     """The pixels where what stands on the support plane comes down to it: within
     ``plane_distance_m + CONTACT_SIGMAS * noise + CONTACT_PIXELS * z / fx`` of the plane (the
     background cut, the plane's measured noise and a pixel's size at depth z), with a reading, off
     depth steps (``step``: the flying pixels between an arm and the table behind it are no contact).
     bool (H, W)."""
     height = plane_height_m(depth_m, intrinsics, support)
-    return ((height < plane_distance_m + CONTACT_SIGMAS * max(support.noise_m, DEPTH_STEP_M)
-             + CONTACT_PIXELS * depth_m / intrinsics.fx) & ~step & (depth_m > 0))
+    return (
+        (
+            height
+            < plane_distance_m
+            + CONTACT_SIGMAS * max(support.noise_m, DEPTH_STEP_M)
+            + CONTACT_PIXELS * depth_m / intrinsics.fx
+        )
+        & ~step
+        & (depth_m > 0)
+    )
 
 
 def rests(region: np.ndarray, contact: np.ndarray) -> bool:
@@ -288,8 +362,15 @@ def rests(region: np.ndarray, contact: np.ndarray) -> bool:
     return np.count_nonzero(region & contact) >= CONTACT_PX
 
 
-def arms(foreground: np.ndarray, hands: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, *,
-         contact: np.ndarray, touch_m: float) -> np.ndarray:
+def arms(
+    foreground: np.ndarray,
+    hands: np.ndarray,
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    contact: np.ndarray,
+    touch_m: float,
+) -> np.ndarray:
     """The arms (sleeves) among the regions of ``foreground``: those that reach the image border, do not
     rest on the support plane, and touch ``hands`` in 3-D.
 
@@ -326,8 +407,14 @@ def _regions(mask: np.ndarray) -> list[np.ndarray]:
     return [labels == k for k in range(1, n)]
 
 
-def _touching(regions: list[np.ndarray], other: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, *,
-              touch_m: float) -> list[bool]:
+def _touching(
+    regions: list[np.ndarray],
+    other: np.ndarray,
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    touch_m: float,
+) -> list[bool]:
     """Which ``regions`` come within ``touch_m`` of ``other`` in 3-D: in depth, and across the image at
     ``other``'s median depth, so across a gap of dropouts (sensors lose the rim of a sleeve's end and
     of a forearm seen edge-on)."""
@@ -365,8 +452,9 @@ def widen(mask: np.ndarray, radius_px: int) -> np.ndarray:
     return cv2.dilate(mask.astype(np.uint8), disc) > 0
 
 
-def held(instances: list[np.ndarray], hand: np.ndarray, depth_m: np.ndarray, *, touch_m: float,
-         reach_px: int = 1) -> list[bool]:
+def held(
+    instances: list[np.ndarray], hand: np.ndarray, depth_m: np.ndarray, *, touch_m: float, reach_px: int = 1
+) -> list[bool]:
     """Which instances the hand touches in 3-D: an instance pixel within ``reach_px`` (a square) of
     hand pixels, whose depth lies within ``touch_m`` of the range of their depths.
 
@@ -385,6 +473,6 @@ def held(instances: list[np.ndarray], hand: np.ndarray, depth_m: np.ndarray, *, 
     if not hand.any() or not instances:
         return [False] * len(instances)
     d = clean_depth(depth_m)
-    near, far = _depth_range(d, hand, reach_px)      # of the hand's readings around each pixel
+    near, far = _depth_range(d, hand, reach_px)  # of the hand's readings around each pixel
     contact = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
     return [bool(np.any(m & contact)) for m in instances]

@@ -12,8 +12,12 @@ from artclass_core import Frame, InputError, Params, Segmenter, Sequence, param
 
 @dataclass(frozen=True)
 class MaskParams(Params):
-    erode_px: int = param(0, unit="px", bounds=(0, 20),
-                          help="Erode the mask by this many pixels to drop mixed depth at the object's edge.")
+    erode_px: int = param(
+        0,
+        unit="px",
+        bounds=(0, 20),
+        help="Erode the mask by this many pixels to drop mixed depth at the object's edge.",
+    )
 
 
 class MaskSegmenter(Segmenter):
@@ -25,8 +29,9 @@ class MaskSegmenter(Segmenter):
 
     def segment(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
         if frame.mask is None:
-            raise InputError("the sequence has no masks; choose a segmenter such as depth_threshold",
-                             path=sequence.path)
+            raise InputError(
+                "the sequence has no masks; choose a segmenter such as depth_threshold", path=sequence.path
+            )
         mask = frame.mask
         if self.params.erode_px:
             size = 2 * self.params.erode_px + 1

@@ -31,28 +31,111 @@ from . import onnx_models
 from .onnx_models import TensorSpec
 from .selection import InstanceSegmenter, SelectionParams
 
-__all__ = ["MaskrcnnParams", "MaskrcnnSegmenter", "COCO_CLASSES", "preprocess", "postprocess", "load_maskrcnn",
-           "parse_classes"]
+__all__ = [
+    "MaskrcnnParams",
+    "MaskrcnnSegmenter",
+    "COCO_CLASSES",
+    "preprocess",
+    "postprocess",
+    "load_maskrcnn",
+    "parse_classes",
+]
 
 MEAN_BGR = np.array([102.9801, 115.9465, 122.7717], np.float32)
 SHORT_SIDE, LONG_SIDE_MAX, PAD = 800, 1333, 32
 MASK_THRESHOLD = 0.5
 INPUTS = [TensorSpec("image", "tensor(float)", 3, (3, None, None))]
-OUTPUTS = [TensorSpec("6568", "tensor(float)", 2, (None, 4)), TensorSpec("6570", "tensor(int64)", 1),
-           TensorSpec("6572", "tensor(float)", 1), TensorSpec("6887", "tensor(float)", 4, (None, 1, 28, 28))]
+OUTPUTS = [
+    TensorSpec("6568", "tensor(float)", 2, (None, 4)),
+    TensorSpec("6570", "tensor(int64)", 1),
+    TensorSpec("6572", "tensor(float)", 1),
+    TensorSpec("6887", "tensor(float)", 4, (None, 1, 28, 28)),
+]
 SIGNATURE = "ONNX Model Zoo MaskRCNN-10/12 (image -> 6568 boxes, 6570 labels, 6572 scores, 6887 masks)"
 
 #: COCO class names by the zoo model's label id (1..80; 0 is the background).
 COCO_CLASSES: tuple[str, ...] = (
-    "__background__", "person", "bicycle", "car", "motorcycle", "airplane", "bus", "train", "truck", "boat",
-    "traffic light", "fire hydrant", "stop sign", "parking meter", "bench", "bird", "cat", "dog", "horse", "sheep",
-    "cow", "elephant", "bear", "zebra", "giraffe", "backpack", "umbrella", "handbag", "tie", "suitcase", "frisbee",
-    "skis", "snowboard", "sports ball", "kite", "baseball bat", "baseball glove", "skateboard", "surfboard",
-    "tennis racket", "bottle", "wine glass", "cup", "fork", "knife", "spoon", "bowl", "banana", "apple",
-    "sandwich", "orange", "broccoli", "carrot", "hot dog", "pizza", "donut", "cake", "chair", "couch",
-    "potted plant", "bed", "dining table", "toilet", "tv", "laptop", "mouse", "remote", "keyboard", "cell phone",
-    "microwave", "oven", "toaster", "sink", "refrigerator", "book", "clock", "vase", "scissors", "teddy bear",
-    "hair drier", "toothbrush",
+    "__background__",
+    "person",
+    "bicycle",
+    "car",
+    "motorcycle",
+    "airplane",
+    "bus",
+    "train",
+    "truck",
+    "boat",
+    "traffic light",
+    "fire hydrant",
+    "stop sign",
+    "parking meter",
+    "bench",
+    "bird",
+    "cat",
+    "dog",
+    "horse",
+    "sheep",
+    "cow",
+    "elephant",
+    "bear",
+    "zebra",
+    "giraffe",
+    "backpack",
+    "umbrella",
+    "handbag",
+    "tie",
+    "suitcase",
+    "frisbee",
+    "skis",
+    "snowboard",
+    "sports ball",
+    "kite",
+    "baseball bat",
+    "baseball glove",
+    "skateboard",
+    "surfboard",
+    "tennis racket",
+    "bottle",
+    "wine glass",
+    "cup",
+    "fork",
+    "knife",
+    "spoon",
+    "bowl",
+    "banana",
+    "apple",
+    "sandwich",
+    "orange",
+    "broccoli",
+    "carrot",
+    "hot dog",
+    "pizza",
+    "donut",
+    "cake",
+    "chair",
+    "couch",
+    "potted plant",
+    "bed",
+    "dining table",
+    "toilet",
+    "tv",
+    "laptop",
+    "mouse",
+    "remote",
+    "keyboard",
+    "cell phone",
+    "microwave",
+    "oven",
+    "toaster",
+    "sink",
+    "refrigerator",
+    "book",
+    "clock",
+    "vase",
+    "scissors",
+    "teddy bear",
+    "hair drier",
+    "toothbrush",
 )
 
 
@@ -68,25 +151,42 @@ def parse_classes(text: str, *, name: str) -> frozenset[int]:
         if item.isdigit():
             k = int(item)
             if not 1 <= k < len(COCO_CLASSES):
-                raise ParamError(f"parameter {name}: COCO label id {k} is out of range 1..{len(COCO_CLASSES) - 1}")
+                raise ParamError(
+                    f"parameter {name}: COCO label id {k} is out of range 1..{len(COCO_CLASSES) - 1}"
+                )
             ids.add(k)
         elif item.lower() in COCO_CLASSES[1:]:
             ids.add(COCO_CLASSES.index(item.lower()))
         else:
-            raise ParamError(f"parameter {name}: {item!r} is not a COCO class name or id (e.g. laptop, cup, 64)")
+            raise ParamError(
+                f"parameter {name}: {item!r} is not a COCO class name or id (e.g. laptop, cup, 64)"
+            )
     return frozenset(ids)
 
 
 @dataclass(frozen=True)
 class MaskrcnnParams(SelectionParams):
-    model_path: str = param("", help="ONNX file of a Mask R-CNN with the ONNX Model Zoo MaskRCNN-10/12 signature "
-                                     "(required; the zoo's files are not downloadable here).")
-    score_threshold: float = param(0.7, unit="probability", bounds=(0.0, 1.0),
-                                   help="Detections scoring below this are ignored (the zoo example uses 0.7).")
-    classes: str = param("", help="Only these COCO classes (comma-separated names or ids, e.g. 'laptop,cup'); "
-                                  "empty = every class.")
-    exclude_classes: str = param("person", help="Never these COCO classes: by default the person, whose hand and "
-                                                "arm would otherwise be the manipulated instance.")
+    model_path: str = param(
+        "",
+        help="ONNX file of a Mask R-CNN with the ONNX Model Zoo MaskRCNN-10/12 signature "
+        "(required; the zoo's files are not downloadable here).",
+    )
+    score_threshold: float = param(
+        0.7,
+        unit="probability",
+        bounds=(0.0, 1.0),
+        help="Detections scoring below this are ignored (the zoo example uses 0.7).",
+    )
+    classes: str = param(
+        "",
+        help="Only these COCO classes (comma-separated names or ids, e.g. 'laptop,cup'); "
+        "empty = every class.",
+    )
+    exclude_classes: str = param(
+        "person",
+        help="Never these COCO classes: by default the person, whose hand and "
+        "arm would otherwise be the manipulated instance.",
+    )
 
     def __post_init__(self):
         super().__post_init__()
@@ -114,13 +214,22 @@ def preprocess(rgb: np.ndarray) -> tuple[np.ndarray, float]:
     bgr = cv2.resize(rgb[:, :, ::-1], size, interpolation=cv2.INTER_LINEAR).astype(np.float32)
     chw = (bgr - MEAN_BGR).transpose(2, 0, 1)
     padded = np.zeros((3, math.ceil(size[1] / PAD) * PAD, math.ceil(size[0] / PAD) * PAD), np.float32)
-    padded[:, :size[1], :size[0]] = chw
+    padded[:, : size[1], : size[0]] = chw
     return padded, ratio
 
 
-def postprocess(boxes: np.ndarray, labels: np.ndarray, scores: np.ndarray, masks: np.ndarray, *, ratio: float,
-                shape: tuple[int, int], score_threshold: float, keep_labels: frozenset[int] = frozenset(),
-                drop_labels: frozenset[int] = frozenset()) -> list[tuple[np.ndarray, int, float]]:
+def postprocess(
+    boxes: np.ndarray,
+    labels: np.ndarray,
+    scores: np.ndarray,
+    masks: np.ndarray,
+    *,
+    ratio: float,
+    shape: tuple[int, int],
+    score_threshold: float,
+    keep_labels: frozenset[int] = frozenset(),
+    drop_labels: frozenset[int] = frozenset(),
+) -> list[tuple[np.ndarray, int, float]]:
     """Full-image masks of the detections (the zoo's post-processing).
 
     Parameters
@@ -145,15 +254,18 @@ def postprocess(boxes: np.ndarray, labels: np.ndarray, scores: np.ndarray, masks
         label = int(label)
         if score < score_threshold or (keep_labels and label not in keep_labels) or label in drop_labels:
             continue
-        x0, y0, x1, y1 = (int(round(v, 3)) for v in box)   # the zoo's int(), robust to float error (49.9999)
+        x0, y0, x1, y1 = (int(round(v, 3)) for v in box)  # the zoo's int(), robust to float error (49.9999)
         bw, bh = x1 - x0 + 1, y1 - y0 + 1
         if bw <= 0 or bh <= 0:
             continue
-        patch = cv2.resize(np.asarray(prob[0], np.float32), (bw, bh), interpolation=cv2.INTER_LINEAR) > MASK_THRESHOLD
+        patch = (
+            cv2.resize(np.asarray(prob[0], np.float32), (bw, bh), interpolation=cv2.INTER_LINEAR)
+            > MASK_THRESHOLD
+        )
         full = np.zeros((h, w), bool)
         cx0, cy0, cx1, cy1 = max(x0, 0), max(y0, 0), min(x1 + 1, w), min(y1 + 1, h)
         if cx1 > cx0 and cy1 > cy0:
-            full[cy0:cy1, cx0:cx1] = patch[cy0 - y0:cy1 - y0, cx0 - x0:cx1 - x0]
+            full[cy0:cy1, cx0:cx1] = patch[cy0 - y0 : cy1 - y0, cx0 - x0 : cx1 - x0]
         if full.any():
             out.append((full, label, float(score)))
     return out
@@ -166,11 +278,15 @@ def load_maskrcnn(model_path: str):
     outputs differ from the zoo's (every difference is named).
     """
     if not model_path:
-        raise PluginError("the maskrcnn segmenter needs a model: set model_path to an ONNX Model Zoo "
-                          "MaskRCNN-10/12 file (e.g. --param model_path=/path/MaskRCNN-12.onnx)")
+        raise PluginError(
+            "the maskrcnn segmenter needs a model: set model_path to an ONNX Model Zoo "
+            "MaskRCNN-10/12 file (e.g. --param model_path=/path/MaskRCNN-12.onnx)"
+        )
     path = Path(model_path).expanduser()
     if not path.is_file():
-        raise PluginError("model_path: no such model file (an ONNX Model Zoo MaskRCNN-10/12 file is needed)", path=path)
+        raise PluginError(
+            "model_path: no such model file (an ONNX Model Zoo MaskRCNN-10/12 file is needed)", path=path
+        )
     sess = onnx_models.session(str(path))
     onnx_models.check_signature(sess, inputs=INPUTS, outputs=OUTPUTS, what=SIGNATURE, path=path)
     return sess
@@ -180,7 +296,9 @@ class MaskrcnnSegmenter(InstanceSegmenter):
     """Mask R-CNN (COCO) detections above a score, the manipulated one chosen, as in the paper."""
 
     name = "maskrcnn"
-    description = "Mask R-CNN (ONNX Model Zoo MaskRCNN-10/12 file given by model_path), moving instance chosen"
+    description = (
+        "Mask R-CNN (ONNX Model Zoo MaskRCNN-10/12 file given by model_path), moving instance chosen"
+    )
     Params = MaskrcnnParams
 
     def detections(self, frame: Frame) -> list[tuple[np.ndarray, int, float]]:
@@ -189,9 +307,17 @@ class MaskrcnnSegmenter(InstanceSegmenter):
         sess = load_maskrcnn(p.model_path)
         image, ratio = preprocess(frame.rgb)
         boxes, labels, scores, masks = sess.run(["6568", "6570", "6572", "6887"], {"image": image})
-        return postprocess(boxes, labels, scores, masks, ratio=ratio, shape=frame.rgb.shape[:2],
-                           score_threshold=p.score_threshold, keep_labels=parse_classes(p.classes, name="classes"),
-                           drop_labels=parse_classes(p.exclude_classes, name="exclude_classes"))
+        return postprocess(
+            boxes,
+            labels,
+            scores,
+            masks,
+            ratio=ratio,
+            shape=frame.rgb.shape[:2],
+            score_threshold=p.score_threshold,
+            keep_labels=parse_classes(p.classes, name="classes"),
+            drop_labels=parse_classes(p.exclude_classes, name="exclude_classes"),
+        )
 
     def instances(self, frame: Frame, *, sequence: Sequence) -> list[np.ndarray]:
         return [mask for mask, _, _ in self.detections(frame)]

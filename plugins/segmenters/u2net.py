@@ -44,12 +44,23 @@ OUTPUTS = [TensorSpec("1959", "tensor(float)", 4, (1, 1, INPUT_SIZE, INPUT_SIZE)
 
 @dataclass(frozen=True)
 class U2netParams(SelectionParams, BackgroundParams, HandParams):
-    model_path: str = param("", help="U^2-Net ONNX file; empty = the u2netp fetched into the model cache by "
-                                     "`artclass models fetch u2netp`.")
-    threshold: float = param(0.5, unit="probability", bounds=(0.01, 0.99),
-                             help="Pixels whose foreground probability exceeds this are salient.")
-    min_area_fraction: float = param(0.002, unit="fraction", bounds=(0.0, 0.5),
-                                     help="Salient regions smaller than this share of the image are not instances.")
+    model_path: str = param(
+        "",
+        help="U^2-Net ONNX file; empty = the u2netp fetched into the model cache by "
+        "`artclass models fetch u2netp`.",
+    )
+    threshold: float = param(
+        0.5,
+        unit="probability",
+        bounds=(0.01, 0.99),
+        help="Pixels whose foreground probability exceeds this are salient.",
+    )
+    min_area_fraction: float = param(
+        0.002,
+        unit="fraction",
+        bounds=(0.0, 0.5),
+        help="Salient regions smaller than this share of the image are not instances.",
+    )
 
 
 def load_u2net(model_path: str = ""):
@@ -60,7 +71,9 @@ def load_u2net(model_path: str = ""):
     """
     path = onnx_models.resolve("u2netp", model_path)
     sess = onnx_models.session(str(path))
-    onnx_models.check_signature(sess, inputs=INPUTS, outputs=OUTPUTS, what="U^2-Net (input.1 -> 1959)", path=path)
+    onnx_models.check_signature(
+        sess, inputs=INPUTS, outputs=OUTPUTS, what="U^2-Net (input.1 -> 1959)", path=path
+    )
     return sess
 
 
@@ -96,5 +109,8 @@ class U2netSegmenter(MaskFreeSegmenter):
         _, background, _ = self.scene(frame, sequence=sequence)
         objects = (prob > p.threshold) & ~background
         allowed = self.not_hand(frame, sequence=sequence)
-        return components(objects if allowed is None else objects & allowed, open_px=0,
-                          min_area_fraction=p.min_area_fraction)
+        return components(
+            objects if allowed is None else objects & allowed,
+            open_px=0,
+            min_area_fraction=p.min_area_fraction,
+        )

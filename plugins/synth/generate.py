@@ -25,8 +25,15 @@ from .render import (
 )
 from .write import DEPTH_SCALE, prepare_sequence_dir, write_frame, write_json
 
-__all__ = ["GENERATOR_VERSION", "HANDS", "TEXTURES", "SynthFrame", "SynthSequence",
-           "generate_sequence", "plan_sequence"]
+__all__ = [
+    "GENERATOR_VERSION",
+    "HANDS",
+    "TEXTURES",
+    "SynthFrame",
+    "SynthSequence",
+    "generate_sequence",
+    "plan_sequence",
+]
 
 GENERATOR_VERSION = "0.2.0"
 
@@ -151,9 +158,11 @@ class SynthSequence:
 
     def render(self, index: int) -> SynthFrame:
         """Render frame ``index`` (noise drawn from a generator seeded by (seed, 1, index))."""
-        clean = render_clean(self.meshes(index),
-                             T_camera_from_world=self.trajectory.T_camera_from_world[index],
-                             intrinsics=self.intrinsics)
+        clean = render_clean(
+            self.meshes(index),
+            T_camera_from_world=self.trajectory.T_camera_from_world[index],
+            intrinsics=self.intrinsics,
+        )
         rng = np.random.default_rng([self.seed, 1, index])
         depth_m, rgb = add_sensor_noise(clean, noise=NOISE_LEVELS[self.noise], rng=rng)
         return SynthFrame(index, rgb, depth_m, clean.mask, clean)
@@ -230,18 +239,25 @@ def _joint_truth(spec: ObjectSpec, traj: Trajectory) -> list[dict]:
             T = T_c0w @ traj.T_world_from_object[f] @ part_poses(spec, traj.joint_positions[f])[joint.parent]
             origins.append(_floats(T[:3, :3] @ np.asarray(joint.origin_m) + T[:3, 3]))
             directions.append(_floats(T[:3, :3] @ np.asarray(joint.axis, float)))
-        out.append({
-            "type": joint.joint_type, "parent": joint.parent, "child": k + 1,
-            "limits": _floats(joint.limits),
-            "origin_object_m": _floats(joint.origin_m), "axis_object": _floats(joint.axis),
-            "state": _floats(traj.joint_positions[:, k]),
-            "origin_camera0_m": origins, "axis_camera0": directions,
-        })
+        out.append(
+            {
+                "type": joint.joint_type,
+                "parent": joint.parent,
+                "child": k + 1,
+                "limits": _floats(joint.limits),
+                "origin_object_m": _floats(joint.origin_m),
+                "axis_object": _floats(joint.axis),
+                "state": _floats(traj.joint_positions[:, k]),
+                "origin_camera0_m": origins,
+                "axis_camera0": directions,
+            }
+        )
     return out
 
 
-def _plan_holders(spec: ObjectSpec, motion: str, hand: str, traj: Trajectory,
-                  rng: np.random.Generator) -> list[Holder]:
+def _plan_holders(
+    spec: ObjectSpec, motion: str, hand: str, traj: Trajectory, rng: np.random.Generator
+) -> list[Holder]:
     """Holders of a sequence: on the moving part when a joint moves, on the base when the object
     is carried, in front of the object (not touching it) when it is static."""
     if hand == "none":
@@ -254,8 +270,12 @@ def _plan_holders(spec: ObjectSpec, motion: str, hand: str, traj: Trajectory,
     out = []
     for part in holds:
         T_ph = grasp_pose(spec, part, None if q is None else q[0], rng)
-        poses = np.stack([traj.T_world_from_object[f]
-                          @ part_poses(spec, None if q is None else q[f])[part] @ T_ph for f in range(n)])
+        poses = np.stack(
+            [
+                traj.T_world_from_object[f] @ part_poses(spec, None if q is None else q[f])[part] @ T_ph
+                for f in range(n)
+            ]
+        )
         out.append(Holder(hand, holder_pieces(hand, rng), poses, part))
     if not holds:
         T_wc = np.linalg.inv(traj.T_camera_from_world[0])
@@ -311,8 +331,7 @@ def plan_sequence(
             f"(articulated: {sorted(k for k, v in OBJECTS.items() if v.joint is not None)})"
         )
     intr = Intrinsics.for_resolution(int(width), int(height))
-    traj = make_trajectory(spec, motion, n_frames=int(n_frames),
-                           rng=np.random.default_rng([int(seed), 0]))
+    traj = make_trajectory(spec, motion, n_frames=int(n_frames), rng=np.random.default_rng([int(seed), 0]))
     holders = _plan_holders(spec, motion, hand, traj, np.random.default_rng([int(seed), 3]))
 
     T_co = traj.T_camera_from_object
@@ -340,24 +359,39 @@ def plan_sequence(
         "joint_positions": [None] * n if q is None else _floats(q[:, 0]),
         "object_poses": [_nested(T) for T in T_co],
         # Extras beyond the native format: enough to score axis estimates and part motion.
-        "joint_axis_object": None if spec.joint is None else {
+        "joint_axis_object": None
+        if spec.joint is None
+        else {
             "origin_m": [float(x) for x in spec.joint.origin_m],
             "direction": [float(x) for x in spec.joint.axis],
         },
-        "moving_part_poses": None if q is None else [
-            _nested(T_co[i] @ part_poses(spec, q[i])[1]) for i in range(n)
-        ],
+        "moving_part_poses": None
+        if q is None
+        else [_nested(T_co[i] @ part_poses(spec, q[i])[1]) for i in range(n)],
         "part_names": [p.name for p in spec.parts],
-        "parts": [{"name": p.name, "parent": -1 if k == 0 else spec.joints[k - 1].parent,
-                   "joint": None if k == 0 else k - 1} for k, p in enumerate(spec.parts)],
+        "parts": [
+            {
+                "name": p.name,
+                "parent": -1 if k == 0 else spec.joints[k - 1].parent,
+                "joint": None if k == 0 else k - 1,
+            }
+            for k, p in enumerate(spec.parts)
+        ],
         "joints": _joint_truth(spec, traj),
-        "part_poses": [[_nested(T) for T in [T_co[i] @ P for P in part_poses(spec, None if q is None else q[i])]]
-                       for i in range(n)],
-        "sensor": {"fx_px": intr.fx_px, "axial_a_m": level.axial_a_m,
-                   "axial_b_per_m": level.axial_b_per_m, "axial_reference_m": 0.4,
-                   "depth_step_m": 1.0 / DEPTH_SCALE},
-        "holders": [{"kind": h.kind, "holds": None if h.holds is None else spec.parts[h.holds].name}
-                    for h in holders],
+        "part_poses": [
+            [_nested(T) for T in [T_co[i] @ P for P in part_poses(spec, None if q is None else q[i])]]
+            for i in range(n)
+        ],
+        "sensor": {
+            "fx_px": intr.fx_px,
+            "axial_a_m": level.axial_a_m,
+            "axial_b_per_m": level.axial_b_per_m,
+            "axial_reference_m": 0.4,
+            "depth_step_m": 1.0 / DEPTH_SCALE,
+        },
+        "holders": [
+            {"kind": h.kind, "holds": None if h.holds is None else spec.parts[h.holds].name} for h in holders
+        ],
     }
     return SynthSequence(meta, truth, traj, intr, object_name, noise, int(seed), texture, holders)
 
@@ -416,14 +450,29 @@ def generate_sequence(
     ValueError
         Unknown object, motion or noise level, or a motion that needs a joint on a rigid object.
     """
-    seq = plan_sequence(object_name=object_name, motion=motion, noise=noise,
-                        n_frames=n_frames, seed=seed, width=width, height=height,
-                        texture=texture, hand=hand)
+    seq = plan_sequence(
+        object_name=object_name,
+        motion=motion,
+        noise=noise,
+        n_frames=n_frames,
+        seed=seed,
+        width=width,
+        height=height,
+        texture=texture,
+        hand=hand,
+    )
     out = prepare_sequence_dir(out_dir, overwrite=overwrite)
     visibility, valid_px, points = [], [], []
     for frame in seq.frames():
-        write_frame(out, frame.index, rgb=frame.rgb, depth_m=frame.depth_m, mask=frame.mask,
-                    hand=frame.hand, parts=frame.parts)
+        write_frame(
+            out,
+            frame.index,
+            rgb=frame.rgb,
+            depth_m=frame.depth_m,
+            mask=frame.mask,
+            hand=frame.hand,
+            parts=frame.parts,
+        )
         visibility.append(seq.part_visibility(frame))
         counts, samples = seq.part_samples(frame)
         valid_px.append(counts)

@@ -32,8 +32,14 @@ SKIN_TONES = (
     (0.45, 0.30, 0.21),
     (0.28, 0.19, 0.14),
 )
-_SLEEVES = ((0.15, 0.20, 0.45), (0.55, 0.10, 0.12), (0.20, 0.40, 0.25), (0.30, 0.30, 0.32),
-            (0.85, 0.85, 0.82), (0.60, 0.50, 0.35))
+_SLEEVES = (
+    (0.15, 0.20, 0.45),
+    (0.55, 0.10, 0.12),
+    (0.20, 0.40, 0.25),
+    (0.30, 0.30, 0.32),
+    (0.85, 0.85, 0.82),
+    (0.60, 0.50, 0.35),
+)
 _GRIPPER_COLOURS = ((0.55, 0.56, 0.58), (0.12, 0.12, 0.13))
 
 
@@ -58,20 +64,33 @@ def holder_pieces(kind: str, rng: np.random.Generator) -> tuple[Piece, ...]:
     if kind == "hand":
         skin = skin_colour(rng)
         sleeve = _SLEEVES[int(rng.integers(len(_SLEEVES)))]
-        s = rng.uniform(0.9, 1.05)      # hand size
+        s = rng.uniform(0.9, 1.05)  # hand size
         kw = dict(pattern="blobs", cell_m=0.02, contrast=0.06)
         pieces = [box((0.085 * s, 0.03 * s, 0.09 * s), (0.0, 0.0, -0.065 * s), skin, **kw)]
-        for f in range(4):              # fingers on the +y side of the held edge
+        for f in range(4):  # fingers on the +y side of the held edge
             x = (-0.03 + 0.02 * f) * s
-            pieces.append(cylinder(0.0085 * s, 0.065 * s, (x, 0.02 * s, -0.005 * s), skin,
-                                   resolution=8, **kw))
+            pieces.append(
+                cylinder(0.0085 * s, 0.065 * s, (x, 0.02 * s, -0.005 * s), skin, resolution=8, **kw)
+            )
             pieces.append(sphere(0.0085 * s, (x, 0.02 * s, 0.0275 * s), skin, resolution=6, **kw))
-        pieces.append(cylinder(0.0095 * s, 0.055 * s, (0.025 * s, -0.02 * s, -0.01 * s), skin,
-                               resolution=8, **kw))   # thumb on the -y side
-        pieces.append(cylinder(0.028 * s, 0.16, (0.0, 0.0, -0.11 * s - 0.08), skin, resolution=12,
-                               **kw))                   # forearm
-        pieces.append(cylinder(0.04, 0.16, (0.0, 0.0, -0.11 * s - 0.23), sleeve, resolution=12,
-                               pattern="stripes", cell_m=0.03, contrast=0.15))
+        pieces.append(
+            cylinder(0.0095 * s, 0.055 * s, (0.025 * s, -0.02 * s, -0.01 * s), skin, resolution=8, **kw)
+        )  # thumb on the -y side
+        pieces.append(
+            cylinder(0.028 * s, 0.16, (0.0, 0.0, -0.11 * s - 0.08), skin, resolution=12, **kw)
+        )  # forearm
+        pieces.append(
+            cylinder(
+                0.04,
+                0.16,
+                (0.0, 0.0, -0.11 * s - 0.23),
+                sleeve,
+                resolution=12,
+                pattern="stripes",
+                cell_m=0.03,
+                contrast=0.15,
+            )
+        )
         return tuple(pieces)
     if kind == "gripper":
         colour = _GRIPPER_COLOURS[int(rng.integers(len(_GRIPPER_COLOURS)))]
@@ -80,8 +99,16 @@ def holder_pieces(kind: str, rng: np.random.Generator) -> tuple[Piece, ...]:
             box((0.09, 0.05, 0.06), (0.0, 0.0, -0.06), colour, pattern="plain"),
             box((0.02, 0.012, 0.05), (0.0, 0.018, -0.01), dark, pattern="plain"),
             box((0.02, 0.012, 0.05), (0.0, -0.018, -0.01), dark, pattern="plain"),
-            cylinder(0.035, 0.30, (0.0, 0.0, -0.24), colour, resolution=16, pattern="stripes",
-                     cell_m=0.05, contrast=0.1),
+            cylinder(
+                0.035,
+                0.30,
+                (0.0, 0.0, -0.24),
+                colour,
+                resolution=16,
+                pattern="stripes",
+                cell_m=0.05,
+                contrast=0.1,
+            ),
         )
     raise ValueError(f"kind={kind!r} is not one of {HOLDER_KINDS}")
 
@@ -122,7 +149,7 @@ def grasp_pose(spec: ObjectSpec, part: int, q0, rng: np.random.Generator) -> np.
     T_op = part_poses(spec, q0)[part]
     local = np.concatenate([p.vertices_m for p in spec.parts[part].pieces])
     pts = local @ T_op[:3, :3].T + T_op[:3, 3]
-    if part == 0:   # held at its left or right side
+    if part == 0:  # held at its left or right side
         centre = 0.5 * (pts.min(0) + pts.max(0))
         score = (pts[:, 0] - centre[0]) * (1.0 if rng.random() < 0.5 else -1.0)
     else:
@@ -146,8 +173,9 @@ def grasp_pose(spec: ObjectSpec, part: int, q0, rng: np.random.Generator) -> np.
     return np.linalg.inv(T_op) @ T_obj_holder
 
 
-def wave_path(centre_world, eye_world, right_world, n: int, rng: np.random.Generator,
-              *, clearance_m: float) -> np.ndarray:
+def wave_path(
+    centre_world, eye_world, right_world, n: int, rng: np.random.Generator, *, clearance_m: float
+) -> np.ndarray:
     """Poses ``T_world_from_holder`` (n, 4, 4) of a hand that moves across in front of an object
     without touching it: between the object and the camera, at least ``clearance_m`` from the
     object's centre, sweeping sideways through the line of sight.

@@ -37,14 +37,18 @@ class MotionSpec:
 
 #: Motion kinds by name.
 MOTIONS: dict[str, MotionSpec] = {
-    "articulate": MotionSpec("articulate", "articulated", True, False, True,
-                             "base rests on the table, the joint moves"),
-    "carry_articulate": MotionSpec("carry_articulate", "articulated", True, True, True,
-                                   "the object is carried while the joint moves"),
-    "carry": MotionSpec("carry", "rigid", False, True, False,
-                        "the object is carried (joint, if any, held fixed)"),
-    "static": MotionSpec("static", "static", False, False, False,
-                         "nothing moves; the camera jitters by at most 1 mm"),
+    "articulate": MotionSpec(
+        "articulate", "articulated", True, False, True, "base rests on the table, the joint moves"
+    ),
+    "carry_articulate": MotionSpec(
+        "carry_articulate", "articulated", True, True, True, "the object is carried while the joint moves"
+    ),
+    "carry": MotionSpec(
+        "carry", "rigid", False, True, False, "the object is carried (joint, if any, held fixed)"
+    ),
+    "static": MotionSpec(
+        "static", "static", False, False, False, "nothing moves; the camera jitters by at most 1 mm"
+    ),
 }
 
 
@@ -135,8 +139,7 @@ def _unit(v):
     return v / np.linalg.norm(v)
 
 
-def make_trajectory(spec: ObjectSpec, motion: str, *, n_frames: int,
-                    rng: np.random.Generator) -> Trajectory:
+def make_trajectory(spec: ObjectSpec, motion: str, *, n_frames: int, rng: np.random.Generator) -> Trajectory:
     """Draw a smooth, realistic trajectory for one sequence.
 
     Parameters
@@ -164,8 +167,9 @@ def make_trajectory(spec: ObjectSpec, motion: str, *, n_frames: int,
 
     q = _joint_schedules(spec, n, rng, m.moves_joint)
     yaw0 = math.radians(rng.uniform(-25.0, 25.0))
-    T_start = _pose(rotation_about_axis((0, 0, 1), yaw0), (rng.uniform(-0.03, 0.03),
-                                                           rng.uniform(-0.05, 0.0), 0.0))
+    T_start = _pose(
+        rotation_about_axis((0, 0, 1), yaw0), (rng.uniform(-0.03, 0.03), rng.uniform(-0.05, 0.0), 0.0)
+    )
     q_mid = None if q is None else q[n // 2]
     pts_mid = object_points_m(spec, q_mid)
     centre_obj = 0.5 * (pts_mid.min(0) + pts_mid.max(0))
@@ -190,8 +194,9 @@ def make_trajectory(spec: ObjectSpec, motion: str, *, n_frames: int,
         for i in range(n):
             R = rotation_about_axis(axis, angle * s[i])
             wob = 0.0015 * np.sin(2 * math.pi * wob_f * t[i] + wob_ph)
-            R = R @ rotation_about_axis(wob_ax, math.radians(0.3) * math.sin(
-                2 * math.pi * wob_f[0] * t[i] + wob_ph[1]))
+            R = R @ rotation_about_axis(
+                wob_ax, math.radians(0.3) * math.sin(2 * math.pi * wob_f[0] * t[i] + wob_ph[1])
+            )
             # Rotate about the object's centre, then translate along a slightly bowed path.
             T_rot = _pose(R, centre_obj - R @ centre_obj)
             p = direction * dist * s[i] + bow_dir * bow * 4 * s[i] * (1 - s[i]) + wob
@@ -212,8 +217,9 @@ def make_trajectory(spec: ObjectSpec, motion: str, *, n_frames: int,
     distance = float(np.clip(extent / 0.36 * rng.uniform(0.95, 1.2), 0.6, 1.2))
     elev = math.radians(rng.uniform(20.0, 42.0))
     azim = math.radians(rng.uniform(-35.0, 35.0))
-    eye = target + distance * np.array([
-        math.cos(elev) * math.sin(azim), -math.cos(elev) * math.cos(azim), math.sin(elev)])
+    eye = target + distance * np.array(
+        [math.cos(elev) * math.sin(azim), -math.cos(elev) * math.cos(azim), math.sin(elev)]
+    )
     T_cw = look_at(eye, target, roll_rad=math.radians(rng.uniform(-3.0, 3.0)))
     T_cw_all = np.repeat(T_cw[None], n, axis=0)
     if motion == "static":

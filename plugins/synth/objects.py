@@ -110,9 +110,7 @@ class Joint:
 
     def __post_init__(self):
         if self.joint_type not in ("revolute", "prismatic"):
-            raise ValueError(
-                f"joint_type={self.joint_type!r} is not 'revolute' or 'prismatic'"
-            )
+            raise ValueError(f"joint_type={self.joint_type!r} is not 'revolute' or 'prismatic'")
         lo, hi = self.limits
         if not (lo <= self.rest[0] <= self.rest[1] <= hi):
             raise ValueError(f"rest={self.rest} is not inside limits={self.limits}")
@@ -145,12 +143,16 @@ class ObjectSpec:
 
     def __post_init__(self):
         if len(self.joints) != len(self.parts) - 1:
-            raise ValueError(f"object {self.name!r}: {len(self.parts)} parts need "
-                             f"{len(self.parts) - 1} joints, got {len(self.joints)}")
+            raise ValueError(
+                f"object {self.name!r}: {len(self.parts)} parts need "
+                f"{len(self.parts) - 1} joints, got {len(self.joints)}"
+            )
         for k, j in enumerate(self.joints):
             if not 0 <= j.parent <= k:
-                raise ValueError(f"object {self.name!r}: joint {k} (part {k + 1}) has parent "
-                                 f"{j.parent}, which must be a part before it (0..{k})")
+                raise ValueError(
+                    f"object {self.name!r}: joint {k} (part {k + 1}) has parent "
+                    f"{j.parent}, which must be a part before it (0..{k})"
+                )
 
     @property
     def joint(self) -> Joint | None:
@@ -233,8 +235,7 @@ def part_poses(spec: ObjectSpec, q) -> list[np.ndarray]:
     """
     qs = np.zeros(len(spec.joints)) if q is None else np.atleast_1d(np.asarray(q, dtype=float))
     if len(qs) != len(spec.joints):
-        raise ValueError(f"object {spec.name!r} has {len(spec.joints)} joints, got {len(qs)} "
-                         "joint positions")
+        raise ValueError(f"object {spec.name!r} has {len(spec.joints)} joints, got {len(qs)} joint positions")
     poses = [np.eye(4)]
     for joint, qk in zip(spec.joints, qs):
         poses.append(poses[joint.parent] @ T_object_from_child(joint, float(qk)))
@@ -291,8 +292,7 @@ def cylinder(radius_m, length_m, centre_m, colour, *, axis=(0, 0, 1), resolution
     return _piece(_place(v, R=_z_to(axis), t=centre_m), f, colour, **kw)
 
 
-def cone(radius_m, height_m, base_centre_m, colour, *, axis=(0, 0, 1), resolution=20,
-         **kw) -> Piece:
+def cone(radius_m, height_m, base_centre_m, colour, *, axis=(0, 0, 1), resolution=20, **kw) -> Piece:
     """A cone whose base disc is at ``base_centre_m``, pointing along ``axis``."""
     v, f = _legacy_arrays(o3d.geometry.TriangleMesh.create_cone(radius_m, height_m, resolution, 1))
     return _piece(_place(v, R=_z_to(axis), t=base_centre_m), f, colour, **kw)
@@ -338,56 +338,123 @@ _DEG = math.pi / 180.0
 
 def _laptop() -> ObjectSpec:
     grey, dark, screen = (0.55, 0.56, 0.60), (0.18, 0.18, 0.20), (0.10, 0.14, 0.30)
-    base = Part("base", (
-        box((0.32, 0.22, 0.018), (0, 0, 0.009), grey, cell_m=0.04),
-        box((0.27, 0.09, 0.002), (0, 0.03, 0.019), dark, pattern="checker", cell_m=0.018,
-            colour2=(0.45, 0.45, 0.48)),  # keyboard
-        box((0.08, 0.05, 0.001), (0, -0.07, 0.0185), (0.40, 0.40, 0.44), pattern="plain"),
-        cylinder(0.005, 0.30, (0, 0.108, 0.018), (0.30, 0.30, 0.33), axis=(1, 0, 0),
-                 resolution=10, pattern="plain"),  # hinge barrel
-    ))
+    base = Part(
+        "base",
+        (
+            box((0.32, 0.22, 0.018), (0, 0, 0.009), grey, cell_m=0.04),
+            box(
+                (0.27, 0.09, 0.002),
+                (0, 0.03, 0.019),
+                dark,
+                pattern="checker",
+                cell_m=0.018,
+                colour2=(0.45, 0.45, 0.48),
+            ),  # keyboard
+            box((0.08, 0.05, 0.001), (0, -0.07, 0.0185), (0.40, 0.40, 0.44), pattern="plain"),
+            cylinder(
+                0.005,
+                0.30,
+                (0, 0.108, 0.018),
+                (0.30, 0.30, 0.33),
+                axis=(1, 0, 0),
+                resolution=10,
+                pattern="plain",
+            ),  # hinge barrel
+        ),
+    )
     # Closed lid lies on the base; the hinge is the back top edge.
-    lid = Part("lid", (
-        box((0.32, 0.22, 0.008), (0, 0, 0.022), grey, cell_m=0.05, pattern="stripes"),
-        box((0.29, 0.19, 0.001), (0, 0.005, 0.0175), screen, pattern="blobs", cell_m=0.04,
-            colour2=(0.25, 0.45, 0.65)),
-    ))
-    joint = Joint("revolute", (0.0, 0.11, 0.018), (-1.0, 0.0, 0.0),
-                  limits=(0.0, 135 * _DEG), rest=(60 * _DEG, 115 * _DEG),
-                  travel=(20 * _DEG, 70 * _DEG))
-    return ObjectSpec("laptop", "articulated", "laptop: base and lid on a revolute hinge",
-                      (base, lid), (joint,))
+    lid = Part(
+        "lid",
+        (
+            box((0.32, 0.22, 0.008), (0, 0, 0.022), grey, cell_m=0.05, pattern="stripes"),
+            box(
+                (0.29, 0.19, 0.001),
+                (0, 0.005, 0.0175),
+                screen,
+                pattern="blobs",
+                cell_m=0.04,
+                colour2=(0.25, 0.45, 0.65),
+            ),
+        ),
+    )
+    joint = Joint(
+        "revolute",
+        (0.0, 0.11, 0.018),
+        (-1.0, 0.0, 0.0),
+        limits=(0.0, 135 * _DEG),
+        rest=(60 * _DEG, 115 * _DEG),
+        travel=(20 * _DEG, 70 * _DEG),
+    )
+    return ObjectSpec(
+        "laptop", "articulated", "laptop: base and lid on a revolute hinge", (base, lid), (joint,)
+    )
 
 
 def _drawer() -> ObjectSpec:
     wood, front, knob = (0.62, 0.45, 0.28), (0.80, 0.78, 0.72), (0.25, 0.25, 0.28)
     # Carcass 30 x 32 x 22 cm, open at the front (-y).
-    carcass = _hollow_box((0.30, 0.32, 0.22), (0, 0, 0.11), 0.012, wood,
-                          open_side="-y", pattern="stripes", cell_m=0.02)
+    carcass = _hollow_box(
+        (0.30, 0.32, 0.22), (0, 0, 0.11), 0.012, wood, open_side="-y", pattern="stripes", cell_m=0.02
+    )
     inner = (0.30 - 0.026, 0.32 - 0.02, 0.22 - 0.03)
     drawer = [
         box((0.29, 0.015, 0.205), (0, -0.1525, 0.11), front, cell_m=0.035),
         sphere(0.012, (0, -0.171, 0.13), knob, pattern="plain", resolution=8),
     ]
-    drawer += _hollow_box((inner[0] - 0.004, inner[1] - 0.02, 0.14), (0, 0.0, 0.085), 0.008,
-                          (0.70, 0.55, 0.36), open_side="+z", pattern="stripes", cell_m=0.015)
-    joint = Joint("prismatic", (0.0, -0.16, 0.11), (0.0, -1.0, 0.0),
-                  limits=(0.0, 0.26), rest=(0.0, 0.06), travel=(0.05, 0.20))
-    return ObjectSpec("drawer", "articulated", "cabinet with a sliding drawer (prismatic)",
-                      (Part("carcass", tuple(carcass)), Part("drawer", tuple(drawer))), (joint,))
+    drawer += _hollow_box(
+        (inner[0] - 0.004, inner[1] - 0.02, 0.14),
+        (0, 0.0, 0.085),
+        0.008,
+        (0.70, 0.55, 0.36),
+        open_side="+z",
+        pattern="stripes",
+        cell_m=0.015,
+    )
+    joint = Joint(
+        "prismatic",
+        (0.0, -0.16, 0.11),
+        (0.0, -1.0, 0.0),
+        limits=(0.0, 0.26),
+        rest=(0.0, 0.06),
+        travel=(0.05, 0.20),
+    )
+    return ObjectSpec(
+        "drawer",
+        "articulated",
+        "cabinet with a sliding drawer (prismatic)",
+        (Part("carcass", tuple(carcass)), Part("drawer", tuple(drawer))),
+        (joint,),
+    )
 
 
 def _box_lid() -> ObjectSpec:
     card, lid_col = (0.78, 0.62, 0.40), (0.74, 0.58, 0.36)
-    body = _hollow_box((0.20, 0.20, 0.12), (0, 0, 0.06), 0.006, card, open_side="+z",
-                       pattern="checker", cell_m=0.05, contrast=0.12)
-    lid = [box((0.206, 0.206, 0.008), (0, 0, 0.124), lid_col, pattern="checker", cell_m=0.05,
-               contrast=0.12)]
-    joint = Joint("revolute", (0.0, 0.103, 0.12), (-1.0, 0.0, 0.0),
-                  limits=(0.0, 120 * _DEG), rest=(0.0, 40 * _DEG), travel=(20 * _DEG, 70 * _DEG))
-    return ObjectSpec("box_lid", "articulated",
-                      "square box with a hinged lid (revolute, near-symmetric)",
-                      (Part("box", tuple(body)), Part("lid", tuple(lid))), (joint,))
+    body = _hollow_box(
+        (0.20, 0.20, 0.12),
+        (0, 0, 0.06),
+        0.006,
+        card,
+        open_side="+z",
+        pattern="checker",
+        cell_m=0.05,
+        contrast=0.12,
+    )
+    lid = [box((0.206, 0.206, 0.008), (0, 0, 0.124), lid_col, pattern="checker", cell_m=0.05, contrast=0.12)]
+    joint = Joint(
+        "revolute",
+        (0.0, 0.103, 0.12),
+        (-1.0, 0.0, 0.0),
+        limits=(0.0, 120 * _DEG),
+        rest=(0.0, 40 * _DEG),
+        travel=(20 * _DEG, 70 * _DEG),
+    )
+    return ObjectSpec(
+        "box_lid",
+        "articulated",
+        "square box with a hinged lid (revolute, near-symmetric)",
+        (Part("box", tuple(body)), Part("lid", tuple(lid))),
+        (joint,),
+    )
 
 
 def _lever(sign: float, z_m: float, metal, grip) -> list[Piece]:
@@ -397,25 +464,47 @@ def _lever(sign: float, z_m: float, metal, grip) -> list[Piece]:
     R = rotation_about_axis((0, 0, 1), handle_angle)
     d = R @ np.array([1.0, 0.0, 0.0])
     return [
-        box((0.055, 0.014, t), (-0.0275, sign * 0.002, z_m), metal, pattern="stripes",
-            cell_m=0.008, contrast=0.3),
+        box(
+            (0.055, 0.014, t),
+            (-0.0275, sign * 0.002, z_m),
+            metal,
+            pattern="stripes",
+            cell_m=0.008,
+            contrast=0.3,
+        ),
         box((0.05, 0.012, t), tuple(d * 0.025 + [0, 0, z_m]), metal, R=R, pattern="plain"),
-        box((0.075, 0.018, 0.014), tuple(d * 0.09 + [0, 0, z_m]), grip, R=R,
-            pattern="checker", cell_m=0.012, contrast=0.25),
+        box(
+            (0.075, 0.018, 0.014),
+            tuple(d * 0.09 + [0, 0, z_m]),
+            grip,
+            R=R,
+            pattern="checker",
+            cell_m=0.012,
+            contrast=0.25,
+        ),
     ]
 
 
 def _pliers() -> ObjectSpec:
     metal, red, blue = (0.62, 0.63, 0.66), (0.80, 0.12, 0.10), (0.10, 0.25, 0.75)
     a = _lever(+1.0, 0.007, metal, red)
-    a.append(cylinder(0.008, 0.02, (0, 0, 0.011), (0.35, 0.35, 0.38), pattern="plain",
-                      resolution=12))
+    a.append(cylinder(0.008, 0.02, (0, 0, 0.011), (0.35, 0.35, 0.38), pattern="plain", resolution=12))
     b = _lever(-1.0, 0.016, metal, blue)
-    joint = Joint("revolute", (0.0, 0.0, 0.0), (0.0, 0.0, -1.0),
-                  limits=(0.0, 45 * _DEG), rest=(0.0, 10 * _DEG), travel=(12 * _DEG, 30 * _DEG))
-    return ObjectSpec("pliers", "articulated",
-                      "pliers lying flat: two thin levers on a pin (revolute, thin parts)",
-                      (Part("lever_a", tuple(a)), Part("lever_b", tuple(b))), (joint,))
+    joint = Joint(
+        "revolute",
+        (0.0, 0.0, 0.0),
+        (0.0, 0.0, -1.0),
+        limits=(0.0, 45 * _DEG),
+        rest=(0.0, 10 * _DEG),
+        travel=(12 * _DEG, 30 * _DEG),
+    )
+    return ObjectSpec(
+        "pliers",
+        "articulated",
+        "pliers lying flat: two thin levers on a pin (revolute, thin parts)",
+        (Part("lever_a", tuple(a)), Part("lever_b", tuple(b))),
+        (joint,),
+    )
 
 
 def _globe() -> ObjectSpec:
@@ -424,50 +513,92 @@ def _globe() -> ObjectSpec:
     axis = np.array([math.sin(tilt), 0.0, math.cos(tilt)])
     centre = np.array([0.0, 0.0, 0.25])
     stand = [
-        cylinder(0.075, 0.018, (0, 0, 0.009), wood, resolution=24, pattern="stripes",
-                 cell_m=0.01),
+        cylinder(0.075, 0.018, (0, 0, 0.009), wood, resolution=24, pattern="stripes", cell_m=0.01),
         cylinder(0.009, 0.10, (0, 0, 0.068), brass, resolution=10, pattern="plain"),
-        cylinder(0.004, 0.29, tuple(centre), brass, axis=tuple(axis), resolution=8,
-                 pattern="plain"),
+        cylinder(0.004, 0.29, tuple(centre), brass, axis=tuple(axis), resolution=8, pattern="plain"),
     ]
     # A half-ring meridian holding the axis, drawn as a torus tube around it.
     stand.append(torus(0.125, 0.004, tuple(centre), brass, axis=(0, 1, 0), pattern="plain"))
-    ball = [sphere(0.11, tuple(centre), (0.15, 0.35, 0.72), colour2=(0.30, 0.62, 0.25),
-                   pattern="blobs", cell_m=0.045, resolution=20)]
-    joint = Joint("revolute", tuple(centre), tuple(axis),
-                  limits=(-2 * math.pi, 2 * math.pi), rest=(-math.pi, math.pi),
-                  travel=(40 * _DEG, 150 * _DEG))
-    return ObjectSpec("globe", "articulated",
-                      "globe spinning on a stand (revolute, rotationally symmetric part)",
-                      (Part("stand", tuple(stand)), Part("ball", tuple(ball))), (joint,))
+    ball = [
+        sphere(
+            0.11,
+            tuple(centre),
+            (0.15, 0.35, 0.72),
+            colour2=(0.30, 0.62, 0.25),
+            pattern="blobs",
+            cell_m=0.045,
+            resolution=20,
+        )
+    ]
+    joint = Joint(
+        "revolute",
+        tuple(centre),
+        tuple(axis),
+        limits=(-2 * math.pi, 2 * math.pi),
+        rest=(-math.pi, math.pi),
+        travel=(40 * _DEG, 150 * _DEG),
+    )
+    return ObjectSpec(
+        "globe",
+        "articulated",
+        "globe spinning on a stand (revolute, rotationally symmetric part)",
+        (Part("stand", tuple(stand)), Part("ball", tuple(ball))),
+        (joint,),
+    )
 
 
 def _microwave() -> ObjectSpec:
     white, dark, glass = (0.86, 0.86, 0.84), (0.20, 0.20, 0.22), (0.12, 0.12, 0.14)
     w, d, h = 0.40, 0.30, 0.24
-    walls = _hollow_box((w, d, h), (0, 0, h / 2), 0.012, white, open_side="-y",
-                        pattern="checker", cell_m=0.06, contrast=0.08)
-    panel = box((0.10, 0.02, h - 0.024), (w / 2 - 0.05 - 0.012, -d / 2 + 0.01, h / 2), dark,
-                pattern="checker", cell_m=0.015, colour2=(0.45, 0.55, 0.45))
-    inner = box((0.012, d - 0.03, h - 0.024), (w / 2 - 0.10 - 0.018, 0, h / 2), white,
-                pattern="plain")
+    walls = _hollow_box(
+        (w, d, h), (0, 0, h / 2), 0.012, white, open_side="-y", pattern="checker", cell_m=0.06, contrast=0.08
+    )
+    panel = box(
+        (0.10, 0.02, h - 0.024),
+        (w / 2 - 0.05 - 0.012, -d / 2 + 0.01, h / 2),
+        dark,
+        pattern="checker",
+        cell_m=0.015,
+        colour2=(0.45, 0.55, 0.45),
+    )
+    inner = box((0.012, d - 0.03, h - 0.024), (w / 2 - 0.10 - 0.018, 0, h / 2), white, pattern="plain")
     door_w = w - 0.10 - 0.012
     x0 = -w / 2
     door = [
-        box((door_w, 0.02, h - 0.01), (x0 + door_w / 2, -d / 2 - 0.01, h / 2), white,
-            pattern="checker", cell_m=0.05, contrast=0.08),
-        box((door_w - 0.07, 0.002, h - 0.08), (x0 + door_w / 2 - 0.01, -d / 2 - 0.021, h / 2),
-            glass, pattern="blobs", cell_m=0.05, colour2=(0.25, 0.25, 0.28)),
-        box((0.015, 0.02, h - 0.07), (x0 + door_w - 0.02, -d / 2 - 0.03, h / 2), dark,
-            pattern="plain"),
+        box(
+            (door_w, 0.02, h - 0.01),
+            (x0 + door_w / 2, -d / 2 - 0.01, h / 2),
+            white,
+            pattern="checker",
+            cell_m=0.05,
+            contrast=0.08,
+        ),
+        box(
+            (door_w - 0.07, 0.002, h - 0.08),
+            (x0 + door_w / 2 - 0.01, -d / 2 - 0.021, h / 2),
+            glass,
+            pattern="blobs",
+            cell_m=0.05,
+            colour2=(0.25, 0.25, 0.28),
+        ),
+        box((0.015, 0.02, h - 0.07), (x0 + door_w - 0.02, -d / 2 - 0.03, h / 2), dark, pattern="plain"),
     ]
     # Vertical hinge at the left front edge; positive q swings the door towards the camera.
-    joint = Joint("revolute", (x0, -d / 2 - 0.02, 0.0), (0.0, 0.0, -1.0),
-                  limits=(0.0, 110 * _DEG), rest=(0.0, 30 * _DEG), travel=(20 * _DEG, 70 * _DEG))
-    return ObjectSpec("microwave", "articulated",
-                      "microwave oven with a hinged door (revolute, large part)",
-                      (Part("body", tuple(walls + [panel, inner])), Part("door", tuple(door))),
-                      (joint,))
+    joint = Joint(
+        "revolute",
+        (x0, -d / 2 - 0.02, 0.0),
+        (0.0, 0.0, -1.0),
+        limits=(0.0, 110 * _DEG),
+        rest=(0.0, 30 * _DEG),
+        travel=(20 * _DEG, 70 * _DEG),
+    )
+    return ObjectSpec(
+        "microwave",
+        "articulated",
+        "microwave oven with a hinged door (revolute, large part)",
+        (Part("body", tuple(walls + [panel, inner])), Part("door", tuple(door))),
+        (joint,),
+    )
 
 
 def _matchbox() -> ObjectSpec:
@@ -476,60 +607,99 @@ def _matchbox() -> ObjectSpec:
     wall = 0.003
     sleeve = [
         box((sx, sy, wall), (0, 0, wall / 2), sleeve_col, pattern="stripes", cell_m=0.012),
-        box((sx, sy, wall), (0, 0, sz - wall / 2), sleeve_col, pattern="blobs", cell_m=0.02,
-            colour2=(0.95, 0.85, 0.20)),
-        box((sx, wall, sz), (0, -sy / 2 + wall / 2, sz / 2), sleeve_col, pattern="stripes",
-            cell_m=0.012),
-        box((sx, wall, sz), (0, sy / 2 - wall / 2, sz / 2), sleeve_col, pattern="stripes",
-            cell_m=0.012),
+        box(
+            (sx, sy, wall),
+            (0, 0, sz - wall / 2),
+            sleeve_col,
+            pattern="blobs",
+            cell_m=0.02,
+            colour2=(0.95, 0.85, 0.20),
+        ),
+        box((sx, wall, sz), (0, -sy / 2 + wall / 2, sz / 2), sleeve_col, pattern="stripes", cell_m=0.012),
+        box((sx, wall, sz), (0, sy / 2 - wall / 2, sz / 2), sleeve_col, pattern="stripes", cell_m=0.012),
     ]
-    tray = _hollow_box((sx - 0.004, sy - 2 * wall - 0.002, sz - 2 * wall - 0.002),
-                       (0, 0, sz / 2), 0.002, tray_col, open_side="+z", pattern="checker",
-                       cell_m=0.012, contrast=0.2)
-    joint = Joint("prismatic", (sx / 2, 0.0, sz / 2), (1.0, 0.0, 0.0),
-                  limits=(0.0, 0.11), rest=(0.0, 0.02), travel=(0.04, 0.09))
-    return ObjectSpec("matchbox", "articulated",
-                      "kitchen matchbox: sleeve and sliding tray (prismatic, small part)",
-                      (Part("sleeve", tuple(sleeve)), Part("tray", tuple(tray))), (joint,))
+    tray = _hollow_box(
+        (sx - 0.004, sy - 2 * wall - 0.002, sz - 2 * wall - 0.002),
+        (0, 0, sz / 2),
+        0.002,
+        tray_col,
+        open_side="+z",
+        pattern="checker",
+        cell_m=0.012,
+        contrast=0.2,
+    )
+    joint = Joint(
+        "prismatic",
+        (sx / 2, 0.0, sz / 2),
+        (1.0, 0.0, 0.0),
+        limits=(0.0, 0.11),
+        rest=(0.0, 0.02),
+        travel=(0.04, 0.09),
+    )
+    return ObjectSpec(
+        "matchbox",
+        "articulated",
+        "kitchen matchbox: sleeve and sliding tray (prismatic, small part)",
+        (Part("sleeve", tuple(sleeve)), Part("tray", tuple(tray))),
+        (joint,),
+    )
 
 
 def _mug() -> ObjectSpec:
     col = (0.85, 0.82, 0.20)
-    body = cylinder(0.04, 0.095, (0, 0, 0.0475), col, resolution=24, pattern="stripes",
-                    cell_m=0.015)
-    coffee = cylinder(0.036, 0.002, (0, 0, 0.088), (0.25, 0.15, 0.08), pattern="plain",
-                      resolution=24)
+    body = cylinder(0.04, 0.095, (0, 0, 0.0475), col, resolution=24, pattern="stripes", cell_m=0.015)
+    coffee = cylinder(0.036, 0.002, (0, 0, 0.088), (0.25, 0.15, 0.08), pattern="plain", resolution=24)
     handle = torus(0.028, 0.007, (0.045, 0, 0.05), col, axis=(0, 1, 0), pattern="plain")
-    return ObjectSpec("mug", "rigid", "mug: cylinder and a ring handle",
-                      (Part("mug", (body, coffee, handle)),))
+    return ObjectSpec(
+        "mug", "rigid", "mug: cylinder and a ring handle", (Part("mug", (body, coffee, handle)),)
+    )
 
 
 def _cereal_box() -> ObjectSpec:
-    b = box((0.19, 0.07, 0.28), (0, 0, 0.14), (0.90, 0.55, 0.10), colour2=(0.20, 0.35, 0.80),
-            pattern="blobs", cell_m=0.05)
+    b = box(
+        (0.19, 0.07, 0.28),
+        (0, 0, 0.14),
+        (0.90, 0.55, 0.10),
+        colour2=(0.20, 0.35, 0.80),
+        pattern="blobs",
+        cell_m=0.05,
+    )
     return ObjectSpec("cereal_box", "rigid", "cereal box (rigid box)", (Part("box", (b,)),))
 
 
 def _can() -> ObjectSpec:
-    body = cylinder(0.033, 0.115, (0, 0, 0.0575), (0.78, 0.10, 0.12), colour2=(0.9, 0.9, 0.9),
-                    pattern="stripes", cell_m=0.02, resolution=24)
-    top = cylinder(0.030, 0.004, (0, 0, 0.117), (0.75, 0.76, 0.78), pattern="plain",
-                   resolution=24)
+    body = cylinder(
+        0.033,
+        0.115,
+        (0, 0, 0.0575),
+        (0.78, 0.10, 0.12),
+        colour2=(0.9, 0.9, 0.9),
+        pattern="stripes",
+        cell_m=0.02,
+        resolution=24,
+    )
+    top = cylinder(0.030, 0.004, (0, 0, 0.117), (0.75, 0.76, 0.78), pattern="plain", resolution=24)
     return ObjectSpec("can", "rigid", "drinks can (rigid cylinder)", (Part("can", (body, top)),))
 
 
 def _bottle() -> ObjectSpec:
     green = (0.20, 0.55, 0.30)
     pieces = (
-        cylinder(0.035, 0.17, (0, 0, 0.085), green, colour2=(0.92, 0.92, 0.88),
-                 pattern="stripes", cell_m=0.04, resolution=24),
+        cylinder(
+            0.035,
+            0.17,
+            (0, 0, 0.085),
+            green,
+            colour2=(0.92, 0.92, 0.88),
+            pattern="stripes",
+            cell_m=0.04,
+            resolution=24,
+        ),
         cone(0.035, 0.05, (0, 0, 0.17), green, pattern="plain", resolution=24),
         cylinder(0.013, 0.05, (0, 0, 0.215), green, pattern="plain", resolution=16),
-        cylinder(0.015, 0.018, (0, 0, 0.245), (0.85, 0.15, 0.15), pattern="plain",
-                 resolution=16),
+        cylinder(0.015, 0.018, (0, 0, 0.245), (0.85, 0.15, 0.15), pattern="plain", resolution=16),
     )
-    return ObjectSpec("bottle", "rigid", "bottle (rigid, rotationally symmetric)",
-                      (Part("bottle", pieces),))
+    return ObjectSpec("bottle", "rigid", "bottle (rigid, rotationally symmetric)", (Part("bottle", pieces),))
 
 
 def _drill() -> ObjectSpec:
@@ -537,17 +707,29 @@ def _drill() -> ObjectSpec:
     grip_R = rotation_about_axis((0, 1, 0), -15 * _DEG)
     pieces = (
         box((0.11, 0.075, 0.06), (0, 0, 0.03), black, pattern="checker", cell_m=0.02),
-        box((0.04, 0.035, 0.13), (0.005, 0, 0.12), black, R=grip_R, pattern="checker",
-            cell_m=0.015, colour2=(0.3, 0.3, 0.32)),
-        cylinder(0.035, 0.17, (-0.03, 0, 0.205), yellow, axis=(1, 0, 0), resolution=20,
-                 pattern="stripes", cell_m=0.02),
-        cylinder(0.02, 0.035, (-0.13, 0, 0.205), black, axis=(1, 0, 0), resolution=16,
-                 pattern="plain"),
-        cylinder(0.003, 0.07, (-0.18, 0, 0.205), metal, axis=(1, 0, 0), resolution=8,
-                 pattern="plain"),
+        box(
+            (0.04, 0.035, 0.13),
+            (0.005, 0, 0.12),
+            black,
+            R=grip_R,
+            pattern="checker",
+            cell_m=0.015,
+            colour2=(0.3, 0.3, 0.32),
+        ),
+        cylinder(
+            0.035,
+            0.17,
+            (-0.03, 0, 0.205),
+            yellow,
+            axis=(1, 0, 0),
+            resolution=20,
+            pattern="stripes",
+            cell_m=0.02,
+        ),
+        cylinder(0.02, 0.035, (-0.13, 0, 0.205), black, axis=(1, 0, 0), resolution=16, pattern="plain"),
+        cylinder(0.003, 0.07, (-0.18, 0, 0.205), metal, axis=(1, 0, 0), resolution=8, pattern="plain"),
     )
-    return ObjectSpec("drill", "rigid", "cordless drill (rigid composite)",
-                      (Part("drill", pieces),))
+    return ObjectSpec("drill", "rigid", "cordless drill (rigid composite)", (Part("drill", pieces),))
 
 
 def _banana() -> ObjectSpec:
@@ -560,43 +742,115 @@ def _banana() -> ObjectSpec:
         s = math.sin(math.pi * (i + 0.5) / n)
         r = 0.008 + 0.012 * s
         x, y = arc_r * math.sin(a), arc_r * (1 - math.cos(a)) - 0.04
-        pieces.append(sphere(r, (x, y, 0.02), yellow, resolution=10, colour2=(0.7, 0.6, 0.1),
-                             pattern="stripes", cell_m=0.01))
+        pieces.append(
+            sphere(
+                r,
+                (x, y, 0.02),
+                yellow,
+                resolution=10,
+                colour2=(0.7, 0.6, 0.1),
+                pattern="stripes",
+                cell_m=0.01,
+            )
+        )
     stem = 55 * _DEG
-    pieces.append(cylinder(0.004, 0.02,
-                           (arc_r * math.sin(stem), arc_r * (1 - math.cos(stem)) - 0.04, 0.02),
-                           (0.35, 0.28, 0.10), axis=(math.cos(stem), math.sin(stem), 0),
-                           resolution=6, pattern="plain"))
-    return ObjectSpec("banana", "rigid", "banana-like curved shape (rigid)",
-                      (Part("banana", tuple(pieces)),))
+    pieces.append(
+        cylinder(
+            0.004,
+            0.02,
+            (arc_r * math.sin(stem), arc_r * (1 - math.cos(stem)) - 0.04, 0.02),
+            (0.35, 0.28, 0.10),
+            axis=(math.cos(stem), math.sin(stem), 0),
+            resolution=6,
+            pattern="plain",
+        )
+    )
+    return ObjectSpec("banana", "rigid", "banana-like curved shape (rigid)", (Part("banana", tuple(pieces)),))
 
 
 def _book() -> ObjectSpec:
     cover, pages = (0.55, 0.12, 0.10), (0.93, 0.91, 0.85)
-    return ObjectSpec("book", "rigid", "hardback book lying flat (flat, 3 cm thick)", (Part("book", (
-        box((0.24, 0.17, 0.003), (0, 0, 0.0015), cover, pattern="plain"),
-        box((0.235, 0.165, 0.024), (0.002, 0, 0.015), pages, pattern="stripes", cell_m=0.002,
-            contrast=0.08),
-        box((0.24, 0.17, 0.003), (0, 0, 0.0285), cover, colour2=(0.85, 0.75, 0.30),
-            pattern="blobs", cell_m=0.05),
-        box((0.004, 0.17, 0.03), (-0.122, 0, 0.015), cover, pattern="plain"),   # spine
-    )),))
+    return ObjectSpec(
+        "book",
+        "rigid",
+        "hardback book lying flat (flat, 3 cm thick)",
+        (
+            Part(
+                "book",
+                (
+                    box((0.24, 0.17, 0.003), (0, 0, 0.0015), cover, pattern="plain"),
+                    box(
+                        (0.235, 0.165, 0.024),
+                        (0.002, 0, 0.015),
+                        pages,
+                        pattern="stripes",
+                        cell_m=0.002,
+                        contrast=0.08,
+                    ),
+                    box(
+                        (0.24, 0.17, 0.003),
+                        (0, 0, 0.0285),
+                        cover,
+                        colour2=(0.85, 0.75, 0.30),
+                        pattern="blobs",
+                        cell_m=0.05,
+                    ),
+                    box((0.004, 0.17, 0.03), (-0.122, 0, 0.015), cover, pattern="plain"),  # spine
+                ),
+            ),
+        ),
+    )
 
 
 def _plate() -> ObjectSpec:
     white = (0.92, 0.92, 0.90)
-    return ObjectSpec("plate", "rigid", "dinner plate (flat and thin, 26 cm, 1.5 cm high)", (Part("plate", (
-        cylinder(0.09, 0.008, (0, 0, 0.004), white, resolution=32, pattern="plain"),
-        torus(0.11, 0.016, (0, 0, 0.012), white, colour2=(0.20, 0.35, 0.60), pattern="stripes",
-              cell_m=0.012, contrast=0.5),
-    )),))
+    return ObjectSpec(
+        "plate",
+        "rigid",
+        "dinner plate (flat and thin, 26 cm, 1.5 cm high)",
+        (
+            Part(
+                "plate",
+                (
+                    cylinder(0.09, 0.008, (0, 0, 0.004), white, resolution=32, pattern="plain"),
+                    torus(
+                        0.11,
+                        0.016,
+                        (0, 0, 0.012),
+                        white,
+                        colour2=(0.20, 0.35, 0.60),
+                        pattern="stripes",
+                        cell_m=0.012,
+                        contrast=0.5,
+                    ),
+                ),
+            ),
+        ),
+    )
 
 
 def _ruler() -> ObjectSpec:
-    return ObjectSpec("ruler", "rigid", "30 cm steel ruler (thin: 3 mm)", (Part("ruler", (
-        box((0.31, 0.03, 0.003), (0, 0, 0.0015), (0.70, 0.71, 0.73), colour2=(0.15, 0.15, 0.15),
-            pattern="stripes", cell_m=0.005, contrast=0.6),
-    )),))
+    return ObjectSpec(
+        "ruler",
+        "rigid",
+        "30 cm steel ruler (thin: 3 mm)",
+        (
+            Part(
+                "ruler",
+                (
+                    box(
+                        (0.31, 0.03, 0.003),
+                        (0, 0, 0.0015),
+                        (0.70, 0.71, 0.73),
+                        colour2=(0.15, 0.15, 0.15),
+                        pattern="stripes",
+                        cell_m=0.005,
+                        contrast=0.6,
+                    ),
+                ),
+            ),
+        ),
+    )
 
 
 def _scissors() -> ObjectSpec:
@@ -605,20 +859,46 @@ def _scissors() -> ObjectSpec:
     def blade(z_m: float, sign: float) -> list[Piece]:
         # A blade towards -x and a handle ring towards +x, 2.5 mm thick, lying flat.
         return [
-            box((0.10, 0.012, 0.0025), (-0.05, sign * 0.003, z_m), steel, pattern="stripes",
-                cell_m=0.01, contrast=0.15),
+            box(
+                (0.10, 0.012, 0.0025),
+                (-0.05, sign * 0.003, z_m),
+                steel,
+                pattern="stripes",
+                cell_m=0.01,
+                contrast=0.15,
+            ),
             box((0.04, 0.008, 0.0025), (0.02, sign * 0.006, z_m), steel, pattern="plain"),
             torus(0.016, 0.004, (0.058, sign * 0.016, z_m), handle, pattern="plain"),
         ]
 
-    joint = Joint("revolute", (0.0, 0.0, 0.0), (0.0, 0.0, 1.0),
-                  limits=(0.0, 50 * _DEG), rest=(0.0, 8 * _DEG), travel=(15 * _DEG, 40 * _DEG))
-    return ObjectSpec("scissors", "articulated",
-                      "scissors lying flat: two thin levers turning in their own plane (revolute)",
-                      (Part("blade_a", tuple(blade(0.002, -1.0) + [cylinder(
-                          0.004, 0.006, (0, 0, 0.003), (0.3, 0.3, 0.32), resolution=10,
-                          pattern="plain")])),
-                       Part("blade_b", tuple(blade(0.0045, 1.0)))), (joint,))
+    joint = Joint(
+        "revolute",
+        (0.0, 0.0, 0.0),
+        (0.0, 0.0, 1.0),
+        limits=(0.0, 50 * _DEG),
+        rest=(0.0, 8 * _DEG),
+        travel=(15 * _DEG, 40 * _DEG),
+    )
+    return ObjectSpec(
+        "scissors",
+        "articulated",
+        "scissors lying flat: two thin levers turning in their own plane (revolute)",
+        (
+            Part(
+                "blade_a",
+                tuple(
+                    blade(0.002, -1.0)
+                    + [
+                        cylinder(
+                            0.004, 0.006, (0, 0, 0.003), (0.3, 0.3, 0.32), resolution=10, pattern="plain"
+                        )
+                    ]
+                ),
+            ),
+            Part("blade_b", tuple(blade(0.0045, 1.0))),
+        ),
+        (joint,),
+    )
 
 
 def _monitor() -> ObjectSpec:
@@ -630,56 +910,116 @@ def _monitor() -> ObjectSpec:
     hinge = (0.0, 0.05, 0.20)
     panel = (
         box((0.42, 0.03, 0.26), (0, 0.03, 0.20), black, pattern="plain"),
-        box((0.40, 0.002, 0.235), (0, 0.014, 0.205), screen, colour2=(0.55, 0.65, 0.80),
-            pattern="blobs", cell_m=0.06),
+        box(
+            (0.40, 0.002, 0.235),
+            (0, 0.014, 0.205),
+            screen,
+            colour2=(0.55, 0.65, 0.80),
+            pattern="blobs",
+            cell_m=0.06,
+        ),
     )
-    joint = Joint("revolute", hinge, (1.0, 0.0, 0.0),
-                  limits=(-5 * _DEG, 25 * _DEG), rest=(-5 * _DEG, 5 * _DEG),
-                  travel=(8 * _DEG, 20 * _DEG))
-    return ObjectSpec("monitor", "articulated",
-                      "computer monitor: a flat panel tilting on its stand (revolute)",
-                      (Part("stand", stand), Part("panel", panel)), (joint,))
+    joint = Joint(
+        "revolute",
+        hinge,
+        (1.0, 0.0, 0.0),
+        limits=(-5 * _DEG, 25 * _DEG),
+        rest=(-5 * _DEG, 5 * _DEG),
+        travel=(8 * _DEG, 20 * _DEG),
+    )
+    return ObjectSpec(
+        "monitor",
+        "articulated",
+        "computer monitor: a flat panel tilting on its stand (revolute)",
+        (Part("stand", stand), Part("panel", panel)),
+        (joint,),
+    )
 
 
 def _slide_case() -> ObjectSpec:
     wood, lid_col = (0.72, 0.52, 0.30), (0.62, 0.42, 0.24)
     sx, sy, sz = 0.22, 0.08, 0.045
-    body = _hollow_box((sx, sy, sz), (0, 0, sz / 2), 0.005, wood, open_side="+z",
-                       pattern="stripes", cell_m=0.008, contrast=0.12)
-    lid = [box((sx - 0.004, sy - 0.006, 0.005), (0, 0, sz + 0.0025), lid_col, pattern="stripes",
-               cell_m=0.01, contrast=0.15),
-           box((0.012, 0.03, 0.004), (sx / 2 - 0.02, 0, sz + 0.007), (0.35, 0.22, 0.12),
-               pattern="plain")]   # finger grip
-    joint = Joint("prismatic", (sx / 2, 0.0, sz), (1.0, 0.0, 0.0),
-                  limits=(0.0, 0.17), rest=(0.0, 0.02), travel=(0.04, 0.12))
-    return ObjectSpec("slide_case", "articulated",
-                      "pencil case with a sliding lid (prismatic, thin part)",
-                      (Part("case", tuple(body)), Part("lid", tuple(lid))), (joint,))
+    body = _hollow_box(
+        (sx, sy, sz),
+        (0, 0, sz / 2),
+        0.005,
+        wood,
+        open_side="+z",
+        pattern="stripes",
+        cell_m=0.008,
+        contrast=0.12,
+    )
+    lid = [
+        box(
+            (sx - 0.004, sy - 0.006, 0.005),
+            (0, 0, sz + 0.0025),
+            lid_col,
+            pattern="stripes",
+            cell_m=0.01,
+            contrast=0.15,
+        ),
+        box((0.012, 0.03, 0.004), (sx / 2 - 0.02, 0, sz + 0.007), (0.35, 0.22, 0.12), pattern="plain"),
+    ]  # finger grip
+    joint = Joint(
+        "prismatic",
+        (sx / 2, 0.0, sz),
+        (1.0, 0.0, 0.0),
+        limits=(0.0, 0.17),
+        rest=(0.0, 0.02),
+        travel=(0.04, 0.12),
+    )
+    return ObjectSpec(
+        "slide_case",
+        "articulated",
+        "pencil case with a sliding lid (prismatic, thin part)",
+        (Part("case", tuple(body)), Part("lid", tuple(lid))),
+        (joint,),
+    )
 
 
 def _desk_lamp() -> ObjectSpec:
     black, metal, shade = (0.10, 0.10, 0.11), (0.75, 0.75, 0.78), (0.85, 0.30, 0.15)
-    base = (cylinder(0.075, 0.025, (0, 0.02, 0.0125), black, resolution=24, pattern="plain"),
-            cylinder(0.012, 0.03, (0, 0.02, 0.035), metal, resolution=10, pattern="plain"))
-    shoulder, elbow = (0.0, 0.02, 0.045), (0.0, 0.02, 0.245)
-    lower = (box((0.03, 0.014, 0.20), (0, 0.02, 0.145), metal, pattern="stripes", cell_m=0.02,
-                 contrast=0.1),
-             cylinder(0.012, 0.04, elbow, black, axis=(1, 0, 0), resolution=10, pattern="plain"))
-    upper = (box((0.03, 0.18, 0.014), (0, -0.07, 0.245), metal, pattern="stripes", cell_m=0.02,
-                 contrast=0.1),
-             cone(0.06, 0.09, (0, -0.18, 0.17), shade, axis=(0, 0, 1), resolution=20,
-                  pattern="plain"),
-             cylinder(0.02, 0.04, (0, -0.18, 0.245), shade, resolution=12, pattern="plain"))
-    joints = (
-        Joint("revolute", shoulder, (1.0, 0.0, 0.0), limits=(-45 * _DEG, 30 * _DEG),
-              rest=(-25 * _DEG, 5 * _DEG), travel=(10 * _DEG, 25 * _DEG), parent=0),
-        Joint("revolute", elbow, (1.0, 0.0, 0.0), limits=(-40 * _DEG, 50 * _DEG),
-              rest=(-15 * _DEG, 15 * _DEG), travel=(12 * _DEG, 30 * _DEG), parent=1),
+    base = (
+        cylinder(0.075, 0.025, (0, 0.02, 0.0125), black, resolution=24, pattern="plain"),
+        cylinder(0.012, 0.03, (0, 0.02, 0.035), metal, resolution=10, pattern="plain"),
     )
-    return ObjectSpec("desk_lamp", "articulated",
-                      "desk lamp: base, lower arm and upper arm with its shade (two revolute joints)",
-                      (Part("base", base), Part("lower_arm", lower), Part("upper_arm", upper)),
-                      joints)
+    shoulder, elbow = (0.0, 0.02, 0.045), (0.0, 0.02, 0.245)
+    lower = (
+        box((0.03, 0.014, 0.20), (0, 0.02, 0.145), metal, pattern="stripes", cell_m=0.02, contrast=0.1),
+        cylinder(0.012, 0.04, elbow, black, axis=(1, 0, 0), resolution=10, pattern="plain"),
+    )
+    upper = (
+        box((0.03, 0.18, 0.014), (0, -0.07, 0.245), metal, pattern="stripes", cell_m=0.02, contrast=0.1),
+        cone(0.06, 0.09, (0, -0.18, 0.17), shade, axis=(0, 0, 1), resolution=20, pattern="plain"),
+        cylinder(0.02, 0.04, (0, -0.18, 0.245), shade, resolution=12, pattern="plain"),
+    )
+    joints = (
+        Joint(
+            "revolute",
+            shoulder,
+            (1.0, 0.0, 0.0),
+            limits=(-45 * _DEG, 30 * _DEG),
+            rest=(-25 * _DEG, 5 * _DEG),
+            travel=(10 * _DEG, 25 * _DEG),
+            parent=0,
+        ),
+        Joint(
+            "revolute",
+            elbow,
+            (1.0, 0.0, 0.0),
+            limits=(-40 * _DEG, 50 * _DEG),
+            rest=(-15 * _DEG, 15 * _DEG),
+            travel=(12 * _DEG, 30 * _DEG),
+            parent=1,
+        ),
+    )
+    return ObjectSpec(
+        "desk_lamp",
+        "articulated",
+        "desk lamp: base, lower arm and upper arm with its shade (two revolute joints)",
+        (Part("base", base), Part("lower_arm", lower), Part("upper_arm", upper)),
+        joints,
+    )
 
 
 def _folding_ruler() -> ObjectSpec:
@@ -688,26 +1028,69 @@ def _folding_ruler() -> ObjectSpec:
     x0 = -n * length / 2
     parts, joints = [], []
     for k in range(n):
-        z = t / 2 + (k % 2) * t        # alternate layers, as the segments of a real one overlap
-        parts.append(Part(f"segment_{k}", (
-            box((length, width, t), (x0 + (k + 0.5) * length, 0, z), wood, colour2=ticks,
-                pattern="stripes", cell_m=0.005, contrast=0.5),
-            cylinder(0.003, 0.009, (x0 + k * length, 0, t), (0.6, 0.6, 0.62), resolution=8,
-                     pattern="plain"),
-        )))
+        z = t / 2 + (k % 2) * t  # alternate layers, as the segments of a real one overlap
+        parts.append(
+            Part(
+                f"segment_{k}",
+                (
+                    box(
+                        (length, width, t),
+                        (x0 + (k + 0.5) * length, 0, z),
+                        wood,
+                        colour2=ticks,
+                        pattern="stripes",
+                        cell_m=0.005,
+                        contrast=0.5,
+                    ),
+                    cylinder(
+                        0.003, 0.009, (x0 + k * length, 0, t), (0.6, 0.6, 0.62), resolution=8, pattern="plain"
+                    ),
+                ),
+            )
+        )
         if k:
-            joints.append(Joint("revolute", (x0 + k * length, 0.0, 0.0), (0.0, 0.0, 1.0),
-                                limits=(-150 * _DEG, 150 * _DEG), rest=(-40 * _DEG, 40 * _DEG),
-                                travel=(20 * _DEG, 60 * _DEG), parent=k - 1))
-    return ObjectSpec("folding_ruler", "articulated",
-                      "folding ruler lying flat: a chain of four segments (three revolute joints)",
-                      tuple(parts), tuple(joints))
+            joints.append(
+                Joint(
+                    "revolute",
+                    (x0 + k * length, 0.0, 0.0),
+                    (0.0, 0.0, 1.0),
+                    limits=(-150 * _DEG, 150 * _DEG),
+                    rest=(-40 * _DEG, 40 * _DEG),
+                    travel=(20 * _DEG, 60 * _DEG),
+                    parent=k - 1,
+                )
+            )
+    return ObjectSpec(
+        "folding_ruler",
+        "articulated",
+        "folding ruler lying flat: a chain of four segments (three revolute joints)",
+        tuple(parts),
+        tuple(joints),
+    )
 
 
 _BUILDERS = (
-    _laptop, _drawer, _box_lid, _pliers, _globe, _microwave, _matchbox,
-    _mug, _cereal_box, _can, _bottle, _drill, _banana,
-    _book, _plate, _ruler, _scissors, _monitor, _slide_case, _desk_lamp, _folding_ruler,
+    _laptop,
+    _drawer,
+    _box_lid,
+    _pliers,
+    _globe,
+    _microwave,
+    _matchbox,
+    _mug,
+    _cereal_box,
+    _can,
+    _bottle,
+    _drill,
+    _banana,
+    _book,
+    _plate,
+    _ruler,
+    _scissors,
+    _monitor,
+    _slide_case,
+    _desk_lamp,
+    _folding_ruler,
 )
 
 

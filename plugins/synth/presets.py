@@ -52,19 +52,33 @@ def _sample() -> list[SequencePlan]:
 _ARTICULATED = ("laptop", "drawer", "box_lid", "pliers", "globe", "microwave", "matchbox")
 _CARRIED_ARTICULATING = ("laptop", "drawer", "box_lid", "pliers", "matchbox")
 _RIGID = ("mug", "cereal_box", "can", "bottle", "drill", "banana")
-_CARRIED_FIXED_JOINT = (("laptop", "low"), ("pliers", "high"), ("box_lid", "low"),
-                        ("matchbox", "high"))
-_STATIC = (("mug", "low"), ("drill", "high"), ("cereal_box", "high"), ("bottle", "low"),
-           ("laptop", "low"), ("microwave", "high"), ("globe", "low"), ("drawer", "high"))
+_CARRIED_FIXED_JOINT = (("laptop", "low"), ("pliers", "high"), ("box_lid", "low"), ("matchbox", "high"))
+_STATIC = (
+    ("mug", "low"),
+    ("drill", "high"),
+    ("cereal_box", "high"),
+    ("bottle", "low"),
+    ("laptop", "low"),
+    ("microwave", "high"),
+    ("globe", "low"),
+    ("drawer", "high"),
+)
 
 
 # Objects added with hands and kinematic chains (appended, so that the first 48 sequences keep their
 # names and seeds).
 _NEW_ARTICULATED = ("scissors", "monitor", "desk_lamp", "folding_ruler")
 _NEW_RIGID = (("book", "low"), ("book", "high"), ("plate", "high"), ("ruler", "low"))
-_NEW_STATIC = (("book", "high"), ("plate", "low"), ("scissors", "high"), ("desk_lamp", "low"),
-               ("monitor", "high"), ("ruler", "low"), ("folding_ruler", "high"),
-               ("slide_case", "low"))
+_NEW_STATIC = (
+    ("book", "high"),
+    ("plate", "low"),
+    ("scissors", "high"),
+    ("desk_lamp", "low"),
+    ("monitor", "high"),
+    ("ruler", "low"),
+    ("folding_ruler", "high"),
+    ("slide_case", "low"),
+)
 #: Who handles sequence i: HOLDER_CYCLE[i % 4] (three in four are handled); every third is plain.
 HOLDER_CYCLE = ("hand", "gripper", "hand", "none")
 
@@ -88,9 +102,20 @@ def _benchmark(width: int = 320, height: int = 240) -> list[SequencePlan]:
     rows += [("slide_case", "articulate", "high"), ("slide_case", "carry_articulate", "low")]
     rows += [(obj, "carry", noise) for obj, noise in _NEW_RIGID]
     rows += [(obj, "static", noise) for obj, noise in _NEW_STATIC]
-    return [SequencePlan(f"{i:02d}_{obj}_{motion}_{noise}", obj, motion, noise, 24, width, height,
-                         texture="plain" if i % 3 == 2 else "textured", hand=HOLDER_CYCLE[i % 4])
-            for i, (obj, motion, noise) in enumerate(rows)]
+    return [
+        SequencePlan(
+            f"{i:02d}_{obj}_{motion}_{noise}",
+            obj,
+            motion,
+            noise,
+            24,
+            width,
+            height,
+            texture="plain" if i % 3 == 2 else "textured",
+            hand=HOLDER_CYCLE[i % 4],
+        )
+        for i, (obj, motion, noise) in enumerate(rows)
+    ]
 
 
 def _smoke() -> list[SequencePlan]:
@@ -107,15 +132,20 @@ def _smoke() -> list[SequencePlan]:
 PRESETS: dict[str, str] = {
     "sample": "4 sequences, 320x240, 16 frames, low noise: what sample_data/ holds",
     "benchmark": "70 sequences, 320x240, 24 frames, 21 objects, low and high noise, three in four "
-                 "handled by a hand or gripper, one in three untextured: 34 articulated, 20 rigid, "
-                 "16 static",
+    "handled by a hand or gripper, one in three untextured: 34 articulated, 20 rigid, "
+    "16 static",
     "benchmark-vga": "the benchmark at 640x480, the resolution of the Kinect / RealSense recordings "
-                     "of YCB-Video and RBO",
+    "of YCB-Video and RBO",
     "benchmark-rs": "the benchmark at 848x480 with a RealSense-like camera (fx = 615)",
     "smoke": "4 tiny sequences, 160x120, 8 frames, for tests",
 }
-_PLANS = {"sample": _sample, "benchmark": _benchmark, "benchmark-vga": lambda: _benchmark(640, 480),
-          "benchmark-rs": lambda: _benchmark(848, 480), "smoke": _smoke}
+_PLANS = {
+    "sample": _sample,
+    "benchmark": _benchmark,
+    "benchmark-vga": lambda: _benchmark(640, 480),
+    "benchmark-rs": lambda: _benchmark(848, 480),
+    "smoke": _smoke,
+}
 
 
 def preset_plans(preset: str) -> list[SequencePlan]:
@@ -125,8 +155,7 @@ def preset_plans(preset: str) -> list[SequencePlan]:
     return _PLANS[preset]()
 
 
-def generate_set(out_root: str | Path, *, preset: str, seed: int = 0,
-                 overwrite: bool = False) -> list[Path]:
+def generate_set(out_root: str | Path, *, preset: str, seed: int = 0, overwrite: bool = False) -> list[Path]:
     """Generate every sequence of a preset into ``out_root/<name>/``.
 
     Parameters
@@ -153,30 +182,48 @@ def generate_set(out_root: str | Path, *, preset: str, seed: int = 0,
     root.mkdir(parents=True, exist_ok=True)
     index_path = root / "index.json"
     if index_path.exists() and not overwrite:
-        raise FileExistsError(f"{index_path} exists; refusing to overwrite it "
-                              "(pass overwrite=True or --overwrite)")
+        raise FileExistsError(
+            f"{index_path} exists; refusing to overwrite it (pass overwrite=True or --overwrite)"
+        )
     # Refuse before writing anything, not half-way through the set.
     if not overwrite:
         for plan in plans:
             d = root / plan.name
             if d.exists() and (not d.is_dir() or any(d.iterdir())):
-                raise FileExistsError(f"{d} is not empty; refusing to overwrite it "
-                                      "(pass overwrite=True or --overwrite)")
+                raise FileExistsError(
+                    f"{d} is not empty; refusing to overwrite it (pass overwrite=True or --overwrite)"
+                )
     out, entries = [], []
     for i, plan in enumerate(plans):
         seq_seed = seed * 1000 + i
-        p = generate_sequence(root / plan.name, object_name=plan.object_name,
-                              motion=plan.motion, noise=plan.noise, n_frames=plan.n_frames,
-                              seed=seq_seed, width=plan.width, height=plan.height,
-                              texture=plan.texture, hand=plan.hand, overwrite=overwrite)
+        p = generate_sequence(
+            root / plan.name,
+            object_name=plan.object_name,
+            motion=plan.motion,
+            noise=plan.noise,
+            n_frames=plan.n_frames,
+            seed=seq_seed,
+            width=plan.width,
+            height=plan.height,
+            texture=plan.texture,
+            hand=plan.hand,
+            overwrite=overwrite,
+        )
         out.append(p)
         entry = asdict(plan)
-        entry.update(seed=seq_seed, label=MOTIONS[plan.motion].label,
-                     joint_type=OBJECTS[plan.object_name].joint_type)
+        entry.update(
+            seed=seq_seed, label=MOTIONS[plan.motion].label, joint_type=OBJECTS[plan.object_name].joint_type
+        )
         entries.append(entry)
-    write_json(index_path, {"preset": preset, "seed": seed,
-                            "generator": f"artclass synth {GENERATOR_VERSION}",
-                            "sequences": entries})
+    write_json(
+        index_path,
+        {
+            "preset": preset,
+            "seed": seed,
+            "generator": f"artclass synth {GENERATOR_VERSION}",
+            "sequences": entries,
+        },
+    )
     return out
 
 

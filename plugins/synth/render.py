@@ -72,9 +72,7 @@ class Intrinsics:
 
     def __post_init__(self):
         if self.width_px < 8 or self.height_px < 8:
-            raise ValueError(
-                f"image size {self.width_px}x{self.height_px} px is too small (need >= 8x8)"
-            )
+            raise ValueError(f"image size {self.width_px}x{self.height_px} px is too small (need >= 8x8)")
 
     @classmethod
     def for_resolution(cls, width_px: int = 640, height_px: int = 480) -> Intrinsics:
@@ -97,9 +95,7 @@ class Intrinsics:
     @property
     def matrix(self) -> np.ndarray:
         """The 3x3 intrinsic matrix K."""
-        return np.array(
-            [[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]]
-        )
+        return np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]])
 
 
 @dataclass(frozen=True)
@@ -120,35 +116,45 @@ class NoiseLevel:
     grazing_end_deg: float = field(metadata={"help": "incidence angle of full dropout rate"})
     grazing_drop_prob: float = field(metadata={"help": "dropout probability at grazing_end_deg"})
     edge_drop_prob: float = field(metadata={"help": "dropout probability next to depth jumps"})
-    lateral_fraction: float = field(
-        metadata={"help": "fraction of edge pixels taking a neighbour's depth"}
-    )
+    lateral_fraction: float = field(metadata={"help": "fraction of edge pixels taking a neighbour's depth"})
     random_drop_fraction: float = field(metadata={"help": "fraction of pixels lost at random"})
     speckle_fraction: float = field(metadata={"help": "fraction of outlier (flying) pixels"})
     projector_shadow: bool = field(metadata={"help": "drop pixels the projector cannot see"})
     rgb_sigma: float = field(metadata={"help": "colour noise std, 8-bit levels"})
     min_range_m: float = 0.3
     max_range_m: float = 4.5
-    flying_fraction: float = field(default=0.0, metadata={
-        "help": "fraction of pixels at a depth discontinuity that read a depth between the "
-                "foreground and the background (flying pixels)"})
-    depth_step_m: float = field(default=0.0, metadata={
-        "help": "depth quantisation of the delivered depth, metres (0: none)"})
+    flying_fraction: float = field(
+        default=0.0,
+        metadata={
+            "help": "fraction of pixels at a depth discontinuity that read a depth between the "
+            "foreground and the background (flying pixels)"
+        },
+    )
+    depth_step_m: float = field(
+        default=0.0, metadata={"help": "depth quantisation of the delivered depth, metres (0: none)"}
+    )
 
     def __post_init__(self):
-        for name in ("grazing_drop_prob", "edge_drop_prob", "lateral_fraction",
-                     "random_drop_fraction", "speckle_fraction", "flying_fraction"):
+        for name in (
+            "grazing_drop_prob",
+            "edge_drop_prob",
+            "lateral_fraction",
+            "random_drop_fraction",
+            "speckle_fraction",
+            "flying_fraction",
+        ):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f"NoiseLevel {self.name!r}: {name}={value} is not in [0, 1]")
-        for name in ("axial_a_m", "axial_b_per_m", "disparity_subpixel", "rgb_sigma",
-                     "depth_step_m"):
+        for name in ("axial_a_m", "axial_b_per_m", "disparity_subpixel", "rgb_sigma", "depth_step_m"):
             if getattr(self, name) < 0:
                 raise ValueError(f"NoiseLevel {self.name!r}: {name}={getattr(self, name)} < 0")
         if not 0 <= self.grazing_start_deg <= self.grazing_end_deg <= 90:
-            raise ValueError(f"NoiseLevel {self.name!r}: need 0 <= grazing_start_deg "
-                             f"({self.grazing_start_deg}) <= grazing_end_deg "
-                             f"({self.grazing_end_deg}) <= 90")
+            raise ValueError(
+                f"NoiseLevel {self.name!r}: need 0 <= grazing_start_deg "
+                f"({self.grazing_start_deg}) <= grazing_end_deg "
+                f"({self.grazing_end_deg}) <= 90"
+            )
 
     def axial_sigma_m(self, depth_m: np.ndarray) -> np.ndarray:
         """Axial noise standard deviation at z-depth ``depth_m``, metres."""
@@ -161,12 +167,57 @@ DEPTH_STEP_M = 0.001
 #: Sensor noise levels. ``none`` is an ideal sensor (used by tests and ground truth);
 #: ``low`` is a good structured-light sensor; ``high`` about 2.5x worse everywhere.
 NOISE_LEVELS: dict[str, NoiseLevel] = {
-    "none": NoiseLevel("none", 0.0, 0.0, 0.0, 90.0, 90.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, 0.0,
-                       min_range_m=0.0, max_range_m=math.inf),
-    "low": NoiseLevel("low", 0.0012, 0.0019, 1 / 8, 72.0, 82.0, 0.9, 0.25, 0.25, 0.002, 2e-4,
-                      True, 0.4, flying_fraction=0.25, depth_step_m=DEPTH_STEP_M),
-    "high": NoiseLevel("high", 0.003, 0.0048, 1 / 4, 65.0, 78.0, 0.95, 0.55, 0.5, 0.01, 1e-3,
-                       True, 2.5, flying_fraction=0.5, depth_step_m=DEPTH_STEP_M),
+    "none": NoiseLevel(
+        "none",
+        0.0,
+        0.0,
+        0.0,
+        90.0,
+        90.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        0.0,
+        False,
+        0.0,
+        min_range_m=0.0,
+        max_range_m=math.inf,
+    ),
+    "low": NoiseLevel(
+        "low",
+        0.0012,
+        0.0019,
+        1 / 8,
+        72.0,
+        82.0,
+        0.9,
+        0.25,
+        0.25,
+        0.002,
+        2e-4,
+        True,
+        0.4,
+        flying_fraction=0.25,
+        depth_step_m=DEPTH_STEP_M,
+    ),
+    "high": NoiseLevel(
+        "high",
+        0.003,
+        0.0048,
+        1 / 4,
+        65.0,
+        78.0,
+        0.95,
+        0.55,
+        0.5,
+        0.01,
+        1e-3,
+        True,
+        2.5,
+        flying_fraction=0.5,
+        depth_step_m=DEPTH_STEP_M,
+    ),
 }
 
 
@@ -218,8 +269,10 @@ def _invert(T: np.ndarray) -> np.ndarray:
 def place_pieces(pieces, T_world_from_local: np.ndarray, part: int) -> list[SceneMesh]:
     """``pieces`` (defined in a local frame) placed in the world by ``T_world_from_local``."""
     T_local_world = _invert(T_world_from_local)
-    return [SceneMesh(_transform(T_world_from_local, p.vertices_m), p.triangles, part, p,
-                      T_local_world) for p in pieces]
+    return [
+        SceneMesh(_transform(T_world_from_local, p.vertices_m), p.triangles, part, p, T_local_world)
+        for p in pieces
+    ]
 
 
 def object_meshes(spec: ObjectSpec, q, T_world_from_object: np.ndarray) -> list[SceneMesh]:
@@ -234,12 +287,30 @@ def object_meshes(spec: ObjectSpec, q, T_world_from_object: np.ndarray) -> list[
 def room_meshes() -> list[SceneMesh]:
     """Table (top at z = 0), back wall and floor, world frame."""
     pieces = [
-        _box((1.8, 1.45, 0.04), (0.0, WALL_Y_M - 0.725, -0.02), (0.58, 0.42, 0.26),
-             pattern="stripes", cell_m=0.025, contrast=0.12),
-        _box((6.0, 0.02, 3.0), (0.0, WALL_Y_M + 0.01, 0.75), (0.80, 0.80, 0.76),
-             pattern="blobs", cell_m=0.12, contrast=0.10),
-        _box((6.0, 6.0, 0.02), (0.0, 0.0, -0.76), (0.45, 0.45, 0.50),
-             pattern="checker", cell_m=0.3, contrast=0.2),
+        _box(
+            (1.8, 1.45, 0.04),
+            (0.0, WALL_Y_M - 0.725, -0.02),
+            (0.58, 0.42, 0.26),
+            pattern="stripes",
+            cell_m=0.025,
+            contrast=0.12,
+        ),
+        _box(
+            (6.0, 0.02, 3.0),
+            (0.0, WALL_Y_M + 0.01, 0.75),
+            (0.80, 0.80, 0.76),
+            pattern="blobs",
+            cell_m=0.12,
+            contrast=0.10,
+        ),
+        _box(
+            (6.0, 6.0, 0.02),
+            (0.0, 0.0, -0.76),
+            (0.45, 0.45, 0.50),
+            pattern="checker",
+            cell_m=0.3,
+            contrast=0.2,
+        ),
     ]
     return [SceneMesh(p.vertices_m, p.triangles, ROOM, p, np.eye(4)) for p in pieces]
 
@@ -420,10 +491,16 @@ def _depth_edges(depth_m: np.ndarray) -> np.ndarray:
         va = valid.take(range(1, z.shape[axis]), axis=axis) & valid.take(
             range(0, z.shape[axis] - 1), axis=axis
         )
-        t = np.minimum(thr.take(range(1, z.shape[axis]), axis=axis),
-                       thr.take(range(0, z.shape[axis] - 1), axis=axis))
-        big = (np.abs(a) > t) | (~va & (valid.take(range(1, z.shape[axis]), axis=axis)
-                                         | valid.take(range(0, z.shape[axis] - 1), axis=axis)))
+        t = np.minimum(
+            thr.take(range(1, z.shape[axis]), axis=axis), thr.take(range(0, z.shape[axis] - 1), axis=axis)
+        )
+        big = (np.abs(a) > t) | (
+            ~va
+            & (
+                valid.take(range(1, z.shape[axis]), axis=axis)
+                | valid.take(range(0, z.shape[axis] - 1), axis=axis)
+            )
+        )
         if axis == 0:
             jump[1:, :] |= big
             jump[:-1, :] |= big
@@ -478,8 +555,11 @@ def add_sensor_noise(
 
     # Grazing incidence: the projected pattern is too stretched to be decoded.
     angle = np.degrees(np.arccos(np.clip(frame.cos_incidence, 0.0, 1.0)))
-    ramp = np.clip((angle - noise.grazing_start_deg)
-                   / max(noise.grazing_end_deg - noise.grazing_start_deg, 1e-6), 0.0, 1.0)
+    ramp = np.clip(
+        (angle - noise.grazing_start_deg) / max(noise.grazing_end_deg - noise.grazing_start_deg, 1e-6),
+        0.0,
+        1.0,
+    )
     keep &= ~(rng.random((h, w)) < noise.grazing_drop_prob * ramp)
 
     if noise.projector_shadow:
@@ -517,8 +597,9 @@ def add_sensor_noise(
     return np.where(keep, z, 0.0).astype(np.float32), rgb8
 
 
-def _flying_pixels(z: np.ndarray, edges: np.ndarray, *, fraction: float,
-                   rng: np.random.Generator) -> np.ndarray:
+def _flying_pixels(
+    z: np.ndarray, edges: np.ndarray, *, fraction: float, rng: np.random.Generator
+) -> np.ndarray:
     """Flying pixels: a share ``fraction`` of the ``edges`` pixels whose 3x3 neighbourhood spans a
     depth jump read a depth drawn uniformly between its nearest and farthest valid depth, as a
     sensor's matching window that straddles the foreground and the background does.

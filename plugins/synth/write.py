@@ -129,9 +129,7 @@ def write_frame(
     if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"rgb must be uint8 of shape (H, W, 3), got {rgb.dtype} {rgb.shape}")
     if depth_m.shape != rgb.shape[:2] or mask.shape != rgb.shape[:2]:
-        raise ValueError(
-            f"depth {depth_m.shape} and mask {mask.shape} must match rgb {rgb.shape[:2]}"
-        )
+        raise ValueError(f"depth {depth_m.shape} and mask {mask.shape} must match rgb {rgb.shape[:2]}")
     _imwrite(seq / "rgb" / name, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     _imwrite(seq / "depth" / name, depth_to_uint16(depth_m, depth_scale=depth_scale))
     mask = np.asarray(mask, dtype=bool)

@@ -26,13 +26,22 @@ __all__ = ["CentroidRule", "CentroidRuleParams", "register_rules"]
 
 @dataclass(frozen=True)
 class CentroidRuleParams(Params):
-    min_motion_m: float = param(0.004, unit="m", bounds=(0.0, 1.0),
-                                help="A cell centre displaced by less than this has not moved.")
-    max_spread_m: float = param(0.01, unit="m", bounds=(1e-4, 1.0),
-                                help="Cells whose displacement differs from the median by more than this move "
-                                     "differently from the rest of the object.")
-    min_part_cells: int = param(2, unit="cells", bounds=(1, 1000),
-                                help="A differently moving part must hold at least this many matched cells.")
+    min_motion_m: float = param(
+        0.004, unit="m", bounds=(0.0, 1.0), help="A cell centre displaced by less than this has not moved."
+    )
+    max_spread_m: float = param(
+        0.01,
+        unit="m",
+        bounds=(1e-4, 1.0),
+        help="Cells whose displacement differs from the median by more than this move "
+        "differently from the rest of the object.",
+    )
+    min_part_cells: int = param(
+        2,
+        unit="cells",
+        bounds=(1, 1000),
+        help="A differently moving part must hold at least this many matched cells.",
+    )
 
 
 class CentroidRule(DecisionRule):
@@ -48,18 +57,22 @@ class CentroidRule(DecisionRule):
         clusters: list[int | None] = [None] * len(cells)
         if not matched:
             return RuleDecision("skipped", clusters, reason="no matched cell")
-        moves = np.array([_displacement(cells[n]) for n in matched])          # (M, 3) metres
+        moves = np.array([_displacement(cells[n]) for n in matched])  # (M, 3) metres
         median = np.median(moves, axis=0)
         off = np.linalg.norm(moves - median, axis=1)
         outliers = off > p.max_spread_m
-        info = dict(median_displacement_m=float(np.linalg.norm(median)), max_spread_m=float(off.max()),
-                    n_outlier_cells=int(outliers.sum()))
+        info = dict(
+            median_displacement_m=float(np.linalg.norm(median)),
+            max_spread_m=float(off.max()),
+            n_outlier_cells=int(outliers.sum()),
+        )
         for n, out in zip(matched, outliers):
             clusters[n] = int(out)
         keys = ["with the median", "differently"]
         if outliers.sum() >= p.min_part_cells:
-            return RuleDecision("AM", clusters, keys, reason=f"{int(outliers.sum())} cells move differently",
-                                info=info)
+            return RuleDecision(
+                "AM", clusters, keys, reason=f"{int(outliers.sum())} cells move differently", info=info
+            )
         if np.linalg.norm(median) < p.min_motion_m:
             return RuleDecision("NM", clusters, keys, reason="the cell centres did not move", info=info)
         return RuleDecision("RM", clusters, keys, reason="the cell centres move together", info=info)
