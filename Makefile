@@ -88,6 +88,7 @@ app: setup
 # Lint (the rules are in pyproject.toml, [tool.ruff]); run before the tests.
 lint: test-setup
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 
 # pytest exits 5 when it collects no test: that is a failure here too (any non-zero status is).
 test: lint
