@@ -526,26 +526,7 @@ def motion_parts(
         )
         if len(moved[n]):
             v = d * gain
-            fig.add_trace(
-                go.Cone(
-                    x=[c[0]],
-                    y=[c[1]],
-                    z=[c[2]],
-                    u=[v[0]],
-                    v=[v[1]],
-                    w=[v[2]],
-                    sizemode="raw",
-                    sizeref=1.0,
-                    anchor="tail",
-                    colorscale=[[0, colour], [1, colour]],
-                    showscale=False,
-                    name=name,
-                    legendgroup=f"m{n}",
-                    showlegend=False,
-                    text=[text],
-                    hovertemplate="%{text}<extra></extra>",
-                )
-            )
+            fig.add_trace(_arrow(c, v, colour, name=name, group=f"m{n}", text=text))
     loose = points[labels < 0][::step]
     if len(loose):
         fig.add_trace(
@@ -810,26 +791,7 @@ def parts_3d(articulation, *, max_points: int = 4000) -> go.Figure:
             )
         )
         tip = d * length / 5
-        fig.add_trace(
-            go.Cone(
-                x=[head[0]],
-                y=[head[1]],
-                z=[head[2]],
-                u=[tip[0]],
-                v=[tip[1]],
-                w=[tip[2]],
-                sizemode="raw",
-                sizeref=1.0,
-                anchor="tail",
-                colorscale=[[0, colour], [1, colour]],
-                showscale=False,
-                name=f"{e.type} axis",
-                legendgroup=f"j{joint.child}",
-                showlegend=False,
-                text=[text],
-                hovertemplate="%{text}<extra></extra>",
-            )
-        )
+        fig.add_trace(_arrow(head, tip, colour, name=f"{e.type} axis", group=f"j{joint.child}", text=text))
     fig.update_layout(
         scene=dict(
             aspectmode="data",
@@ -904,4 +866,26 @@ def part_image(
     fig.update_yaxes(visible=False)
     return _layout(
         fig, title=title or f"Frame {frame.index}: parts", height=300, margin=dict(l=0, r=0, t=40, b=0)
+    )
+
+
+def _arrow(at: np.ndarray, vector: np.ndarray, colour: str, *, name: str, group: str, text: str) -> go.Cone:
+    """One cone of one colour from ``at`` along ``vector`` (metres), drawn to scale, with hover ``text``."""
+    return go.Cone(
+        x=[at[0]],
+        y=[at[1]],
+        z=[at[2]],
+        u=[vector[0]],
+        v=[vector[1]],
+        w=[vector[2]],
+        sizemode="raw",
+        sizeref=1.0,
+        anchor="tail",
+        colorscale=[[0, colour], [1, colour]],
+        showscale=False,
+        name=name,
+        legendgroup=group,
+        showlegend=False,
+        text=[text],
+        hovertemplate="%{text}<extra></extra>",
     )
