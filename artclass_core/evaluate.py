@@ -35,6 +35,9 @@ class SequenceOutcome:
     n_pairs: int = 0
     seconds: float = 0.0
     joints: dict[str, Any] | None = None  # parts and joints against the truth (sequences with joint truth)
+    observable: bool | None = (
+        None  # some pair's truth is AM: the articulation shows at this k (None: no pair truth)
+    )
 
     @property
     def correct(self) -> bool:
@@ -72,10 +75,17 @@ class Evaluation:
             per_class[c] = sum(o.correct for o in members) / len(members)
         pair_total = sum(o.pair_total for o in outs)
         legacy_total = sum(o.pair_total_legacy for o in outs)
+        shown = [o for o in outs if o.truth == "articulated" and o.observable]
         return dict(
             n_sequences=n,
             accuracy=sum(o.correct for o in outs) / n if n else 0.0,
             per_class_accuracy=per_class,
+            # Articulated sequences whose articulation some pair (i, i + k) can show at all.
+            articulated_observable=dict(
+                n=len(shown),
+                of=sum(o.truth == "articulated" for o in outs),
+                accuracy=sum(o.correct for o in shown) / len(shown) if shown else None,
+            ),
             macro_f1=sum(f1s.values()) / len(f1s) if f1s else 0.0,
             f1=f1s,
             pair_accuracy=(sum(o.pair_correct for o in outs) / pair_total) if pair_total else None,
@@ -194,6 +204,8 @@ def run_outcome(
         o.predicted, o.fractions = result.label, result.fractions
         truthful = [p for p in result.pairs if p.truth and p.decision != "skipped"]
         o.pair_total = len(truthful)
+        known = [p.truth for p in result.pairs if p.truth]
+        o.observable = ("AM" in known) if known else None
         o.pair_correct = sum(p.decision == p.truth for p in truthful)
         legacy = [(p, seq.pair_truth_legacy(p.i, p.j)) for p in result.pairs if p.decision != "skipped"]
         o.pair_total_legacy = sum(t is not None for _, t in legacy)
@@ -355,6 +367,16 @@ def markdown(evals: list[Evaluation]) -> str:
             lines.append(
                 f"| {c} accuracy % | " + " | ".join(_pct(m["per_class_accuracy"].get(c)) for m in ms) + " |"
             )
+    if any(m["articulated_observable"]["n"] for m in ms):
+        lines.append(
+            "| articulated accuracy % where some pair shows the articulation | "
+            + " | ".join(
+                f"{_pct(m['articulated_observable']['accuracy'])} "
+                f"({m['articulated_observable']['n']} of {m['articulated_observable']['of']} sequences)"
+                for m in ms
+            )
+            + " |"
+        )
     lines.append(
         "| sequences / errors | " + " | ".join(f"{m['n_sequences']} / {m['errors']}" for m in ms) + " |"
     )

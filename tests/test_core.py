@@ -578,3 +578,22 @@ class TestPipelineRun:
         assert (config.preprocessor, config.rule, config.pipeline.prealign) == ("paper", "paper", False)
         result = Pipeline(registry, config).run(make_sequence(motion, n_frames=6))
         assert result.label == label, [p.decision for p in result.pairs]
+
+
+def test_evaluation_counts_articulation_that_some_pair_shows(registry, rendered):
+    """An articulated sequence counts as observable when some pair's truth is AM; the summary gives
+    the accuracy over those beside the plain one."""
+    from artclass_core import open_sequences
+    from artclass_core.evaluate import Evaluation, SequenceOutcome, evaluate, markdown
+
+    laptop = open_sequences(registry, rendered("laptop", "articulate", n_frames=12))[0]
+    evaluation = evaluate(registry, [laptop], Config())
+    (seen,) = evaluation.outcomes
+    assert seen.observable is True and any(p == "AM" for p in (laptop.pair_truth(i, i + 5) for i in range(7)))
+    hidden = SequenceOutcome("pliers_a", "pliers", "articulated", ("articulated",), "rigid", observable=False)
+    rigid = SequenceOutcome("mug_a", "mug", "rigid", ("rigid",), "rigid", observable=False)
+    both = Evaluation("dense", [seen, hidden, rigid], {})
+    m = both.metrics()["articulated_observable"]
+    assert (m["n"], m["of"], m["accuracy"]) == (1, 2, float(seen.correct))
+    assert "where some pair shows the articulation" in markdown([both])
+    assert "(1 of 2 sequences)" in markdown([both])
