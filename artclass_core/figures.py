@@ -301,11 +301,8 @@ def motion_arrows(
     ):
         pts = _subsample(np.asarray(cloud.points), max_points)
         fig.add_trace(
-            go.Scatter3d(
-                x=pts[:, 0],
-                y=pts[:, 1],
-                z=pts[:, 2],
-                mode="markers",
+            _markers(
+                pts,
                 name=name,
                 marker=dict(size=1.6, color=colour, opacity=0.55),
                 hoverinfo="skip",
@@ -382,11 +379,8 @@ def motion_arrows(
             )
         )
         fig.add_trace(
-            go.Scatter3d(
-                x=centres[:, 0],
-                y=centres[:, 1],
-                z=centres[:, 2],
-                mode="markers",
+            _markers(
+                centres,
                 name=name,
                 legendgroup=f"c{order}",
                 showlegend=True,
@@ -400,11 +394,8 @@ def motion_arrows(
     if skipped:
         centres = np.array([c.centre_m for c, _ in skipped], dtype=float).reshape(-1, 3)
         fig.add_trace(
-            go.Scatter3d(
-                x=centres[:, 0],
-                y=centres[:, 1],
-                z=centres[:, 2],
-                mode="markers",
+            _markers(
+                centres,
                 name=f"skipped cells ({len(skipped)})",
                 marker=dict(size=2.5, color="#8A8A8A", symbol="circle", opacity=0.8),
                 text=[
@@ -480,11 +471,8 @@ def motion_parts(
     fig = go.Figure()
     pts = _subsample(np.asarray(target.points), max_points)
     fig.add_trace(
-        go.Scatter3d(
-            x=pts[:, 0],
-            y=pts[:, 1],
-            z=pts[:, 2],
-            mode="markers",
+        _markers(
+            pts,
             name=f"frame {pair.j}",
             marker=dict(size=1.4, color="#B8B8B8", opacity=0.35),
             hoverinfo="skip",
@@ -512,11 +500,8 @@ def motion_parts(
         )
         own = own[::step]
         fig.add_trace(
-            go.Scatter3d(
-                x=own[:, 0],
-                y=own[:, 1],
-                z=own[:, 2],
-                mode="markers",
+            _markers(
+                own,
                 name=name,
                 legendgroup=f"m{n}",
                 marker=dict(size=2.2, color=colour, opacity=0.8),
@@ -530,11 +515,8 @@ def motion_parts(
     loose = points[labels < 0][::step]
     if len(loose):
         fig.add_trace(
-            go.Scatter3d(
-                x=loose[:, 0],
-                y=loose[:, 1],
-                z=loose[:, 2],
-                mode="markers",
+            _markers(
+                loose,
                 name=f"no evidence ({int((labels < 0).sum())})",
                 hoverinfo="skip",
                 marker=dict(size=1.6, color="#555555", opacity=0.6),
@@ -759,11 +741,8 @@ def parts_3d(articulation, *, max_points: int = 4000) -> go.Figure:
     for part in articulation.parts:
         pts = _subsample(np.asarray(part.points_m), max_points)
         fig.add_trace(
-            go.Scatter3d(
-                x=pts[:, 0],
-                y=pts[:, 1],
-                z=pts[:, 2],
-                mode="markers",
+            _markers(
+                pts,
                 name=part.name,
                 marker=dict(size=2.0, color=_part_colour(part.index), opacity=0.8),
                 hovertemplate=f"{part.name}<extra></extra>",
@@ -889,3 +868,8 @@ def _arrow(at: np.ndarray, vector: np.ndarray, colour: str, *, name: str, group:
         text=[text],
         hovertemplate="%{text}<extra></extra>",
     )
+
+
+def _markers(points: np.ndarray, **style) -> go.Scatter3d:
+    """A 3D scatter of ``points`` (N, 3), metres, as markers, with the trace's other ``style``."""
+    return go.Scatter3d(x=points[:, 0], y=points[:, 1], z=points[:, 2], mode="markers", **style)
