@@ -13,7 +13,7 @@ import pytest
 
 from artclass_core import Frame, Intrinsics, MotionEvidence
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
-from artclass_plugins.dense.image import ImagePreprocessor
+from artclass_plugins.dense.image import ImagePreprocessor, filter_depth
 from artclass_plugins.dense.projective import Target, kabsch, look_all, robust_kabsch
 from artclass_plugins.dense.registrar import DenseRegistrar
 from artclass_plugins.dense.rule import DenseRule, DenseRuleParams
@@ -92,6 +92,29 @@ def plate_with_lever(
     plate = (np.eye(4) if carry is None else carry) @ pose(t=(0.0, 0.0, DEPTH_M))
     lever = plate @ pose(rotation(axis, angle_deg), t=(0.0, 0.0, -0.005))
     return frame([(BASE, plate, 1), (LEVER, lever, 2), TABLE], index)
+
+
+# -- outlier removal ------------------------------------------------------------------------------
+
+
+def test_outlier_removal_keeps_a_surface_the_sensor_sees_sparsely():
+    """At a grazing angle a sensor loses about half of a surface's pixels; the rest are good depth."""
+    rows, cols = np.mgrid[0:60, 0:80]
+    depth = (0.8 + 0.004 * rows).astype(np.float32)  # a floor seen obliquely: 4 mm deeper per row
+    valid = np.random.default_rng(3).random(depth.shape) < 0.45
+    kept = filter_depth(depth, valid, tolerance_m=np.full(depth.shape, 0.006), smoothing_px=0) > 0
+    assert kept[valid].mean() > 0.95
+
+
+def test_outlier_removal_drops_a_flying_pixel_between_two_surfaces():
+    depth = np.full((40, 40), 1.0, np.float32)
+    depth[:, 20:] = 1.2
+    valid = np.random.default_rng(4).random(depth.shape) < 0.6
+    valid[20, 21] = True
+    depth[20, 21] = 1.1  # next to the edge, the sensor mixed the two surfaces
+    kept = filter_depth(depth, valid, tolerance_m=np.full(depth.shape, 0.01), smoothing_px=0) > 0
+    assert not kept[20, 21]
+    assert kept[valid].mean() > 0.9
 
 
 # -- projective look-ups --------------------------------------------------------------------------
