@@ -13,7 +13,7 @@ import pytest
 
 from artclass_core import Frame, Intrinsics, MotionEvidence
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
-from artclass_plugins.dense.image import ImagePreprocessor, filter_depth
+from artclass_plugins.dense.image import ImagePreprocessor, depth_step, filter_depth
 from artclass_plugins.dense.projective import Target, kabsch, look_all, robust_kabsch
 from artclass_plugins.dense.registrar import DenseRegistrar
 from artclass_plugins.dense.rule import DenseRule, DenseRuleParams
@@ -211,6 +211,35 @@ def test_flat_plate_sliding_in_its_own_plane_is_one_motion_not_a_static_scene():
     _, out, _ = decide(a, b)
     assert out.decision == "RM", out.reason
     np.testing.assert_allclose(out.motions[0].T_target_from_source[:3, 3], [0.01, 0.0, 0.0], atol=0.002)
+
+
+def tube(spacing_m: float = 0.0004) -> np.ndarray:
+    """The half of a 16 cm tube of radius 3 cm that faces the camera, its axis along x."""
+    around = np.arange(-np.pi / 2, np.pi / 2, spacing_m / 0.03)
+    along = np.arange(-0.08, 0.08, spacing_m)
+    a, x = np.meshgrid(around, along)
+    return np.column_stack([x.ravel(), 0.03 * np.sin(a.ravel()), -0.03 * np.cos(a.ravel())])
+
+
+def test_depth_quantisation_is_not_a_second_motion():
+    """A structured-light sensor delivers depth in steps (3 mm at about 1 m): smoothing leaves whole
+    patches half a step off, which a carried rigid tube must not turn into a part."""
+    carry = pose(cv2.Rodrigues(np.array([0.02, 0.03, 0.03]))[0], t=(0.01, -0.005, 0.005))
+    a = frame([(tube(), pose(t=(0.0, 0.0, DEPTH_M)), 1), TABLE])
+    b = frame([(tube(), carry @ pose(t=(0.0, 0.0, DEPTH_M)), 1), TABLE], 1)
+    for f in (a, b):
+        f.depth_m[:] = np.round(f.depth_m / 0.003) * 0.003
+    evidence, out, _ = decide(a, b)
+    assert out.decision == "RM", out.reason
+    assert evidence.noise_m == pytest.approx(0.003 / np.sqrt(6), rel=0.01)
+
+
+def test_depth_step_is_measured_on_the_image():
+    rows, cols = np.mgrid[0:50, 0:60]
+    ramp = 0.9 + 0.0007 * cols + 0.0004 * rows  # a tilted surface
+    valid = np.ones(ramp.shape, bool)
+    assert depth_step(np.round(ramp / 0.003) * 0.003, valid) == pytest.approx(0.003, rel=0.01)
+    assert depth_step(ramp + np.random.default_rng(5).normal(0, 0.001, ramp.shape), valid) < 0.0005
 
 
 def test_nothing_moving_is_no_motion():

@@ -98,8 +98,13 @@ class DenseRegistrar(PairRegistrar):
         size = float(np.linalg.norm(np.ptp(points, axis=0)))
         coarse = [max(size / d, fine) for d in (4, 4, 8, 8, 16, 16, 32)] + [fine] * 3
 
-        # Residuals compare two smoothed surfaces: the noise left in each, added in quadrature.
-        noise = max(np.sqrt(2) * max(c.info.get("smoothed_noise_m", 0.0) for c in (source, target)), sigma0)
+        # Residuals compare two smoothed surfaces: the noise left in each, added in quadrature; and
+        # never below the spread of the difference of two quantisation errors (uniform, one step wide).
+        noise = max(
+            np.sqrt(2) * max(c.info.get("smoothed_noise_m", 0.0) for c in (source, target)),
+            max(c.info.get("depth_step_m", 0.0) for c in (source, target)) / np.sqrt(6),
+            sigma0,
+        )
         rule = DenseRuleParams()
         no_flow = np.full((len(points), 2), np.nan)
         flow_px, across = (
