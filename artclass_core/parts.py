@@ -491,7 +491,12 @@ def _pair_joint(
     elif estimate.type == "fixed":
         states[sorted({f for i, j, _ in relative for f in (i, j)})] = 0.0
         std = np.where(np.isfinite(states), 0.0, np.nan)
-    info = dict(estimate.info, n_pairs=n, n_pairs_explained=int(explained.sum()))
+    info = dict(
+        estimate.info,
+        n_pairs=n,
+        n_pairs_explained=int(explained.sum()),
+        n_poses_explained=int(estimate.inliers.sum()),
+    )
     return JointEstimate(
         estimate.type,
         direction,
@@ -715,7 +720,7 @@ def _joint_cost(estimate: JointEstimate) -> float:
     """What a joint costs in the tree: the BIC of the chosen model per pose it explains (lower is
     better; infinite for a free motion or an estimator that gives no score)."""
     score = estimate.scores.get(estimate.type)
-    n = int(np.count_nonzero(estimate.inliers))
+    n = estimate.info.get("n_poses_explained", 0)
     return float(score) / n if score is not None and np.isfinite(score) and n else float("inf")
 
 
