@@ -81,8 +81,8 @@ class Part:
     index : int, 0 for the base
     name : str
     parent : int, the parent part's index (-1 for the base)
-    points_m : ndarray, shape (N, 3), metres: the part's points at state 0, in the base's coordinates of
-        the first frame (the URDF moves a child's into its joint frame)
+    points_m : ndarray, shape (N, 3), metres: the part's points with every joint at state 0, in the
+        base's coordinates of the first frame (the URDF moves a child's into its joint frame)
     frames : list of int: the frames in which the part was labelled
     n_labelled : int: its labelled points over all frames
     """
@@ -108,7 +108,7 @@ class Part:
 @dataclass
 class PartJoint:
     """The joint of ``child`` on ``parent`` (part indices): the estimate in the base's coordinates of
-    the first frame, with a state per frame of the video."""
+    the first frame with every joint at state 0, and a state per frame of the video."""
 
     parent: int
     child: int
@@ -626,7 +626,6 @@ def _part_points(
     pose is known)."""
     points: dict[int, dict[int, np.ndarray]] = {}
     views = {}
-
     for o in sorted(observations, key=lambda o: (o.frame, not o.forward)):
         if o.frame in views or not np.isfinite(base_poses[o.frame]).all():
             continue
