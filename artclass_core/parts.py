@@ -159,10 +159,15 @@ class Articulation:
     UP = np.array([0.0, -1.0, 0.0])
 
     def summary(self) -> str:
-        """One line per joint, or why there is none."""
+        """One line per joint (naming its two parts when there are several), or why there is none."""
         if not self.joints:
             return "no joint: no part moves relative to the rest"
-        return "; ".join(j.estimate.summary(up=self.UP) for j in self.joints)
+        if len(self.joints) == 1:
+            return self.joints[0].estimate.summary(up=self.UP)
+        name = {p.index: p.name for p in self.parts}
+        return "; ".join(
+            f"{name[j.child]} on {name[j.parent]}: {j.estimate.summary(up=self.UP)}" for j in self.joints
+        )
 
     def to_dict(self) -> dict[str, Any]:
         return dict(

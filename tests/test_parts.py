@@ -190,6 +190,7 @@ def test_a_chain_hangs_its_outer_part_on_the_inner_one(bic):
     assert [(p.index, p.parent) for p in art.parts] == [(0, -1), (1, 0), (2, 1)]
     lid, tip = art.joints
     assert (lid.parent, lid.child, tip.parent, tip.child) == (0, 1, 1, 2)
+    assert art.summary().startswith("part1 on base: revolute joint") and "; part2 on part1: " in art.summary()
     e = tip.estimate
     assert e.type == "revolute"
     assert np.degrees(axis_direction_error_rad(AXIS, e.axis_direction)) < 1.0
