@@ -202,6 +202,18 @@ def test_a_chain_hangs_its_outer_part_on_the_inner_one(bic):
     assert np.abs(np.sort(art.parts[2].points_m[:, 0]) - np.sort(TIP[:, 0])).max() < 0.003
 
 
+def test_without_scores_every_part_hangs_on_the_base(bic):
+    """An estimator that gives no scores cannot rank parents: the tree falls back to the base."""
+    import dataclasses
+
+    class Unscored:
+        def estimate(self, poses):
+            return dataclasses.replace(bic.estimate(poses), scores={})
+
+    art = find_articulation(run_result(chain=True), estimator=Unscored())
+    assert [(j.parent, j.child) for j in art.joints] == [(0, 1), (0, 2)]
+
+
 def test_labels_become_part_images(bic):
     art = find_articulation(run_result(), estimator=bic)
     cloud, part = _cloud(5, False)
