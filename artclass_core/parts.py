@@ -2,8 +2,7 @@
 
 A rule that decides from motions gives every pair (i, j) its rigid motions and labels each point of
 frame i (and, judged the other way, of frame j) with the motion that explains it. This module links
-those per-pair segments through the frames into parts, and fits a joint to each moving part's motion
-relative to the base:
+those per-pair segments through the frames into parts, and grows the tree of joints between them:
 
 1. **Tracks.** A pair's motion and another pair's motion are the same part when their labelled points
    overlap (intersection over union of at least ``min_overlap``): on the same frame (a pair's source
@@ -15,16 +14,19 @@ relative to the base:
 3. **Base poses.** The base's motions are chained through the pairs into its pose in every frame,
    relative to the first frame. Pairs (i, i + k) link only every k-th frame; the k interleaved chains
    are tied together by interpolating the first chain's poses in time (constant velocity).
-4. **Joints.** Each pair that sees a moving part and the base gives the part's motion relative to the
-   base, in the base's coordinates of the first frame (the camera frame of frame 0 when the base does
-   not move). For a one-degree-of-freedom joint each is ``exp(Δq ξ)``, one twist ξ whatever the
-   pair, so the joint estimator is given the part's pose moved by each relative motion and by its
-   inverse (independent errors, as its model selection assumes). The states per frame follow by
-   least squares from the pairs' differences ``q_j - q_i = Δq``, the interleaved chains of pairs
-   tied by a weak smoothness term between neighbouring frames.
-
-Every moving part hangs on the base: a chain (a lamp's two arms) gives the outer arm a joint on the
-base that no single degree of freedom explains.
+4. **Joints.** Each pair that sees a moving part and a candidate parent gives the part's motion
+   relative to the parent, in the parent's coordinates at its state 0 (for the base: its coordinates
+   of the first frame, the camera frame of frame 0 when the base does not move). For a
+   one-degree-of-freedom joint each is ``exp(Δq ξ)``, one twist ξ whatever the pair, so the joint
+   estimator is given the part's pose moved by each relative motion and by its inverse (independent
+   errors, as its model selection assumes). The states per frame follow by least squares from the
+   pairs' differences ``q_j - q_i = Δq``, the interleaved chains of pairs tied by a weak smoothness
+   term between neighbouring frames.
+5. **Tree.** Grown from the base, it attaches at each step the moving part whose joint on a part
+   already in the tree has the lowest BIC per pose, as Sturm et al. choose the kinematic tree: the
+   outer arm of a chain (a lamp's, a folding ruler's) hangs on the inner arm, relative to which it
+   has one degree of freedom, not on the base. Every joint and every part's points are given in the
+   base's first-frame coordinates with all joints at state 0.
 """
 
 from __future__ import annotations
@@ -79,8 +81,8 @@ class Part:
     index : int, 0 for the base
     name : str
     parent : int, the parent part's index (-1 for the base)
-    points_m : ndarray, shape (N, 3), metres: the part's points at state 0, in the base's coordinates of
-        the first frame (the URDF moves a child's into its joint frame)
+    points_m : ndarray, shape (N, 3), metres: the part's points with every joint at state 0, in the
+        base's coordinates of the first frame (the URDF moves a child's into its joint frame)
     frames : list of int: the frames in which the part was labelled
     n_labelled : int: its labelled points over all frames
     """
@@ -106,7 +108,7 @@ class Part:
 @dataclass
 class PartJoint:
     """The joint of ``child`` on ``parent`` (part indices): the estimate in the base's coordinates of
-    the first frame, with a state per frame of the video."""
+    the first frame with every joint at state 0, and a state per frame of the video."""
 
     parent: int
     child: int
@@ -157,10 +159,15 @@ class Articulation:
     UP = np.array([0.0, -1.0, 0.0])
 
     def summary(self) -> str:
-        """One line per joint, or why there is none."""
+        """One line per joint (naming its two parts when there are several), or why there is none."""
         if not self.joints:
             return "no joint: no part moves relative to the rest"
-        return "; ".join(j.estimate.summary(up=self.UP) for j in self.joints)
+        if len(self.joints) == 1:
+            return self.joints[0].estimate.summary(up=self.UP)
+        name = {p.index: p.name for p in self.parts}
+        return "; ".join(
+            f"{name[j.child]} on {name[j.parent]}: {j.estimate.summary(up=self.UP)}" for j in self.joints
+        )
 
     def to_dict(self) -> dict[str, Any]:
         return dict(
@@ -489,7 +496,12 @@ def _pair_joint(
     elif estimate.type == "fixed":
         states[sorted({f for i, j, _ in relative for f in (i, j)})] = 0.0
         std = np.where(np.isfinite(states), 0.0, np.nan)
-    info = dict(estimate.info, n_pairs=n, n_pairs_explained=int(explained.sum()))
+    info = dict(
+        estimate.info,
+        n_pairs=n,
+        n_pairs_explained=int(explained.sum()),
+        n_poses_explained=int(estimate.inliers.sum()),
+    )
     return JointEstimate(
         estimate.type,
         direction,
@@ -541,9 +553,8 @@ def find_articulation(
     Articulation
     """
     n_frames = int(result.sequence.get("n_frames") or len(result.frames))
-    articulated = result.label == "articulated"
     observations = _observations(result)
-    if articulated:
+    if result.label == "articulated":
         track = _tracks(observations, min_overlap=params.min_overlap)
     else:  # one body: each pair's first motion is the object's
         track = {
@@ -552,34 +563,35 @@ def find_articulation(
             for m in np.unique(o.labels[o.labels >= 0])
         }
     size = _track_sizes(observations, track)
+    motions = _track_motions(result, track)
+    seen = _seen_tracks(result, track, min_pairs=params.min_pairs) if result.label == "articulated" else set()
     base = max(size, key=size.get) if size else 0
-    motion = {node: result.pairs[node[0]].motions[node[1]].T_target_from_source for node in track}
-    base_motion = {pair: T for (pair, m), T in motion.items() if track[(pair, m)] == base}
     base_poses = chain_interleaved(
-        n_frames, [(result.pairs[n].i, result.pairs[n].j, T) for n, T in base_motion.items()]
+        n_frames, [(result.pairs[n].i, result.pairs[n].j, T) for n, T in motions.get(base, {}).items()]
     )
-    moving = (
-        _moving_tracks(result, track, base, base_motion, size, min_pairs=params.min_pairs)
-        if articulated
-        else {}
+    views, points = _part_points(result, observations, track, base_poses)
+    tree = _kinematic_tree(
+        result,
+        base,
+        sorted(seen - {base}, key=lambda t: -size[t]),
+        motions,
+        base_poses,
+        points,
+        n_frames,
+        estimator=estimator,
+        params=params,
     )
-    number = {base: 0, **{t: n + 1 for n, t in enumerate(moving)}}
-    views, points = _part_points(result, observations, track, number, base_poses)
-    joints = []
-    for t, nodes in moving.items():
-        relative = _relative_motions(result, nodes, motion, base_motion, base_poses)
-        own = points.get(number[t], {})
-        if len(relative) >= params.min_pairs and own:
-            centre = np.median(np.concatenate(list(own.values())), axis=0)
-            estimate, n_pairs = _pair_joint(
-                relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness
-            )
-            joints.append(PartJoint(0, number[t], estimate, n_pairs))
-    parts = [
-        _part(n, points.get(n, {}), next((j for j in joints if j.child == n), None), size.get(t, 0))
-        for t, n in sorted(number.items(), key=lambda kv: kv[1])
+    number = {t: n for n, t in enumerate(tree)}
+    joints = [
+        PartJoint(number[link.parent], number[t], link.estimate, link.n_pairs)
+        for t, link in tree.items()
+        if link.estimate is not None
     ]
-    return Articulation(parts, joints, base_poses, views)
+    parts = [
+        _part(number[t], number.get(link.parent, -1), points.get(t, {}), link, size.get(t, 0))
+        for t, link in tree.items()
+    ]
+    return Articulation(parts, joints, base_poses, _numbered(views, number))
 
 
 def _track_sizes(observations: list[_Observation], track: dict[tuple, int]) -> dict[int, int]:
@@ -592,88 +604,178 @@ def _track_sizes(observations: list[_Observation], track: dict[tuple, int]) -> d
     return size
 
 
-def _moving_tracks(
-    result: RunResult,
-    track: dict[tuple, int],
-    base: int,
-    base_motion: dict[int, np.ndarray],
-    size: dict[int, int],
-    *,
-    min_pairs: int,
-) -> dict[int, list[tuple]]:
-    """The moving parts (tracks other than the base seen in at least ``min_pairs`` AM pairs that also
-    see the base), largest first, each with its nodes (pair, motion)."""
-    seen: dict[int, list[tuple]] = {}
-    for (pair, m), t in track.items():
-        if t != base and pair in base_motion and result.pairs[pair].decision == "AM":
-            seen.setdefault(t, []).append((pair, m))
-    return {t: seen[t] for t in sorted(seen, key=lambda t: -size[t]) if len(seen[t]) >= min_pairs}
+def _track_motions(result: RunResult, track: dict[tuple, int]) -> dict[int, dict[int, np.ndarray]]:
+    """Each track's motion T_target_from_source (4, 4) in each pair that found it (at most one a pair)."""
+    motions: dict[int, dict[int, np.ndarray]] = {}
+    for (pair, m), t in sorted(track.items()):
+        motions.setdefault(t, {})[pair] = result.pairs[pair].motions[m].T_target_from_source
+    return motions
+
+
+def _seen_tracks(result: RunResult, track: dict[tuple, int], *, min_pairs: int) -> set[int]:
+    """The parts of an articulated object: the tracks found in at least ``min_pairs`` AM pairs."""
+    count: dict[int, int] = {}
+    for (pair, _), t in track.items():
+        count[t] = count.get(t, 0) + (result.pairs[pair].decision == "AM")
+    return {t for t, n in count.items() if n >= min_pairs}
 
 
 def _part_points(
     result: RunResult,
     observations: list[_Observation],
     track: dict[tuple, int],
-    number: dict[int, int],
     base_poses: np.ndarray,
 ) -> tuple[dict, dict[int, dict[int, np.ndarray]]]:
-    """Each frame's part labelling (one per frame: a pair's source side first) and each part's points
-    per frame, in the base's first-frame coordinates."""
+    """Each frame's track labelling (-1 for no track; one per frame: a pair's source side first) and
+    each track's points per frame, in the base's first-frame coordinates (the frames where the base's
+    pose is known)."""
     points: dict[int, dict[int, np.ndarray]] = {}
     views = {}
     for o in sorted(observations, key=lambda o: (o.frame, not o.forward)):
         if o.frame in views or not np.isfinite(base_poses[o.frame]).all():
             continue
         n_motions = len(result.pairs[o.pair].motions)
-        lookup = np.array([number.get(track.get((o.pair, m), -1), -1) for m in range(n_motions)] + [-1])
-        part = lookup[np.where(o.labels >= 0, o.labels, n_motions)]  # -1 for points of no motion
-        keep = part >= 0
-        views[o.frame] = (o.pixels[keep], part[keep], _mask(result, o.frame), _stride(result, o.frame))
+        lookup = np.array([track.get((o.pair, m), -1) for m in range(n_motions)] + [-1])
+        part = lookup[np.where(o.labels >= 0, o.labels, n_motions)]
+        views[o.frame] = (o.pixels, part, _mask(result, o.frame), _stride(result, o.frame))
         local = transform(o.points, np.linalg.inv(base_poses[o.frame]))
-        for p in np.unique(part[keep]):
+        for p in np.unique(part[part >= 0]):
             points.setdefault(int(p), {})[o.frame] = local[part == p]
     return views, points
 
 
+def _numbered(views: dict, number: dict[int, int]) -> dict:
+    """The frames' track labellings as part numbers, keeping the points of the parts only."""
+    out = {}
+    for frame, (pixels, tracks, mask, stride) in views.items():
+        lookup = np.full(int(tracks.max(initial=-1)) + 2, -1)
+        for t, n in number.items():
+            if t < len(lookup) - 1:
+                lookup[t] = n
+        part = lookup[tracks]  # track -1 reads the last entry, -1
+        keep = part >= 0
+        out[frame] = (pixels[keep], part[keep], mask, stride)
+    return out
+
+
+# -- the kinematic tree -------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Link:
+    """A part in the tree: its parent track (None for the base), its joint on it, and ``placement``
+    (n_frames, 4, 4): the motion, in the base's first-frame coordinates, that takes the part from
+    where it is with every joint between it and the base at state 0 to where it is in each frame
+    (NaN where unknown)."""
+
+    parent: int | None
+    estimate: JointEstimate | None
+    n_pairs: int
+    placement: np.ndarray
+
+
+def _kinematic_tree(
+    result: RunResult,
+    base: int,
+    moving: list[int],
+    motions: dict[int, dict[int, np.ndarray]],
+    base_poses: np.ndarray,
+    points: dict[int, dict[int, np.ndarray]],
+    n_frames: int,
+    *,
+    estimator: JointEstimator,
+    params: PartsParams,
+) -> dict[int, _Link]:
+    """The tree of parts grown from the base, in the spirit of Sturm et al.'s minimum spanning tree
+    of joint costs: each step attaches the moving part whose joint on a part already in the tree
+    costs least (:func:`_joint_cost`), so the outer arm of a chain hangs on the inner arm, relative
+    to which it has one degree of freedom. Parts in tree order (parents first); a part that no
+    ``min_pairs`` pairs relate to the tree is left out."""
+    tree = {base: _Link(None, None, 0, np.tile(np.eye(4), (n_frames, 1, 1)))}
+
+    def joint_on(child: int, parent: int) -> tuple[JointEstimate, int] | None:
+        placement = tree[parent].placement
+        relative = _relative_motions(result, motions[child], motions[parent], base_poses @ placement)
+        if len(relative) < params.min_pairs or not points.get(child):
+            return None
+        centre = _centre(points[child], placement)
+        return _pair_joint(relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness)
+
+    fits: dict[tuple[int, int], tuple[JointEstimate, int] | None] = {}
+    waiting = list(moving)
+    while waiting:
+        options = []
+        for order, child in enumerate(waiting):
+            for rank, parent in enumerate(tree):
+                if (child, parent) not in fits:
+                    fits[(child, parent)] = joint_on(child, parent)
+                if fits[(child, parent)] is not None:
+                    options.append((_joint_cost(fits[(child, parent)][0]), order, rank, child, parent))
+        if not options:
+            break
+        *_, child, parent = min(options)
+        estimate, n_pairs = fits[(child, parent)]
+        tree[child] = _Link(parent, estimate, n_pairs, _placement(tree[parent].placement, estimate))
+        waiting.remove(child)
+    return tree
+
+
+def _joint_cost(estimate: JointEstimate) -> float:
+    """What a joint costs in the tree: the BIC of the chosen model per pose it explains (lower is
+    better; infinite for a free motion or an estimator that gives no score)."""
+    score = estimate.scores.get(estimate.type)
+    n = estimate.info.get("n_poses_explained", 0)
+    return float(score) / n if score is not None and np.isfinite(score) and n else float("inf")
+
+
+def _placement(parent: np.ndarray, estimate: JointEstimate) -> np.ndarray:
+    """A child's placement (n_frames, 4, 4): its parent's, then its joint's motion at each frame's
+    state (NaN where the state is unknown)."""
+    out = np.full_like(parent, np.nan)
+    for f, q in enumerate(estimate.states):
+        if np.isfinite(q):
+            out[f] = parent[f] @ joint_motion(estimate, q)
+    return out
+
+
+def _centre(own: dict[int, np.ndarray], placement: np.ndarray) -> np.ndarray:
+    """The median (3,) of a part's points (per frame, base's first-frame coordinates) in its parent's
+    coordinates at state 0: each frame's points with the parent's ``placement`` undone (all the
+    points as they are when the parent is placed in none of the frames)."""
+    placed = [f for f in own if np.isfinite(placement[f]).all()]
+    clouds = [transform(own[f], np.linalg.inv(placement[f])) for f in placed] or list(own.values())
+    return np.median(np.concatenate(clouds), axis=0)
+
+
 def _relative_motions(
     result: RunResult,
-    nodes: list[tuple],
-    motion: dict,
-    base_motion: dict[int, np.ndarray],
-    base_poses: np.ndarray,
+    child: dict[int, np.ndarray],
+    parent: dict[int, np.ndarray],
+    parent_poses: np.ndarray,
 ) -> list[tuple[int, int, np.ndarray]]:
-    """(i, j, the part's motion relative to the base) of each pair that saw both, in the base's
-    first-frame coordinates: ``C_i^-1 B^-1 P C_i`` with B and P the pair's base and part motions and
-    C_i the base's pose in frame i."""
+    """(i, j, the child's motion relative to the parent) of each AM pair that found both, in the
+    parent's coordinates at state 0: ``G_i^-1 Q^-1 P G_i`` with P and Q the pair's child and parent
+    motions and G_i (``parent_poses[i]``) the parent's pose in frame i."""
     relative = []
-    for pair, m in nodes:
+    for pair, P in child.items():
         p = result.pairs[pair]
-        C = base_poses[p.i]
-        if np.isfinite(C).all():
-            relative.append(
-                (p.i, p.j, np.linalg.inv(C) @ np.linalg.inv(base_motion[pair]) @ motion[(pair, m)] @ C)
-            )
+        G = parent_poses[p.i]
+        if pair in parent and p.decision == "AM" and np.isfinite(G).all():
+            relative.append((p.i, p.j, np.linalg.inv(G) @ np.linalg.inv(parent[pair]) @ P @ G))
     return relative
 
 
-def _part(index: int, own: dict[int, np.ndarray], joint: PartJoint | None, n_labelled: int) -> Part:
-    """A part, its points from the frame where it shows most (for a moving part, among the frames
-    with a state), brought back to state 0."""
-    frames = [f for f in own if joint is None or np.isfinite(joint.estimate.states[f])] or list(own)
+def _part(index: int, parent: int, own: dict[int, np.ndarray], link: _Link, n_labelled: int) -> Part:
+    """A part, its points from the frame where it shows most (among the frames where it is placed),
+    brought back to state 0."""
+    frames = [f for f in own if np.isfinite(link.placement[f]).all()] or list(own)
     cloud = np.zeros((0, 3))
     if frames:
         f = max(frames, key=lambda f: len(own[f]))
         cloud = own[f]
-        if joint is not None:
-            cloud = transform(cloud, np.linalg.inv(joint_motion(joint.estimate, joint.estimate.states[f])))
-    return Part(
-        index,
-        "base" if index == 0 else f"part{index}",
-        -1 if index == 0 else 0,
-        cloud,
-        sorted(own),
-        n_labelled,
-    )
+        if np.isfinite(link.placement[f]).all():
+            cloud = transform(cloud, np.linalg.inv(link.placement[f]))
+    return Part(index, "base" if index == 0 else f"part{index}", parent, cloud, sorted(own), n_labelled)
 
 
 def forget_clouds(result: RunResult) -> None:

@@ -188,6 +188,28 @@ def test_given_noise_levels_are_used():
 # -- poses from pairs ------------------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("name", ["prismatic", "revolute", "screw"])
+def test_batched_residuals_and_jacobian_match_one_at_a_time(name):
+    """The models evaluate many parameter vectors at once (the starts of least median of squares,
+    the steps of a forward-difference Jacobian): each row equals its own evaluation, and the batched
+    Jacobian equals scipy's 2-point one."""
+    from scipy.optimize._numdiff import approx_derivative
+
+    from artclass_plugins.joints import models
+
+    truth = synthetic_joint("revolute", n_frames=12, travel=0.8, noise_m=0.001, noise_rad=0.005, seed=1)
+    poses = models._Poses(
+        Rotation.from_matrix(truth.poses[:, :3, :3]).as_quat(), truth.poses[:, :3, 3], 0.001, 0.005
+    )
+    fit = models._best_start(name, poses, models._draw_pairs(12, 20, np.random.default_rng(0)))
+    x = np.random.default_rng(2).normal(0.0, 0.01, (5, len(fit.x)))
+    batched = fit.residuals(x, poses)
+    np.testing.assert_allclose(batched, np.stack([fit.residuals(row, poses) for row in x]), atol=1e-9)
+    expected = approx_derivative(fit.residuals, x[0], args=(poses,))
+    # both are forward differences: they agree to the rounding of a step of 1.5e-8
+    np.testing.assert_allclose(fit.jacobian(x[0], poses), expected, atol=1e-6 * np.abs(expected).max())
+
+
 def test_chain_pair_motions_rebuilds_the_poses():
     truth = noisy("revolute", noise_m=0.0, noise_rad=0.0, n_frames=12)
     P = truth.poses

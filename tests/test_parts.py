@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from artclass_core import ArtclassError
+from artclass_core.geometry import transform
 from artclass_core.joint_metrics import axis_direction_error_rad, axis_position_error_m, score_articulation
 from artclass_core.parts import chain_interleaved, find_articulation, frame_states
 from artclass_core.plugins import load_registry
@@ -37,9 +38,14 @@ def _grid(x, y, z) -> np.ndarray:
 # (with 0.5 mm of depth noise: a measured surface is never exactly flat)
 BASE = _grid(np.arange(-0.14, 0.0, 0.0025), np.arange(-0.08, 0.08, 0.0025), [0.8])
 LID = _grid(np.arange(0.0025, 0.1, 0.0025), np.arange(-0.08, 0.08, 0.0025), [0.8])
+# for a chain (a folding ruler's second leg): a tip hinged on the lid's far edge, turning back
+TIP = _grid(np.arange(0.1025, 0.18, 0.0025), np.arange(-0.08, 0.08, 0.0025), [0.8])
+TIP_HINGE = np.array([0.1, 0.0, 0.8])
 BASE[:, 2] += rng.normal(0.0, 0.0005, len(BASE))
 LID[:, 2] += rng.normal(0.0, 0.0005, len(LID))
+TIP[:, 2] += rng.normal(0.0, 0.0005, len(TIP))
 STATES = np.radians(np.linspace(0.0, 60.0, N_FRAMES))
+TIP_STATES = -0.6 * STATES  # relative to the lid
 
 
 def _T(R=None, t=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -48,9 +54,15 @@ def _T(R=None, t=(0.0, 0.0, 0.0)) -> np.ndarray:
     return T
 
 
-def _hinge(q: float) -> np.ndarray:
+def _hinge(q: float, at: np.ndarray = HINGE) -> np.ndarray:
     R = Rotation.from_rotvec(q * AXIS).as_matrix()
-    return _T(R, HINGE - R @ HINGE)
+    return _T(R, at - R @ at)
+
+
+def _poses(f: int, chain: bool) -> list[np.ndarray]:
+    """Each part's pose in frame f (camera frame of frame 0, before any carrying): base, lid, tip."""
+    lid = _hinge(STATES[f])
+    return [np.eye(4), lid] + ([lid @ _hinge(TIP_STATES[f], TIP_HINGE)] if chain else [])
 
 
 def _carry(f: int, carried: bool) -> np.ndarray:
@@ -62,12 +74,12 @@ def _carry(f: int, carried: bool) -> np.ndarray:
     )
 
 
-def _cloud(f: int, carried: bool) -> tuple[Cloud, np.ndarray]:
-    """Frame f's cloud and each point's true part (0 base, 1 lid)."""
-    world = np.vstack([BASE, LID @ _hinge(STATES[f])[:3, :3].T + _hinge(STATES[f])[:3, 3]])
-    part = np.r_[np.zeros(len(BASE), int), np.ones(len(LID), int)]
+def _cloud(f: int, carried: bool, chain: bool = False) -> tuple[Cloud, np.ndarray]:
+    """Frame f's cloud and each point's true part (0 base, 1 lid, 2 tip)."""
+    shapes = [BASE, LID, TIP][: 3 if chain else 2]
     C = _carry(f, carried)
-    points = world @ C[:3, :3].T + C[:3, 3]
+    points = np.vstack([transform(x, C @ T) for x, T in zip(shapes, _poses(f, chain))])
+    part = np.concatenate([np.full(len(x), n) for n, x in enumerate(shapes)])
     u, v = K.pixels(points)
     pixels = np.column_stack([np.rint(u), np.rint(v)]).astype(int)
     mask = np.zeros((K.height, K.width), bool)
@@ -76,21 +88,28 @@ def _cloud(f: int, carried: bool) -> tuple[Cloud, np.ndarray]:
     return Cloud(f, points, pixels=pixels, view=view, info={"stride_px": 1}), part
 
 
-def run_result(*, carried: bool = False, hidden: range = range(0), label: str = "articulated") -> RunResult:
-    """A run of pairs (i, i + k) whose rule found the base's and the lid's motions exactly (the lid's
-    only where it moved and was not hidden), and labelled every point with its part."""
-    clouds = [_cloud(f, carried) for f in range(N_FRAMES)]
+def run_result(
+    *, carried: bool = False, hidden: range = range(0), label: str = "articulated", chain: bool = False
+) -> RunResult:
+    """A run of pairs (i, i + k) whose rule found every part's motion exactly (the moving parts' only
+    where they moved and were not hidden), and labelled every point with its part."""
+    clouds = [_cloud(f, carried, chain) for f in range(N_FRAMES)]
     frames = [FrameResult(f, f"{f:06d}", clouds[f][0], info={"stride_px": 1}) for f in range(N_FRAMES)]
     pairs = []
     for i in range(N_FRAMES - K_PAIRS):
         j = i + K_PAIRS
         (a, part_a), (b, part_b) = clouds[i], clouds[j]
-        base = _carry(j, carried) @ np.linalg.inv(_carry(i, carried))
-        lid = _carry(j, carried) @ _hinge(STATES[j] - STATES[i]) @ np.linalg.inv(_carry(i, carried))
         found = i not in hidden and j not in hidden
-        motions = [Motion(base, "object", int((part_a == 0).sum()), 0.0)]
-        if found:
-            motions.append(Motion(lid, "cell 1", int((part_a == 1).sum()), 0.01))
+        motions = [
+            Motion(
+                _carry(j, carried) @ Pj @ np.linalg.inv(_carry(i, carried) @ Pi),
+                f"cell {n}" if n else "object",
+                int((part_a == n).sum()),
+                0.01 * n,
+            )
+            for n, (Pi, Pj) in enumerate(zip(_poses(i, chain), _poses(j, chain)))
+            if found or n == 0
+        ]
         labels = np.r_[part_a, part_b] if found else np.zeros(len(part_a) + len(part_b), int)
         ev = MotionEvidence(
             np.stack([m.T_target_from_source for m in motions]),
@@ -162,6 +181,37 @@ def test_a_part_hidden_for_a_while(bic):
     art = find_articulation(run_result(hidden=range(9, 13)), estimator=bic)
     _check_hinge(art)
     assert art.joints[0].n_pairs < N_FRAMES - K_PAIRS
+
+
+def test_a_chain_hangs_its_outer_part_on_the_inner_one(bic):
+    """A tip hinged on the lid's far edge turns back as the lid opens: relative to the base it turns
+    about a moving axis, relative to the lid about a fixed one, so the tree hangs it on the lid."""
+    art = find_articulation(run_result(chain=True), estimator=bic)
+    assert [(p.index, p.parent) for p in art.parts] == [(0, -1), (1, 0), (2, 1)]
+    lid, tip = art.joints
+    assert (lid.parent, lid.child, tip.parent, tip.child) == (0, 1, 1, 2)
+    assert art.summary().startswith("part1 on base: revolute joint") and "; part2 on part1: " in art.summary()
+    e = tip.estimate
+    assert e.type == "revolute"
+    assert np.degrees(axis_direction_error_rad(AXIS, e.axis_direction)) < 1.0
+    at = TIP.mean(axis=0)
+    assert axis_position_error_m(TIP_HINGE, AXIS, e.axis_point_m, e.axis_direction, at_m=at) < 0.002
+    sign = np.sign(AXIS @ e.axis_direction)
+    np.testing.assert_allclose(sign * e.states, TIP_STATES, atol=np.radians(1.0))
+    # the tip's points, brought back to every joint's state 0, are where the tip is in frame 0
+    assert np.abs(np.sort(art.parts[2].points_m[:, 0]) - np.sort(TIP[:, 0])).max() < 0.003
+
+
+def test_without_scores_every_part_hangs_on_the_base(bic):
+    """An estimator that gives no scores cannot rank parents: the tree falls back to the base."""
+    import dataclasses
+
+    class Unscored:
+        def estimate(self, poses):
+            return dataclasses.replace(bic.estimate(poses), scores={})
+
+    art = find_articulation(run_result(chain=True), estimator=Unscored())
+    assert [(j.parent, j.child) for j in art.joints] == [(0, 1), (0, 2)]
 
 
 def test_labels_become_part_images(bic):
@@ -270,6 +320,29 @@ def test_the_urdf_of_a_found_hinge_moves_like_the_flap(bic, tmp_path):
     )
     flap = LID @ _hinge(STATES[f])[:3, :3].T + _hinge(STATES[f])[:3, 3]
     np.testing.assert_allclose(np.sort(placed, axis=0)[[0, -1]], np.sort(flap, axis=0)[[0, -1]], atol=0.003)
+
+
+def test_the_urdf_of_a_chain_moves_like_the_tip(bic, tmp_path):
+    """The chain's URDF is a tree base - part1 - part2; set to a frame's states, the tip's mesh is
+    where the tip was in that frame."""
+    import yourdfpy
+
+    from artclass_plugins.joints.urdf import model_from_articulation, write_urdf
+
+    art = find_articulation(run_result(chain=True), estimator=bic)
+    robot = yourdfpy.URDF.load(
+        str(write_urdf(model_from_articulation(art, name="ruler"), tmp_path)),
+        build_scene_graph=True,
+        load_meshes=True,
+    )
+    assert {(j.parent, j.child) for j in robot.joint_map.values()} == {("base", "part1"), ("part1", "part2")}
+    f = 15
+    state = {f"part{joint.child}": joint.estimate.states[f] for joint in art.joints}
+    robot.update_cfg({j.name: state[j.child] for j in robot.joint_map.values()})
+    T = robot.get_transform("part2", "base")
+    placed = robot.scene.geometry["part2.ply"].vertices @ T[:3, :3].T + T[:3, 3]
+    tip = transform(TIP, _poses(f, True)[2])
+    np.testing.assert_allclose(np.sort(placed, axis=0)[[0, -1]], np.sort(tip, axis=0)[[0, -1]], atol=0.003)
 
 
 def test_evaluation_reports_parts_and_joints():

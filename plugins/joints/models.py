@@ -183,26 +183,26 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def twist_exp(xi: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotations as quaternions (N, 4) and translations (N, 3) of the screw motions exp(q_i ξ)."""
-    w, v = xi[:3], xi[3:]
-    R = _quat_from_rotvec(np.outer(q, w))
-    a, b = _series_coefficients(np.abs(q) * np.linalg.norm(w))
+    """Rotations as quaternions (..., N, 4) and translations (..., N, 3) of the screw motions
+    exp(q_i ξ), for twists ξ (..., 6) and states q (..., N) (leading dimensions broadcast)."""
+    w, v = xi[..., None, :3], xi[..., None, 3:]
+    q = np.asarray(q)[..., None]
+    R = _quat_from_rotvec(q * w)
+    a, b = _series_coefficients(np.abs(q) * np.linalg.norm(w, axis=-1, keepdims=True))
     wv = _cross(w, v)
-    wwv = _cross(w, wv)
-    t = np.outer(q, v) + (a * q**2)[:, None] * wv + (b * q**3)[:, None] * wwv
-    return R, t
+    return R, q * v + a * q**2 * wv + b * q**3 * _cross(w, wv)
 
 
 def twist_log(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Twists (N, 6) with exp(ξ) = (R, t), for rotations as quaternions (N, 4) and translations (N, 3)."""
+    """Twists (..., 6) with exp(ξ) = (R, t), for rotations as quaternions (..., 4) and translations
+    (..., 3)."""
     w = _quat_to_rotvec(R)
-    theta = np.linalg.norm(w, axis=-1)
+    theta = np.linalg.norm(w, axis=-1, keepdims=True)
     small = theta < 1e-4
     th = np.where(small, 1.0, theta)
     c = np.where(small, 1 / 12, (1 - th * np.sin(th) / (2 * (1 - np.cos(th)))) / th**2)
-    K = _hat(w)
-    V_inv = np.eye(3) - 0.5 * K + c[:, None, None] * (K @ K)
-    return np.concatenate([w, np.einsum("nij,nj->ni", V_inv, t)], axis=1)
+    wt = _cross(w, t)  # V^-1 t = t - (w x t) / 2 + c w x (w x t)
+    return np.concatenate([w, t - 0.5 * wt + c * _cross(w, wt)], axis=-1)
 
 
 def _tangent_basis(u: np.ndarray) -> np.ndarray:
@@ -247,17 +247,18 @@ class _Shape:
         return c if self.anchor is None else c + w0 * float((self.anchor - c) @ w0)
 
     def twist(self, g: np.ndarray) -> np.ndarray:
+        """The twists (..., 6) of steps g (..., n_joint)."""
         if self.name == "fixed":
-            return np.zeros(6)
+            return np.zeros(g.shape[:-1] + (6,))
         if self.name == "screw":
             xi = self.start + g
-            return xi / np.linalg.norm(xi)
+            return xi / np.linalg.norm(xi, axis=-1, keepdims=True)
         if self.name == "prismatic":
-            d = self.start[3:] + g[:2] @ self._basis
-            return np.concatenate([np.zeros(3), d / np.linalg.norm(d)])
-        u = self.start[:3] + g[:2] @ self._basis
-        u /= np.linalg.norm(u)
-        return np.concatenate([u, _cross(self._axis_point + g[2:4] @ self._basis, u)])
+            d = self.start[3:] + g[..., :2] @ self._basis
+            return np.concatenate([np.zeros_like(d), d / np.linalg.norm(d, axis=-1, keepdims=True)], axis=-1)
+        u = self.start[:3] + g[..., :2] @ self._basis
+        u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+        return np.concatenate([u, _cross(self._axis_point + g[..., 2:4] @ self._basis, u)], axis=-1)
 
 
 def _shape_from_twist(name: str, xi: np.ndarray, displacement: np.ndarray) -> _Shape | None:
@@ -288,21 +289,22 @@ class _Poses:
     sigma_rad: float
 
     def residuals(self, R_hat: np.ndarray, t_hat: np.ndarray) -> np.ndarray:
-        """Normalised residuals (N, 6): origin displacement, then rotation vector."""
+        """Normalised residuals (..., N, 6) of predicted poses (..., N, 4) and (..., N, 3): origin
+        displacement, then rotation vector."""
         rot = _quat_to_rotvec(_quat_mul(_quat_inv(self.R), R_hat))
-        return np.concatenate([(t_hat - self.t) / self.sigma_m, rot / self.sigma_rad], axis=1)
+        return np.concatenate([(t_hat - self.t) / self.sigma_m, rot / self.sigma_rad], axis=-1)
 
     def project(self, xi: np.ndarray, R0: np.ndarray, t0: np.ndarray) -> np.ndarray:
-        """States (N,) of the poses along ξ from the pose (R0, t0): the twist of each relative motion,
-        about the part's origin t0, projected on ξ (about the same point), positions and angles weighed
-        by their noise; exact for poses on the joint's path."""
-        if not xi.any():
-            return np.zeros(len(self.t))
+        """States (..., N) of the poses along twists ξ (..., 6) from the poses (R0, t0) (..., 4) and
+        (..., 3): the twist of each relative motion, about the part's origin t0, projected on ξ
+        (about the same point), positions and angles weighed by their noise; exact for poses on the
+        joint's path, 0 for a zero twist."""
         # the relative motions in coordinates centred on t0
-        logs = twist_log(_quat_mul(self.R, _quat_inv(R0)), self.t - t0)
-        xi_centred = np.r_[xi[:3], xi[3:] + _cross(xi[:3], t0)]
-        weight = np.r_[np.full(3, (self.sigma_m / self.sigma_rad) ** 2), np.ones(3)]
-        return logs @ (weight * xi_centred) / (xi_centred @ (weight * xi_centred))
+        logs = twist_log(_quat_mul(self.R, _quat_inv(R0)[..., None, :]), self.t - t0[..., None, :])
+        xi_centred = np.concatenate([xi[..., :3], xi[..., 3:] + _cross(xi[..., :3], t0)], axis=-1)
+        weighted = np.r_[np.full(3, (self.sigma_m / self.sigma_rad) ** 2), np.ones(3)] * xi_centred
+        norm = np.sum(xi_centred * weighted, axis=-1, keepdims=True)
+        return np.einsum("...nk,...k->...n", logs, weighted) / np.where(norm > 0, norm, np.inf)
 
     def state_std(self, xi: np.ndarray, t_hat: np.ndarray) -> np.ndarray:
         """One standard deviation (N,) of each projected state: the noise over the speed of the pose
@@ -323,43 +325,58 @@ class _Fit:
     jac: np.ndarray | None = None
 
     def unpack(self, x: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(twist, R0, t0) from the parameter vector."""
+        """(twist, R0, t0) from parameter vectors (..., n_joint + 6)."""
         x = self.x if x is None else x
         n = self.shape.n_joint
         return (
-            self.shape.twist(x[:n]),
-            _quat_mul(_quat_from_rotvec(x[n : n + 3]), self.R0),
-            self.t0 + x[n + 3 : n + 6],
+            self.shape.twist(x[..., :n]),
+            _quat_mul(_quat_from_rotvec(x[..., n : n + 3]), self.R0),
+            self.t0 + x[..., n + 3 : n + 6],
         )
 
     def predict(self, poses: _Poses, x: np.ndarray | None = None):
-        """States (N,) and predicted poses: rotations (N, 4) as quaternions, origins (N, 3)."""
-        xi, R0, t0 = self.unpack(x)
-        q = poses.project(xi, R0, t0)
-        R_m, t_m = twist_exp(xi, q)
-        return q, _quat_mul(R_m, R0), _quat_apply(R_m, t0) + t_m
+        """States (..., N) and predicted poses: rotations (..., N, 4) as quaternions, origins (..., N, 3)."""
+        return _predict(poses, *self.unpack(x))
 
     def pose_residuals(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
-        """Normalised residuals (N, 6) of the poses."""
+        """Normalised residuals (..., N, 6) of the poses."""
         _, R_hat, t_hat = self.predict(poses, x)
         return poses.residuals(R_hat, t_hat)
 
     def residuals(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
-        """What least squares minimises: the pose residuals, flattened, and the gauge residuals."""
-        return np.concatenate([self.pose_residuals(x, poses).ravel(), self._gauge(x, poses)])
+        """What least squares minimises (..., M): the pose residuals, flattened, and the gauge residuals."""
+        pose = self.pose_residuals(x, poses)
+        return np.concatenate([pose.reshape(pose.shape[:-2] + (-1,)), self._gauge(x, poses)], axis=-1)
+
+    def jacobian(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
+        """The Jacobian (M, P) of :meth:`residuals` at x (P,) by forward differences, all P steps in
+        one batched evaluation (the steps of scipy's ``2-point`` scheme)."""
+        step = np.sqrt(np.finfo(float).eps) * np.where(x >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x))
+        step = (x + step) - x
+        shifted = self.residuals(x + np.diag(step), poses)
+        return ((shifted - self.residuals(x, poses)) / step[:, None]).T
 
     def _gauge(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
-        """Residuals that are zero along the directions no pose can see (sliding the pose at state 0
-        along the joint; the screw twist's scale), so least squares has a unique optimum."""
+        """Residuals (..., 1 or 2) that are zero along the directions no pose can see (sliding the pose
+        at state 0 along the joint; the screw twist's scale), so least squares has a unique optimum."""
         n = self.shape.n_joint
         if self.shape.name == "fixed":
-            return np.zeros(0)
+            return np.zeros(x.shape[:-1] + (0,))
         w, v = self.shape.start[:3], self.shape.start[3:]
         along = np.r_[w / poses.sigma_rad, (_cross(w, self.t0) + v) / poses.sigma_m]
-        rows = [x[n : n + 6] @ along / np.linalg.norm(along)]
+        rows = [x[..., n : n + 6] @ along / np.linalg.norm(along)]
         if self.shape.name == "screw":
-            rows.append(x[:n] @ self.shape.start)
-        return np.array(rows)
+            rows.append(x[..., :n] @ self.shape.start)
+        return np.stack(rows, axis=-1)
+
+
+def _predict(poses: _Poses, xi: np.ndarray, R0: np.ndarray, t0: np.ndarray):
+    """States (..., N) of the poses along twists ξ (..., 6) from poses at state 0 (R0 (..., 4), t0
+    (..., 3)), and the poses the joint predicts at those states: rotations (..., N, 4), origins
+    (..., N, 3)."""
+    q = poses.project(xi, R0, t0)
+    R_m, t_m = twist_exp(xi, q)
+    return q, _quat_mul(R_m, R0[..., None, :]), _quat_apply(R_m, t0[..., None, :]) + t_m
 
 
 def _best_start(name: str, poses: _Poses, pairs: np.ndarray) -> _Fit | None:
@@ -367,16 +384,23 @@ def _best_start(name: str, poses: _Poses, pairs: np.ndarray) -> _Fit | None:
     to the pair's relative motion, and pose a as the pose at state 0."""
     R_rel = _quat_mul(poses.R[pairs[:, 1]], _quat_inv(poses.R[pairs[:, 0]]))
     xis = twist_log(R_rel, poses.t[pairs[:, 1]] - _quat_apply(R_rel, poses.t[pairs[:, 0]]))
-    best, best_score = None, np.inf
+    fits = []
     for (a, b), xi in zip(pairs, xis):
         shape = _shape_from_twist(name, xi, poses.t[b] - poses.t[a])
-        if shape is None:
-            continue
-        fit = _Fit(shape, np.zeros(shape.n_joint + 6), poses.R[a], poses.t[a])
-        score = np.median(np.sum(fit.pose_residuals(fit.x, poses) ** 2, axis=1))
-        if score < best_score:
-            best, best_score = fit, score
-    return best
+        if shape is not None:
+            fits.append(_Fit(shape, np.zeros(shape.n_joint + 6), poses.R[a], poses.t[a]))
+    if not fits:
+        return None
+    # every start at once: at zero steps each start's twist is the shape's start twist
+    _, R_hat, t_hat = _predict(
+        poses,
+        np.stack([f.shape.twist(np.zeros(f.shape.n_joint)) for f in fits]),
+        np.stack([f.R0 for f in fits]),
+        np.stack([f.t0 for f in fits]),
+    )
+    score = np.median(np.sum(poses.residuals(R_hat, t_hat) ** 2, axis=-1), axis=-1)
+    score = np.where(np.isnan(score), np.inf, score)
+    return fits[int(np.argmin(score))] if np.isfinite(score).any() else None
 
 
 def _refine(fit: _Fit, poses: _Poses, *, robust: bool) -> _Fit:
@@ -384,7 +408,14 @@ def _refine(fit: _Fit, poses: _Poses, *, robust: bool) -> _Fit:
     trust-region method with a Cauchy loss when some poses may be outliers."""
     method = dict(method="trf", tr_solver="exact", loss="cauchy") if robust else dict(method="lm")
     result = least_squares(
-        fit.residuals, fit.x, args=(poses,), ftol=1e-5, xtol=1e-6, max_nfev=MAX_EVALUATIONS, **method
+        fit.residuals,
+        fit.x,
+        jac=fit.jacobian,
+        args=(poses,),
+        ftol=1e-5,
+        xtol=1e-6,
+        max_nfev=MAX_EVALUATIONS,
+        **method,
     )
     out = _Fit(fit.shape, result.x, fit.R0, fit.t0)
     out.chi2 = float(np.sum(out.pose_residuals(result.x, poses) ** 2))

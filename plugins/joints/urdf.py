@@ -169,15 +169,18 @@ def model_from_articulation(articulation, *, name: str) -> ArticulatedModel:
     (:class:`artclass_core.parts.Articulation`).
 
     The base is the root link, in the base's coordinates of the first frame; each moving part is a
-    link on its joint, its points at state 0 moved into the joint frame. URDF has no screw joint: a
-    screw is written as the revolute joint of its turn.
+    link on its joint, its points at state 0 moved into the joint frame. Every estimate and every
+    part's points are in the base's first-frame coordinates with all joints at state 0, so a joint
+    frame sits in its parent's link frame at the difference of the two joints' points. URDF has no
+    screw joint: a screw is written as the revolute joint of its turn.
     """
     links, joints = [], []
     names = {part.index: part.name for part in articulation.parts}
-    for part in articulation.parts:
+    at = {0: np.zeros(3)}  # each link frame's origin in the base's coordinates
+    for part in articulation.parts:  # parents come before their children
         joint = next((j for j in articulation.joints if j.child == part.index), None)
         points = np.asarray(part.points_m, float)
-        if joint is not None:
+        if joint is not None and joint.parent in at:
             estimate = joint.estimate
             if estimate.type == "screw":
                 estimate = dataclasses.replace(estimate, type="revolute")
@@ -187,8 +190,11 @@ def model_from_articulation(articulation, *, name: str) -> ArticulatedModel:
                 parent=names[joint.parent],
                 child=part.name,
             )
-            points = points - urdf_joint.T_parent_from_joint[:3, 3]
-            joints.append(urdf_joint)
+            at[part.index] = urdf_joint.T_parent_from_joint[:3, 3]
+            T = urdf_joint.T_parent_from_joint.copy()
+            T[:3, 3] -= at[joint.parent]
+            points = points - at[part.index]
+            joints.append(dataclasses.replace(urdf_joint, T_parent_from_joint=T))
         elif part.index != 0:
             continue  # a part without a joint is not in the tree
         links.append(Link(part.name, points))
