@@ -4,8 +4,9 @@ Every step of the paper's Algorithm 1 is done on image neighbourhoods instead of
 frame costs a few milliseconds at 640x480 and keeps, for every point, the pixel it came from:
 
 1. outlier removal (s): a pixel whose depth is more than ``outlier_sigmas`` noise (plus one pixel's
-   footprint) away from the median of its 5x5 neighbourhood is dropped; this removes the flying
-   pixels along depth edges, where a sensor mixes the depths of the two surfaces;
+   footprint) away from the median of the valid pixels of its 5x5 neighbourhood is dropped; this
+   removes the flying pixels along depth edges, where a sensor mixes the depths of the two surfaces,
+   and keeps a surface whose pixels the sensor loses one in two (at a grazing angle);
 2. smoothing (r): an edge-preserving (bilateral) filter whose depth range is the same tolerance, so
    two surfaces one above the other are never averaged;
 3. normals from the image neighbourhood (central differences of the back-projected pixels,
@@ -53,7 +54,7 @@ class ImageParams(Params):
         unit="sigma",
         bounds=(0.5, 20.0),
         help="Drop a pixel whose depth is more than this many noise sigmas (plus one "
-        "pixel's footprint) from the median of its 5x5 neighbourhood.",
+        "pixel's footprint) from the median of the valid pixels of its 5x5 neighbourhood.",
     )
     smoothing_px: int = param(
         2, unit="px", bounds=(0, 10), help="Radius of the edge-preserving depth smoothing (0 = none)."
