@@ -475,16 +475,88 @@ def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = 
     return T
 
 
-def robust_kabsch(source: np.ndarray, target: np.ndarray, *, inlier_m: float, rounds: int = 3) -> np.ndarray:
+def robust_kabsch(
+    source: np.ndarray,
+    target: np.ndarray,
+    *,
+    inlier_m: float,
+    rounds: int = 3,
+    groups: np.ndarray | None = None,
+) -> np.ndarray:
     """:func:`kabsch` refitted on the pairs within ``inlier_m`` of the previous fit (the first fit
-    drops the worst third), so that a few wrong matches do not pull the motion."""
+    drops the worst third), so that a few wrong matches do not pull the motion.
+
+    Parameters
+    ----------
+    source, target : (N, 3) matched points, metres
+    inlier_m : a pair this far apart (metres) under the previous fit still counts
+    rounds : refits at most
+    groups : (N,) int in [0, G), optional: fit each group of pairs on its own, all at once (every
+        group in [0, G) needs at least 3 pairs)
+
+    Returns
+    -------
+    (4, 4) ``T_target_from_source``, or (G, 4, 4) one per group when ``groups`` is given
+    """
+    one = groups is None
+    groups = np.zeros(len(source), np.int64) if one else np.asarray(groups, np.int64)
+    G = int(groups.max()) + 1 if len(groups) else 0
+    order = np.argsort(groups, kind="stable")
+    source, target, groups = source[order], target[order], groups[order]
+    start = np.searchsorted(groups, np.arange(G))
     keep = np.ones(len(source), bool)
-    T = kabsch(source, target)
-    for _ in range(rounds):
-        err = np.linalg.norm(source @ T[:3, :3].T + T[:3, 3] - target, axis=1)
-        new = err <= max(inlier_m, np.quantile(err, 0.66) if keep.all() else inlier_m)
-        if new.sum() < 3 or (new == keep).all():
+    T = _kabsch_groups(source, target, keep, start)
+    active = np.ones(G, bool)
+    for r in range(rounds):
+        err = np.linalg.norm(
+            np.einsum("nij,nj->ni", T[groups, :3, :3], source) + T[groups, :3, 3] - target, axis=1
+        )
+        # Only the first fit is on every pair: afterwards a group keeps all its pairs only once it stopped.
+        limit = np.maximum(inlier_m, _quantiles(err, start, 0.66))[groups] if r == 0 else inlier_m
+        new = err <= limit
+        active &= (np.add.reduceat(new, start) >= 3) & np.logical_or.reduceat(new != keep, start)
+        if not active.any():
             break
-        keep = new
-        T = kabsch(source[keep], target[keep])
+        keep = np.where(active[groups], new, keep)
+        T[active] = _kabsch_groups(source, target, keep, start)[active]
+    return T[0] if one else T
+
+
+def _kabsch_groups(source: np.ndarray, target: np.ndarray, keep: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """:func:`kabsch` of the kept pairs of each group (G, 4, 4); the pairs are sorted by group, and
+    group g's start at ``start[g]``. Identity for a group with no kept pair."""
+    G = len(start)
+    w = keep.astype(np.float64)
+    count = np.add.reduceat(w, start)
+    cs = np.add.reduceat(source * w[:, None], start) / np.maximum(count, 1)[:, None]
+    ct = np.add.reduceat(target * w[:, None], start) / np.maximum(count, 1)[:, None]
+    size = np.diff(np.append(start, len(source)))
+    a = (source - np.repeat(cs, size, axis=0)) * w[:, None]
+    b = target - np.repeat(ct, size, axis=0)
+    H = np.add.reduceat((a[:, :, None] * b[:, None, :]).reshape(-1, 9), start).reshape(G, 3, 3)
+    U, _, Vt = np.linalg.svd(H)
+    V = np.swapaxes(Vt, 1, 2)
+    d = np.sign(np.linalg.det(V @ np.swapaxes(U, 1, 2)))
+    V[:, :, 2] *= d[:, None]
+    T = np.tile(np.eye(4), (G, 1, 1))
+    R = V @ np.swapaxes(U, 1, 2)
+    T[:, :3, :3] = R
+    T[:, :3, 3] = ct - np.einsum("gij,gj->gi", R, cs)
+    T[count == 0] = np.eye(4)
     return T
+
+
+def _quantiles(values: np.ndarray, start: np.ndarray, q: float) -> np.ndarray:
+    """``np.quantile(values of group g, q)`` (linear interpolation) of each group, groups as in
+    :func:`_kabsch_groups`."""
+    size = np.diff(np.append(start, len(values)))
+    group = np.repeat(np.arange(len(start)), size)
+    ranked = values[np.lexsort((values, group))]
+    virtual = (size - 1) * q
+    low = np.floor(virtual).astype(np.int64)
+    gamma = virtual - low
+    a = ranked[start + low]
+    b = ranked[start + np.minimum(low + 1, size - 1)]
+    # numpy's own interpolation, so that each quantile is exactly np.quantile's
+    diff = b - a
+    return np.where(gamma >= 0.5, b - diff * (1 - gamma), a + diff * gamma)
