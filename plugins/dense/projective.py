@@ -78,7 +78,7 @@ def look_all(
     """
     status = np.empty((len(motions), len(points)), np.int8)
     residual = np.empty((len(motions), len(points)), np.float32)
-    _kernels().look_kernel(
+    kernels().look_kernel(
         np.ascontiguousarray(motions, np.float64),
         np.ascontiguousarray(points, np.float64),
         target.scene_m,
@@ -113,7 +113,7 @@ def flow_misfit(
     flow is unknown
     """
     out = np.empty((len(motions), len(points)), np.float32)
-    _kernels().flow_kernel(
+    kernels().flow_kernel(
         np.ascontiguousarray(motions, np.float64),
         np.ascontiguousarray(points, np.float64),
         np.ascontiguousarray(flow_px, np.float64),
@@ -184,7 +184,7 @@ def icp(
     use_flow = flow_px is not None and metres_per_px > 0
     unknown = np.full((len(points), 2), np.nan)
     inliers = np.zeros(G, np.int64)
-    _kernels().icp_kernel(
+    kernels().icp_kernel(
         np.ascontiguousarray(points, np.float64),
         np.ascontiguousarray(groups, np.int64),
         T,
@@ -204,7 +204,7 @@ def icp(
     return T, inliers
 
 
-def _kernels():
+def kernels():
     """The compiled per-point loops (:mod:`._compiled`), imported on first use: importing Numba
     takes a few tenths of a second that a command which registers nothing need not wait for."""
     from . import _compiled
