@@ -15,7 +15,9 @@ import pytest
 
 from artclass_core import Frame, Intrinsics
 from artclass_core.geometry import transform
+from artclass_core.scheduler import worker_pool
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
+from artclass_plugins.dense.flow import flow_targets
 from artclass_plugins.dense.image import ImagePreprocessor
 from artclass_plugins.dense.projective import (
     NEAR_MASK_PX,
@@ -362,3 +364,22 @@ def test_group_quantiles_are_numpys():
     start = np.concatenate([[0], np.cumsum(sizes)[:-1]])
     got = _quantiles(np.concatenate(values), start, 0.66)
     np.testing.assert_array_equal(got, [np.quantile(v, 0.66) for v in values])
+
+
+def test_opencv_runs_on_one_thread_while_several_workers_do_and_gives_the_same_flow(pair):
+    source, target, _ = pair
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(4)
+    try:
+        many = flow_targets(source, target, min_texture=16.0, max_roundtrip_px=1.0)
+        with worker_pool(1):
+            assert cv2.getNumThreads() == 4
+        with worker_pool(2) as pool:
+            assert cv2.getNumThreads() == 1
+            one = pool.submit(flow_targets, source, target, min_texture=16.0, max_roundtrip_px=1.0).result()
+        assert cv2.getNumThreads() == 4
+    finally:
+        cv2.setNumThreads(before)
+    assert np.isfinite(many[0]).any()
+    for a, b in zip(many, one):
+        np.testing.assert_array_equal(a, b)
