@@ -27,8 +27,10 @@ from artclass_plugins.dense.projective import (
     flow_misfit,
     icp,
     kabsch,
+    kernels,
     look_all,
     robust_kabsch,
+    warm_up,
 )
 from artclass_plugins.dense.registrar import DenseRegistrar, _distinct
 
@@ -383,3 +385,15 @@ def test_opencv_runs_on_one_thread_while_several_workers_do_and_gives_the_same_f
     assert np.isfinite(many[0]).any()
     for a, b in zip(many, one):
         np.testing.assert_array_equal(a, b)
+
+
+def test_warm_up_loads_the_compiled_loops_a_registration_runs(pair):
+    """After warm_up, a registration compiles or loads nothing more: each loop was loaded for the
+    argument types the registrar passes."""
+    source, target, _ = pair
+    warm_up()
+    names = ("look_kernel", "flow_kernel", "icp_kernel")
+    loaded = {name: list(getattr(kernels(), name).signatures) for name in names}
+    assert all(len(s) >= 1 for s in loaded.values())
+    DenseRegistrar(DenseRegistrar.Params()).register_pair(source, target)
+    assert {name: list(getattr(kernels(), name).signatures) for name in names} == loaded
