@@ -11,6 +11,9 @@ import numpy as np
 
 from .errors import InputError
 
+# Decoding straight to RGB order saves the copy of a BGR-to-RGB conversion.
+_COLOR_RGB = getattr(cv2, "IMREAD_COLOR_RGB", None)
+
 
 def _read(path: Path, flags: int) -> np.ndarray:
     if not path.is_file():
@@ -30,8 +33,9 @@ def _read(path: Path, flags: int) -> np.ndarray:
 
 def read_rgb(path: Path) -> np.ndarray:
     """8-bit colour image as (H, W, 3) uint8 in RGB order."""
-    image = _read(Path(path), cv2.IMREAD_COLOR)
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    if _COLOR_RGB is None:  # OpenCV before 4.10 decodes to BGR only
+        return cv2.cvtColor(_read(Path(path), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    return _read(Path(path), _COLOR_RGB)
 
 
 def read_depth(path: Path, *, units_per_metre: float) -> np.ndarray:

@@ -9,6 +9,7 @@ the data as the paper describes (the derivation is given in ``auto``).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 from typing import Any, get_type_hints
 
@@ -91,6 +92,12 @@ class ParamSpec:
 
 def describe(params_cls: type) -> list[ParamSpec]:
     """The :class:`ParamSpec` of every field of a parameter dataclass, in declaration order."""
+    return list(_specs(params_cls))
+
+
+@functools.lru_cache(maxsize=256)
+def _specs(params_cls: type) -> tuple[ParamSpec, ...]:
+    """:func:`describe`, worked out once per class (every construction of a Params validates with it)."""
     hints = get_type_hints(params_cls)
     specs = []
     for f in dataclasses.fields(params_cls):
@@ -112,7 +119,7 @@ def describe(params_cls: type) -> list[ParamSpec]:
                 md.get("choices", ()),
             )
         )
-    return specs
+    return tuple(specs)
 
 
 def parse_value(spec: ParamSpec, text: str) -> Any:

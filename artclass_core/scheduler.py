@@ -9,8 +9,9 @@ Open3D itself is kept to one thread (:func:`single_threaded_open3d`) for the sam
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -46,6 +47,28 @@ def executor(workers: int):
     if not (isinstance(workers, int) and workers >= 1):
         raise ParamError(f"workers = {workers!r} must be a positive integer")
     return Inline() if workers == 1 else ThreadPoolExecutor(workers, thread_name_prefix="artclass")
+
+
+@contextmanager
+def worker_pool(workers: int) -> Iterator[ThreadPoolExecutor | Inline]:
+    """:func:`executor` for the duration of a ``with`` block, shut down after it.
+
+    While ``workers`` > 1 threads of artclass's own run, OpenCV is kept to one thread: the workers
+    already keep every core busy, and OpenCV's threads (optical flow, filters) would only contend
+    with them. With one worker OpenCV's threads shorten the wall time, so they stay. OpenCV gives the
+    same result on any number of threads. It is a process-wide setting, restored afterwards.
+    """
+    import cv2
+
+    pool = executor(workers)
+    before = cv2.getNumThreads()
+    if workers > 1:
+        cv2.setNumThreads(1)
+    try:
+        yield pool
+    finally:
+        cv2.setNumThreads(before)
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 class Inline:
@@ -90,7 +113,6 @@ def stream_pairs(
     -------
     list : the finished frames, in order
     """
-    pool = executor(workers)
     ahead = 0 if workers == 1 else 2 * workers  # frames read ahead of the one being collected
     frame_jobs: dict[int, Future] = {}
     pair_jobs: deque[tuple[Any, Future]] = deque()
@@ -104,7 +126,7 @@ def stream_pairs(
             done(first, job.value)
             block = block and len(pair_jobs) > 2 * workers
 
-    try:
+    with worker_pool(workers) as pool:
         for j in range(n):
             while submitted < min(n, j + ahead + 1):
                 frame_jobs[submitted] = pool.submit(_timed, frame, submitted)
@@ -120,8 +142,6 @@ def stream_pairs(
             collect(block=len(pair_jobs) > 2 * workers)
         while pair_jobs:
             collect(block=True)
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
     return frames
 
 
@@ -132,11 +152,8 @@ def _timed(fn: Callable, *args) -> Job:
 
 def each(fn: Callable, items: list, workers: int = 1) -> list:
     """``fn`` of each item, in order, on ``workers`` threads."""
-    pool = executor(workers)
-    try:
+    with worker_pool(workers) as pool:
         return [f.result() for f in [pool.submit(fn, item) for item in items]]
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def merge_timing(timing: dict[str, float], more: dict[str, float]) -> None:

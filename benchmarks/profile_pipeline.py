@@ -15,7 +15,7 @@ import pstats
 import time
 
 from artclass_core import Config, Pipeline, load_registry, open_sequences
-from artclass_plugins.bench import bench_sequence
+from artclass_plugins.bench import bench_sequence, start_up
 
 
 def main() -> None:
@@ -38,6 +38,7 @@ def main() -> None:
         if v
     }
     pipe = Pipeline(registry, Config(**chosen))
+    print(f"start-up (loading compiled code, not profiled): {start_up():.2f} s")
     profile = cProfile.Profile(time.process_time)
     cpu0, wall0 = time.process_time(), time.perf_counter()
     profile.enable()

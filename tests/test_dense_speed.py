@@ -15,9 +15,23 @@ import pytest
 
 from artclass_core import Frame, Intrinsics
 from artclass_core.geometry import transform
+from artclass_core.scheduler import worker_pool
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
+from artclass_plugins.dense.flow import flow_targets
 from artclass_plugins.dense.image import ImagePreprocessor
-from artclass_plugins.dense.projective import NEAR_MASK_PX, Target, _outside, flow_misfit, icp, look_all
+from artclass_plugins.dense.projective import (
+    NEAR_MASK_PX,
+    Target,
+    _outside,
+    _quantiles,
+    flow_misfit,
+    icp,
+    kabsch,
+    kernels,
+    look_all,
+    robust_kabsch,
+    warm_up,
+)
 from artclass_plugins.dense.registrar import DenseRegistrar, _distinct
 
 INTR = Intrinsics(fx=300.0, fy=300.0, cx=159.5, cy=119.5, width=320, height=240)
@@ -306,3 +320,80 @@ def test_the_sensor_noise_is_one_parameter_of_the_preprocessor():
         evidence.append(DenseRegistrar(DenseRegistrar.Params()).register_pair(a, b))
     surface = [np.mean(ev.status[0] == SURFACE) for ev in evidence]  # the identity hypothesis
     assert surface[1] > surface[0] + 0.05  # a wider reach finds more surface
+
+
+def _ref_robust_kabsch(source, target, *, inlier_m, rounds=3):
+    """Robust Kabsch of one group of matches, written out plainly."""
+    keep = np.ones(len(source), bool)
+    T = kabsch(source, target)
+    for _ in range(rounds):
+        err = np.linalg.norm(source @ T[:3, :3].T + T[:3, 3] - target, axis=1)
+        new = err <= max(inlier_m, np.quantile(err, 0.66) if keep.all() else inlier_m)
+        if new.sum() < 3 or (new == keep).all():
+            break
+        keep = new
+        T = kabsch(source[keep], target[keep])
+    return T
+
+
+def test_grouped_robust_kabsch_equals_one_fit_per_group():
+    """Seven groups of matches (5 to 60 each, a fifth of them wrong), shuffled together."""
+    rng = np.random.default_rng(3)
+    sizes = [5, 8, 12, 20, 33, 47, 60]
+    sources, targets = [], []
+    for n in sizes:
+        p = rng.normal(0, 0.03, (n, 3)) + [0, 0, DEPTH_M]
+        T = _motion(axis=rng.normal(size=3), angle_deg=rng.uniform(0, 6), shift_m=rng.normal(0, 0.01, 3))
+        q = transform(p, T) + rng.normal(0, 0.0005, (n, 3))
+        wrong = rng.random(n) < 0.2
+        q[wrong] += rng.normal(0, 0.02, (wrong.sum(), 3))
+        sources.append(p)
+        targets.append(q)
+    groups = np.repeat(np.arange(len(sizes)), sizes)
+    order = rng.permutation(len(groups))
+    source, target, groups = np.vstack(sources)[order], np.vstack(targets)[order], groups[order]
+    fits = robust_kabsch(source, target, inlier_m=0.002, groups=groups)
+    for g in range(len(sizes)):
+        want = _ref_robust_kabsch(sources[g], targets[g], inlier_m=0.002)
+        assert np.abs(fits[g] - want).max() < 1e-9
+        assert np.abs(robust_kabsch(sources[g], targets[g], inlier_m=0.002) - want).max() < 1e-9
+
+
+def test_group_quantiles_are_numpys():
+    rng = np.random.default_rng(4)
+    sizes = np.array([1, 2, 3, 7, 10, 31])
+    values = [rng.integers(0, 4, n).astype(float) if n % 2 else rng.random(n) for n in sizes]
+    start = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    got = _quantiles(np.concatenate(values), start, 0.66)
+    np.testing.assert_array_equal(got, [np.quantile(v, 0.66) for v in values])
+
+
+def test_opencv_runs_on_one_thread_while_several_workers_do_and_gives_the_same_flow(pair):
+    source, target, _ = pair
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(4)
+    try:
+        many = flow_targets(source, target, min_texture=16.0, max_roundtrip_px=1.0)
+        with worker_pool(1):
+            assert cv2.getNumThreads() == 4
+        with worker_pool(2) as pool:
+            assert cv2.getNumThreads() == 1
+            one = pool.submit(flow_targets, source, target, min_texture=16.0, max_roundtrip_px=1.0).result()
+        assert cv2.getNumThreads() == 4
+    finally:
+        cv2.setNumThreads(before)
+    assert np.isfinite(many[0]).any()
+    for a, b in zip(many, one):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_warm_up_loads_the_compiled_loops_a_registration_runs(pair):
+    """After warm_up, a registration compiles or loads nothing more: each loop was loaded for the
+    argument types the registrar passes."""
+    source, target, _ = pair
+    warm_up()
+    names = ("look_kernel", "flow_kernel", "icp_kernel")
+    loaded = {name: list(getattr(kernels(), name).signatures) for name in names}
+    assert all(len(s) >= 1 for s in loaded.values())
+    DenseRegistrar(DenseRegistrar.Params()).register_pair(source, target)
+    assert {name: list(getattr(kernels(), name).signatures) for name in names} == loaded

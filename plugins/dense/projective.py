@@ -13,10 +13,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
 
 from artclass_core import ArtclassError, Cloud, Intrinsics
-from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
 
 from .image import bounding_box
 
@@ -80,7 +78,7 @@ def look_all(
     """
     status = np.empty((len(motions), len(points)), np.int8)
     residual = np.empty((len(motions), len(points)), np.float32)
-    _look_kernel(
+    kernels().look_kernel(
         np.ascontiguousarray(motions, np.float64),
         np.ascontiguousarray(points, np.float64),
         target.scene_m,
@@ -115,7 +113,7 @@ def flow_misfit(
     flow is unknown
     """
     out = np.empty((len(motions), len(points)), np.float32)
-    _flow_kernel(
+    kernels().flow_kernel(
         np.ascontiguousarray(motions, np.float64),
         np.ascontiguousarray(points, np.float64),
         np.ascontiguousarray(flow_px, np.float64),
@@ -186,7 +184,7 @@ def icp(
     use_flow = flow_px is not None and metres_per_px > 0
     unknown = np.full((len(points), 2), np.nan)
     inliers = np.zeros(G, np.int64)
-    _icp_kernel(
+    kernels().icp_kernel(
         np.ascontiguousarray(points, np.float64),
         np.ascontiguousarray(groups, np.int64),
         T,
@@ -206,259 +204,43 @@ def icp(
     return T, inliers
 
 
-def _camera(intr: Intrinsics) -> np.ndarray:
-    """fx, fy, cx, cy (pixels) as one array, for the compiled loops."""
-    return np.array([intr.fx, intr.fy, intr.cx, intr.cy], np.float64)
+def kernels():
+    """The compiled per-point loops (:mod:`._compiled`), imported on first use: importing Numba
+    takes a few tenths of a second that a command which registers nothing need not wait for."""
+    from . import _compiled
+
+    return _compiled
 
 
-@njit(cache=True, nogil=True)
-def _pixel(q0, q1, q2, camera, h, w):
-    """Nearest pixel (column, row) of a point, or (-1, -1) outside the image or behind the camera."""
-    if not q2 > 0:
-        return -1, -1
-    u = np.rint(camera[0] * q0 / q2 + camera[2])
-    v = np.rint(camera[1] * q1 / q2 + camera[3])
-    if u >= 0 and u < w and v >= 0 and v < h:
-        return int(u), int(v)
-    return -1, -1
-
-
-@njit(cache=True, nogil=True)
-def _plane_residual(q0, q1, q2, u, v, depth, normals, camera):
-    """Signed point-to-plane distance of a point to the object surface at pixel (u, v); NaN where the
-    pixel has no surface (depth and normal)."""
-    z = np.float64(depth[v, u])
-    n0, n1, n2 = np.float64(normals[v, u, 0]), np.float64(normals[v, u, 1]), np.float64(normals[v, u, 2])
-    if not (z > 0 and (n0 != 0 or n1 != 0 or n2 != 0)):
-        return np.nan
-    y0 = (u - camera[2]) / camera[0] * z
-    y1 = (v - camera[3]) / camera[1] * z
-    return (q0 - y0) * n0 + (q1 - y1) * n1 + (q2 - z) * n2
-
-
-@njit(cache=True, nogil=True)
-def _moved(T, p0, p1, p2):
-    """A point moved by the rigid motion T (4, 4)."""
-    return (
-        T[0, 0] * p0 + T[0, 1] * p1 + T[0, 2] * p2 + T[0, 3],
-        T[1, 0] * p0 + T[1, 1] * p1 + T[1, 2] * p2 + T[1, 3],
-        T[2, 0] * p0 + T[2, 1] * p1 + T[2, 2] * p2 + T[2, 3],
+def warm_up() -> None:
+    """Load the compiled loops: import them and run each once on a tiny frame, so that the first pair
+    does not pay for loading Numba's cached machine code (a few tenths of a second per process)."""
+    n, shape = 4, (8, 8)
+    depth = np.full(shape, 0.5, np.float32)
+    normals = np.zeros(shape + (3,), np.float32)
+    normals[..., 2] = -1
+    target = Target(
+        Intrinsics(8.0, 8.0, 3.5, 3.5, width=8, height=8), depth, depth, normals, np.zeros(shape, np.float32)
+    )
+    points = np.column_stack([np.zeros((n, 2)), np.full(n, 0.5)])
+    motions = np.eye(4)[None]
+    look_all(motions, points, target, reach_m=np.full(n, 0.01), off_object_px=1.0)
+    flow_misfit(motions, points, np.zeros((n, 2)), np.full((n, 2), np.nan), target.intrinsics)
+    icp(
+        points,
+        np.zeros(n, np.int64),
+        motions,
+        target,
+        reach_m=[0.01],
+        flow_px=np.zeros((n, 2)),
+        across=np.full((n, 2), np.nan),
+        metres_per_px=0.001,
     )
 
 
-@njit(cache=True, nogil=True)
-def _look_kernel(motions, points, scene, depth, normals, outside, camera, reach, off_px, status, residual):
-    h, w = scene.shape
-    for k in range(motions.shape[0]):
-        for i in range(points.shape[0]):
-            q0, q1, q2 = _moved(motions[k], points[i, 0], points[i, 1], points[i, 2])
-            status[k, i] = UNSEEN
-            residual[k, i] = np.nan
-            u, v = _pixel(q0, q1, q2, camera, h, w)
-            if u < 0 or not scene[v, u] > 0:
-                continue
-            gap = np.float64(scene[v, u]) - q2
-            if gap < -reach[i]:
-                status[k, i] = OCCLUDED
-            elif gap > reach[i]:
-                status[k, i] = FREE_SPACE
-            elif outside[v, u] > off_px:
-                status[k, i] = OFF_OBJECT
-            else:
-                status[k, i] = SURFACE
-                plane = _plane_residual(q0, q1, q2, u, v, depth, normals, camera)
-                residual[k, i] = -gap if np.isnan(plane) else plane
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _flow_kernel(motions, points, flow_px, across, camera, out):
-    for k in range(motions.shape[0]):
-        for i in range(points.shape[0]):
-            out[k, i] = np.nan
-            if not (np.isfinite(flow_px[i, 0]) and np.isfinite(flow_px[i, 1])):
-                continue
-            q0, q1, q2 = _moved(motions[k], points[i, 0], points[i, 1], points[i, 2])
-            du = camera[0] * q0 / q2 + camera[2] - flow_px[i, 0]
-            dv = camera[1] * q1 / q2 + camera[3] - flow_px[i, 1]
-            if np.isfinite(across[i, 0]):
-                out[k, i] = abs(du * across[i, 0] + dv * across[i, 1])
-            else:
-                out[k, i] = np.hypot(du, dv)
-
-
-@njit(cache=True, nogil=True)
-def _add_row(A, b, g, a0, a1, a2, n0, n1, n2, r, reach):
-    """Add one residual row (point-to-plane or flow), Tukey-weighted at ``reach``, to group g's normal
-    equations: its gradient per metre of motion is n, its Jacobian [arm x n, n]."""
-    j = (a1 * n2 - a2 * n1, a2 * n0 - a0 * n2, a0 * n1 - a1 * n0, n0, n1, n2)
-    s = r / reach
-    weight = (1 - s * s) ** 2
-    for x in range(6):
-        wx = weight * j[x]
-        b[g, x] += wx * r
-        for y in range(x, 6):
-            A[g, x, y] += wx * j[y]
-
-
-@njit(cache=True, nogil=True)
-def _rotation(x0, x1, x2):
-    """Rotation matrix (3, 3) of a rotation vector (Rodrigues)."""
-    R = np.eye(3)
-    theta = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
-    if theta < 2.220446049250313e-16:
-        return R
-    k0, k1, k2 = x0 / theta, x1 / theta, x2 / theta
-    c, s = np.cos(theta), np.sin(theta)
-    C = 1 - c
-    R[0, 0], R[0, 1], R[0, 2] = c + C * k0 * k0, C * k0 * k1 - s * k2, C * k0 * k2 + s * k1
-    R[1, 0], R[1, 1], R[1, 2] = C * k1 * k0 + s * k2, c + C * k1 * k1, C * k1 * k2 - s * k0
-    R[2, 0], R[2, 1], R[2, 2] = C * k2 * k0 - s * k1, C * k2 * k1 + s * k0, c + C * k2 * k2
-    return R
-
-
-@njit(cache=True, nogil=True)
-def _normal_equations(
-    points,
-    groups,
-    T,
-    centre,
-    use,
-    reach,
-    depth,
-    normals,
-    camera,
-    flow_px,
-    across,
-    metres_per_px,
-    A,
-    b,
-    rows,
-    inliers,
-):
-    """One pass over the points: each group's Gauss-Newton normal equations (the upper triangle of
-    the sum of w J^T J in A, the sum of w J^T r in b), its number of rows and of depth matches."""
-    h, w = depth.shape
-    fx, fy, cx, cy = camera[0], camera[1], camera[2], camera[3]
-    A[:] = 0
-    b[:] = 0
-    rows[:] = 0
-    inliers[:] = 0
-    for i in range(points.shape[0]):
-        if not use[i]:
-            continue
-        g = groups[i]
-        q0, q1, q2 = _moved(T[g], points[i, 0], points[i, 1], points[i, 2])
-        m0, m1, m2 = _moved(T[g], centre[g, 0], centre[g, 1], centre[g, 2])
-        a0, a1, a2 = q0 - m0, q1 - m1, q2 - m2  # lever arm about the moved centroid
-        u, v = _pixel(q0, q1, q2, camera, h, w)
-        if u >= 0:
-            r = _plane_residual(q0, q1, q2, u, v, depth, normals, camera)
-            if abs(r) < reach:
-                _add_row(
-                    A,
-                    b,
-                    g,
-                    a0,
-                    a1,
-                    a2,
-                    np.float64(normals[v, u, 0]),
-                    np.float64(normals[v, u, 1]),
-                    np.float64(normals[v, u, 2]),
-                    r,
-                    reach,
-                )
-                rows[g] += 1
-                inliers[g] += 1
-        if metres_per_px > 0 and q2 > 0 and np.isfinite(flow_px[i, 0]):
-            # Where the point projects against where the flow took it (metres-equivalent), and the
-            # gradients of the projected column (gu) and row (gv) per metre of motion.
-            du = (fx * q0 / q2 + cx - flow_px[i, 0]) * metres_per_px
-            dv = (fy * q1 / q2 + cy - flow_px[i, 1]) * metres_per_px
-            gu0, gu2 = fx / q2 * metres_per_px, -fx * q0 / q2**2 * metres_per_px
-            gv1, gv2 = fy / q2 * metres_per_px, -fy * q1 / q2**2 * metres_per_px
-            e0, e1 = across[i, 0], across[i, 1]
-            if np.isfinite(e0):  # an edge point: across the edge only
-                r = du * e0 + dv * e1
-                if abs(r) < reach:
-                    _add_row(A, b, g, a0, a1, a2, gu0 * e0, gv1 * e1, gu2 * e0 + gv2 * e1, r, reach)
-                    rows[g] += 1
-            else:
-                if abs(du) < reach:
-                    _add_row(A, b, g, a0, a1, a2, gu0, 0.0, gu2, du, reach)
-                    rows[g] += 1
-                if abs(dv) < reach:
-                    _add_row(A, b, g, a0, a1, a2, 0.0, gv1, gv2, dv, reach)
-                    rows[g] += 1
-
-
-@njit(cache=True, nogil=True)
-def _icp_kernel(
-    points,
-    groups,
-    T,
-    centre,
-    thin,
-    reaches,
-    depth,
-    normals,
-    camera,
-    flow_px,
-    across,
-    metres_per_px,
-    damping,
-    min_points,
-    inliers,
-):
-    """The iterations of :func:`icp`; T (G, 4, 4) and inliers (G,) are updated in place."""
-    G = T.shape[0]
-    A = np.zeros((G, 6, 6))
-    b = np.zeros((G, 6))
-    rows = np.zeros(G, np.int64)
-    everything = np.ones(points.shape[0], np.bool_)
-    can_thin = not thin.all()
-    for reach in reaches:
-        use = thin if (reach > 2 * reaches[-1] and can_thin) else everything
-        _normal_equations(
-            points,
-            groups,
-            T,
-            centre,
-            use,
-            reach,
-            depth,
-            normals,
-            camera,
-            flow_px,
-            across,
-            metres_per_px,
-            A,
-            b,
-            rows,
-            inliers,
-        )
-        if (rows < min_points).all():
-            break
-        for g in range(G):
-            if rows[g] < min_points:
-                continue
-            M = A[g].copy()
-            trace = 0.0
-            for x in range(6):
-                trace += M[x, x]
-                for y in range(x):
-                    M[x, y] = M[y, x]
-            for x in range(6):
-                M[x, x] += damping * trace + 1e-12
-            step = -np.linalg.solve(M, b[g].copy())
-            R = _rotation(step[0], step[1], step[2])
-            # A turn about the group's moved centroid c' followed by a shift: x -> R (x - c') + c' + t.
-            c0, c1, c2 = _moved(T[g], centre[g, 0], centre[g, 1], centre[g, 2])
-            S = np.eye(4)
-            S[:3, :3] = R
-            S[0, 3] = c0 - (R[0, 0] * c0 + R[0, 1] * c1 + R[0, 2] * c2) + step[3]
-            S[1, 3] = c1 - (R[1, 0] * c0 + R[1, 1] * c1 + R[1, 2] * c2) + step[4]
-            S[2, 3] = c2 - (R[2, 0] * c0 + R[2, 1] * c1 + R[2, 2] * c2) + step[5]
-            T[g] = S @ T[g]
+def _camera(intr: Intrinsics) -> np.ndarray:
+    """fx, fy, cx, cy (pixels) as one array, for the compiled loops."""
+    return np.array([intr.fx, intr.fy, intr.cx, intr.cy], np.float64)
 
 
 def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
@@ -475,16 +257,88 @@ def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = 
     return T
 
 
-def robust_kabsch(source: np.ndarray, target: np.ndarray, *, inlier_m: float, rounds: int = 3) -> np.ndarray:
+def robust_kabsch(
+    source: np.ndarray,
+    target: np.ndarray,
+    *,
+    inlier_m: float,
+    rounds: int = 3,
+    groups: np.ndarray | None = None,
+) -> np.ndarray:
     """:func:`kabsch` refitted on the pairs within ``inlier_m`` of the previous fit (the first fit
-    drops the worst third), so that a few wrong matches do not pull the motion."""
+    drops the worst third), so that a few wrong matches do not pull the motion.
+
+    Parameters
+    ----------
+    source, target : (N, 3) matched points, metres
+    inlier_m : a pair this far apart (metres) under the previous fit still counts
+    rounds : refits at most
+    groups : (N,) int in [0, G), optional: fit each group of pairs on its own, all at once (every
+        group in [0, G) needs at least 3 pairs)
+
+    Returns
+    -------
+    (4, 4) ``T_target_from_source``, or (G, 4, 4) one per group when ``groups`` is given
+    """
+    one = groups is None
+    groups = np.zeros(len(source), np.int64) if one else np.asarray(groups, np.int64)
+    G = int(groups.max()) + 1 if len(groups) else 0
+    order = np.argsort(groups, kind="stable")
+    source, target, groups = source[order], target[order], groups[order]
+    start = np.searchsorted(groups, np.arange(G))
     keep = np.ones(len(source), bool)
-    T = kabsch(source, target)
-    for _ in range(rounds):
-        err = np.linalg.norm(source @ T[:3, :3].T + T[:3, 3] - target, axis=1)
-        new = err <= max(inlier_m, np.quantile(err, 0.66) if keep.all() else inlier_m)
-        if new.sum() < 3 or (new == keep).all():
+    T = _kabsch_groups(source, target, keep, start)
+    active = np.ones(G, bool)
+    for r in range(rounds):
+        err = np.linalg.norm(
+            np.einsum("nij,nj->ni", T[groups, :3, :3], source) + T[groups, :3, 3] - target, axis=1
+        )
+        # Only the first fit is on every pair: afterwards a group keeps all its pairs only once it stopped.
+        limit = np.maximum(inlier_m, _quantiles(err, start, 0.66))[groups] if r == 0 else inlier_m
+        new = err <= limit
+        active &= (np.add.reduceat(new, start) >= 3) & np.logical_or.reduceat(new != keep, start)
+        if not active.any():
             break
-        keep = new
-        T = kabsch(source[keep], target[keep])
+        keep = np.where(active[groups], new, keep)
+        T[active] = _kabsch_groups(source, target, keep, start)[active]
+    return T[0] if one else T
+
+
+def _kabsch_groups(source: np.ndarray, target: np.ndarray, keep: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """:func:`kabsch` of the kept pairs of each group (G, 4, 4); the pairs are sorted by group, and
+    group g's start at ``start[g]``. Identity for a group with no kept pair."""
+    G = len(start)
+    w = keep.astype(np.float64)
+    count = np.add.reduceat(w, start)
+    cs = np.add.reduceat(source * w[:, None], start) / np.maximum(count, 1)[:, None]
+    ct = np.add.reduceat(target * w[:, None], start) / np.maximum(count, 1)[:, None]
+    size = np.diff(np.append(start, len(source)))
+    a = (source - np.repeat(cs, size, axis=0)) * w[:, None]
+    b = target - np.repeat(ct, size, axis=0)
+    H = np.add.reduceat((a[:, :, None] * b[:, None, :]).reshape(-1, 9), start).reshape(G, 3, 3)
+    U, _, Vt = np.linalg.svd(H)
+    V = np.swapaxes(Vt, 1, 2)
+    d = np.sign(np.linalg.det(V @ np.swapaxes(U, 1, 2)))
+    V[:, :, 2] *= d[:, None]
+    T = np.tile(np.eye(4), (G, 1, 1))
+    R = V @ np.swapaxes(U, 1, 2)
+    T[:, :3, :3] = R
+    T[:, :3, 3] = ct - np.einsum("gij,gj->gi", R, cs)
+    T[count == 0] = np.eye(4)
     return T
+
+
+def _quantiles(values: np.ndarray, start: np.ndarray, q: float) -> np.ndarray:
+    """``np.quantile(values of group g, q)`` (linear interpolation) of each group, groups as in
+    :func:`_kabsch_groups`."""
+    size = np.diff(np.append(start, len(values)))
+    group = np.repeat(np.arange(len(start)), size)
+    ranked = values[np.lexsort((values, group))]
+    virtual = (size - 1) * q
+    low = np.floor(virtual).astype(np.int64)
+    gamma = virtual - low
+    a = ranked[start + low]
+    b = ranked[start + np.minimum(low + 1, size - 1)]
+    # numpy's own interpolation, so that each quantile is exactly np.quantile's
+    diff = b - a
+    return np.where(gamma >= 0.5, b - diff * (1 - gamma), a + diff * gamma)

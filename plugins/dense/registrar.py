@@ -129,17 +129,20 @@ class DenseRegistrar(PairRegistrar):
 
         cells = _cells(points, size / p.cells_per_diameter, p.min_seed_points)
         if cells.max() >= 0:
-            seeds = []
-            best_whole = whole[-1]
-            for c in range(cells.max() + 1):
-                own = (cells == c) & matched
-                seeds.append(
-                    robust_kabsch(points[own], matches[own], inlier_m=fine)
-                    if own.sum() >= _MIN_FLOW_MATCHES
-                    else best_whole
+            # Each cell's flow motion where it has enough matches (all such cells at once), else the object's.
+            n_cells = cells.max() + 1
+            seeds = np.repeat(whole[-1][None], n_cells, axis=0)
+            own = matched & (cells >= 0)
+            flowing = np.flatnonzero(np.bincount(cells[own], minlength=n_cells) >= _MIN_FLOW_MATCHES)
+            if len(flowing):
+                number = np.full(n_cells, -1)
+                number[flowing] = np.arange(len(flowing))
+                own &= number[cells] >= 0
+                seeds[flowing] = robust_kabsch(
+                    points[own], matches[own], inlier_m=fine, groups=number[cells[own]]
                 )
             used = cells >= 0
-            local = fit(points, np.flatnonzero(used), cells[used], np.stack(seeds), coarse[1:])
+            local = fit(points, np.flatnonzero(used), cells[used], seeds, coarse[1:])
             hyps += list(local)
             names += [f"cell {c}" for c in range(len(local))]
 
