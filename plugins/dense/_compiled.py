@@ -1,5 +1,6 @@
 """The compiled (Numba) per-point loops of :mod:`.projective`: projection, look-up and the normal
-equations of projective ICP, one pass over the points where numpy makes a dozen temporary arrays."""
+equations of projective ICP, one pass over the points where numpy makes a dozen temporary arrays;
+and the image preprocessor's median of the valid neighbours."""
 
 from __future__ import annotations
 
@@ -257,3 +258,34 @@ def icp_kernel(
             S[1, 3] = c1 - (R[1, 0] * c0 + R[1, 1] * c1 + R[1, 2] * c2) + step[4]
             S[2, 3] = c2 - (R[2, 0] * c0 + R[2, 1] * c1 + R[2, 2] * c2) + step[5]
             T[g] = S @ T[g]
+
+
+@njit(cache=True, nogil=True)
+def valid_median_kernel(
+    depth: np.ndarray, valid: np.ndarray, todo: np.ndarray, out: np.ndarray, radius: int, min_count: int
+) -> None:
+    """``out`` at the ``todo`` pixels: the median of their valid neighbours (0 if fewer than
+    ``min_count``)."""
+    h, w = depth.shape
+    window = np.empty((2 * radius + 1) ** 2, np.float32)
+    for v in range(h):
+        for u in range(w):
+            if not todo[v, u]:
+                continue
+            n = 0
+            for dv in range(max(v - radius, 0), min(v + radius + 1, h)):
+                for du in range(max(u - radius, 0), min(u + radius + 1, w)):
+                    if valid[dv, du]:
+                        x = depth[dv, du]
+                        i = n  # insertion sort: at most 25 values
+                        while i > 0 and window[i - 1] > x:
+                            window[i] = window[i - 1]
+                            i -= 1
+                        window[i] = x
+                        n += 1
+            if n < min_count:
+                out[v, u] = 0
+            elif n % 2:
+                out[v, u] = window[n // 2]
+            else:
+                out[v, u] = 0.5 * (window[n // 2 - 1] + window[n // 2])

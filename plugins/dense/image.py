@@ -30,7 +30,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
 
 from artclass_core import Cloud, Frame, Intrinsics, Params, Preprocessor, View, param
 
@@ -177,37 +176,6 @@ def measured_noise(depth_m: np.ndarray, valid: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(kept))))
 
 
-@njit(cache=True, nogil=True)
-def _valid_median(
-    depth: np.ndarray, valid: np.ndarray, todo: np.ndarray, out: np.ndarray, radius: int, min_count: int
-) -> None:
-    """``out`` at the ``todo`` pixels: the median of their valid neighbours (0 if fewer than
-    ``min_count``)."""
-    h, w = depth.shape
-    window = np.empty((2 * radius + 1) ** 2, np.float32)
-    for v in range(h):
-        for u in range(w):
-            if not todo[v, u]:
-                continue
-            n = 0
-            for dv in range(max(v - radius, 0), min(v + radius + 1, h)):
-                for du in range(max(u - radius, 0), min(u + radius + 1, w)):
-                    if valid[dv, du]:
-                        x = depth[dv, du]
-                        i = n  # insertion sort: at most 25 values
-                        while i > 0 and window[i - 1] > x:
-                            window[i] = window[i - 1]
-                            i -= 1
-                        window[i] = x
-                        n += 1
-            if n < min_count:
-                out[v, u] = 0
-            elif n % 2:
-                out[v, u] = window[n // 2]
-            else:
-                out[v, u] = 0.5 * (window[n // 2 - 1] + window[n // 2])
-
-
 def valid_median(depth: np.ndarray, valid: np.ndarray, *, min_count: int = 3) -> np.ndarray:
     """The median of each valid pixel's valid 5x5 neighbours (itself included); 0 where fewer than
     ``min_count`` are valid, and at invalid pixels.
@@ -218,7 +186,9 @@ def valid_median(depth: np.ndarray, valid: np.ndarray, *, min_count: int = 3) ->
     out = cv2.medianBlur(depth, 5)
     # Where a window is all valid and inside the image, the plain median is the same.
     whole = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8), borderValue=0) > 0
-    _valid_median(depth, valid, valid & ~whole, out, 2, min_count)
+    from .projective import kernels  # Numba, on first use
+
+    kernels().valid_median_kernel(depth, valid, valid & ~whole, out, 2, min_count)
     return np.where(valid, out, 0).astype(np.float32)
 
 

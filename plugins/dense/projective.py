@@ -16,7 +16,7 @@ import numpy as np
 
 from artclass_core import ArtclassError, Cloud, Intrinsics
 
-from .image import bounding_box
+from .image import bounding_box, valid_median
 
 # Gauss-Newton damping, relative to the trace of the normal equations: keeps the step of a group whose
 # points cannot fix all six degrees of freedom (a flat patch slides in its plane) small and unique.
@@ -236,6 +236,7 @@ def warm_up() -> None:
         across=np.full((n, 2), np.nan),
         metres_per_px=0.001,
     )
+    valid_median(depth, depth > 0)
 
 
 def _camera(intr: Intrinsics) -> np.ndarray:
