@@ -18,8 +18,9 @@ those per-pair segments through the frames into parts, and grows the tree of joi
    relative to the parent, in the parent's coordinates at its state 0 (for the base: its coordinates
    of the first frame, the camera frame of frame 0 when the base does not move). For a
    one-degree-of-freedom joint each is ``exp(Δq ξ)``, one twist ξ whatever the pair, so the joint
-   estimator is given the part's pose moved by each relative motion and by its inverse (independent
-   errors, as its model selection assumes). The states per frame follow by least squares from the
+   estimator is given the part's pose moved by each relative motion and by its inverse, and told
+   that only one pose per pair is independent (so its chi-square tests and BIC count each pair's
+   evidence once). The states per frame follow by least squares from the
    pairs' differences ``q_j - q_i = Δq``, the interleaved chains of pairs tied by a weak smoothness
    term between neighbouring frames.
 5. **Tree.** Grown from the base, it attaches at each step the moving part whose joint on a part
@@ -31,6 +32,7 @@ those per-pair segments through the frames into parts, and grows the tree of joi
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -466,13 +468,13 @@ def _pair_joint(
     """The joint from a part's relative motions (i, j, motion in the base's first-frame coordinates)
     and the number of pairs it explains. The estimator sees the part's pose (origin ``centre_m``)
     moved by each relative motion and by its inverse, and unmoved: for a one-degree-of-freedom joint
-    all lie on one path, ``exp(±Δq ξ)``, with independent errors."""
+    all lie on one path, ``exp(±Δq ξ)``; one pose per pair is independent."""
     start = _translation(centre_m)
     poses = np.stack(
         [start] + [M @ start for _, _, M in relative] + [np.linalg.inv(M) @ start for _, _, M in relative]
     )
-    estimate = estimator.estimate(poses)
     n = len(relative)
+    estimate = estimate_joint(estimator, poses, n_independent=n)
     forward, backward = np.arange(1, n + 1), np.arange(n + 1, 2 * n + 1)
     explained = (
         estimate.inliers[forward]
@@ -500,7 +502,7 @@ def _pair_joint(
         estimate.info,
         n_pairs=n,
         n_pairs_explained=int(explained.sum()),
-        n_poses_explained=int(estimate.inliers.sum()),
+        n_poses_explained=float(estimate.inliers.sum() * n / len(poses)),  # independent ones
     )
     return JointEstimate(
         estimate.type,
@@ -514,6 +516,15 @@ def _pair_joint(
         estimate.scores,
         info,
     ), int(explained.sum())
+
+
+def estimate_joint(estimator: JointEstimator, poses: np.ndarray, *, n_independent: int) -> JointEstimate:
+    """``estimator.estimate(poses, n_independent=...)``, or ``estimator.estimate(poses)`` for an
+    estimator whose ``estimate`` takes no ``n_independent`` (one written before it existed)."""
+    parameters = inspect.signature(estimator.estimate).parameters.values()
+    if any(p.name == "n_independent" or p.kind is p.VAR_KEYWORD for p in parameters):
+        return estimator.estimate(poses, n_independent=n_independent)
+    return estimator.estimate(poses)
 
 
 def joint_motion(estimate: JointEstimate, state: float) -> np.ndarray:

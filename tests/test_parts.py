@@ -214,6 +214,29 @@ def test_without_scores_every_part_hangs_on_the_base(bic):
     assert [(j.parent, j.child) for j in art.joints] == [(0, 1), (0, 2)]
 
 
+def test_the_estimator_is_told_one_pose_per_pair_is_independent(bic):
+    """The estimator sees each pair's motion twice (and its inverse) and the unmoved pose, and is
+    told the number of pairs; one whose ``estimate`` takes no ``n_independent`` is called without it."""
+    calls = []
+
+    class Told:
+        def estimate(self, poses, *, n_independent=None):
+            calls.append((len(poses), n_independent))
+            return bic.estimate(poses, n_independent=n_independent)
+
+    class Untold:
+        def estimate(self, poses):
+            calls.append((len(poses), None))
+            return bic.estimate(poses)
+
+    told = find_articulation(run_result(), estimator=Told())
+    n_pairs = told.joints[0].estimate.info["n_pairs"]
+    assert calls == [(2 * n_pairs + 1, n_pairs)]
+    _check_hinge(told)
+    _check_hinge(find_articulation(run_result(), estimator=Untold()))
+    assert calls[1] == (2 * n_pairs + 1, None)
+
+
 def test_labels_become_part_images(bic):
     art = find_articulation(run_result(), estimator=bic)
     cloud, part = _cloud(5, False)
