@@ -76,10 +76,11 @@ def register_commands(subparsers) -> None:
 
 @hookspec
 def register_joint_estimators(register) -> None:
-    """Register joint estimators: classes with ``estimate(poses) -> JointEstimate``.
+    """Register joint estimators: classes with ``estimate(poses, *, n_independent=None) -> JointEstimate``.
 
     ``poses`` (N, 4, 4) are a moving part's poses in its parent's frame over the video (metres, NaN
-    where unknown); the estimator returns the joint type, its axis, the joint state per frame
+    where unknown), of which ``n_independent`` carry independent errors (None: all; an ``estimate``
+    without the argument is called without it); the estimator returns the joint type, its axis, the joint state per frame
     (radians or metres, relative to the first known frame) and their uncertainties, as an
     :class:`~artclass_core.interfaces.JointEstimate`.
     """

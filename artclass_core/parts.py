@@ -9,17 +9,22 @@ those per-pair segments through the frames into parts, and grows the tree of joi
    and an earlier pair's target are one cloud) or on neighbouring frames (the same pixels, which
    move little in one frame). Overlaps are merged greedily, largest first, never putting two motions
    of one pair into one part.
-2. **Base.** The part with the most labelled points over the video; every other part seen moving in
-   at least ``min_pairs`` pairs is a moving part.
+2. **Base.** The part with the most labelled points over the video.
 3. **Base poses.** The base's motions are chained through the pairs into its pose in every frame,
    relative to the first frame. Pairs (i, i + k) link only every k-th frame; the k interleaved chains
    are tied together by interpolating the first chain's poses in time (constant velocity).
+   A small part's regions in two pairs may overlap too little to be linked in step 1; two of its
+   tracks are then linked by their motions relative to the base, which for one joint are one
+   velocity field scaled by each pair's change of state (within ``link_sigmas`` of the depth
+   noise). Every part other than the base seen moving in at least ``min_pairs`` pairs is a moving
+   part.
 4. **Joints.** Each pair that sees a moving part and a candidate parent gives the part's motion
    relative to the parent, in the parent's coordinates at its state 0 (for the base: its coordinates
    of the first frame, the camera frame of frame 0 when the base does not move). For a
    one-degree-of-freedom joint each is ``exp(Δq ξ)``, one twist ξ whatever the pair, so the joint
-   estimator is given the part's pose moved by each relative motion and by its inverse (independent
-   errors, as its model selection assumes). The states per frame follow by least squares from the
+   estimator is given the part's pose moved by each relative motion and by its inverse, and told
+   that only one pose per pair is independent (so its chi-square tests and BIC count each pair's
+   evidence once). The states per frame follow by least squares from the
    pairs' differences ``q_j - q_i = Δq``, the interleaved chains of pairs tied by a weak smoothness
    term between neighbouring frames.
 5. **Tree.** Grown from the base, it attaches at each step the moving part whose joint on a part
@@ -31,6 +36,8 @@ those per-pair segments through the frames into parts, and grows the tree of joi
 
 from __future__ import annotations
 
+import inspect
+import itertools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -55,6 +62,14 @@ class PartsParams(Params):
         help="Two labelled regions (of two pairs, on one frame or neighbouring frames) may be "
         "one part when their intersection over union reaches this (the larger overlaps "
         "are merged first, and never two motions of one pair).",
+    )
+    link_sigmas: float = param(
+        5.0,
+        unit="sigma",
+        bounds=(0.0, 100.0),
+        help="Two moving regions that overlap (however little) are one part when their motions "
+        "relative to the base move the regions' points alike, one scaled to the other, within this "
+        "many depth-noise levels (and each moves them by more).",
     )
     min_pairs: int = param(
         2,
@@ -259,6 +274,27 @@ def _pixel_keys(pixels: np.ndarray) -> np.ndarray:
     return pixels[:, 1].astype(np.int64) * 1_000_000 + pixels[:, 0]
 
 
+class _Groups:
+    """Disjoint groups of nodes (union-find), each holding a set of pairs: two groups are joined only
+    when they hold no pair in common (one part has at most one motion in a pair)."""
+
+    def __init__(self, pairs: dict[Any, set[int]]):
+        self.parent = {n: n for n in pairs}
+        self.pairs = {n: set(p) for n, p in pairs.items()}  # by root
+
+    def root(self, n):
+        while self.parent[n] != n:
+            self.parent[n] = self.parent[self.parent[n]]
+            n = self.parent[n]
+        return n
+
+    def join(self, a, b) -> None:
+        ra, rb = self.root(a), self.root(b)
+        if ra != rb and not self.pairs[ra] & self.pairs[rb]:
+            self.parent[rb] = ra
+            self.pairs[ra] |= self.pairs.pop(rb)
+
+
 def _tracks(observations: list[_Observation], *, min_overlap: float) -> dict[tuple, int]:
     """Track number of every node (pair, motion): greedy merging by overlap, largest first, never two
     motions of one pair in one track."""
@@ -276,23 +312,14 @@ def _tracks(observations: list[_Observation], *, min_overlap: float) -> dict[tup
             for o in here:
                 if o.pair != other.pair:
                     edges += _overlaps(o, other, same_cloud=False)
-    parent = {n: n for n in nodes}
-    members = {n: {n[0]} for n in nodes}
-
-    def root(n):
-        while parent[n] != n:
-            parent[n] = parent[parent[n]]
-            n = parent[n]
-        return n
+    groups = _Groups({n: {n[0]} for n in nodes})
+    root = groups.root
 
     def merge(edges):
         for iou, a, b in sorted(edges, key=lambda e: -e[0]):
-            ra, rb = root(a), root(b)
             if iou < min_overlap:
                 break
-            if ra != rb and not members[ra] & members[rb]:
-                parent[rb] = ra
-                members[ra] |= members.pop(rb)
+            groups.join(a, b)
 
     merge(edges)
     # a part hidden for a while: the track that ends before another begins, on the frames either side
@@ -303,7 +330,7 @@ def _tracks(observations: list[_Observation], *, min_overlap: float) -> dict[tup
     gaps = []
     for ra, fa in frames.items():
         for rb, fb in frames.items():
-            if ra != rb and max(fa) < min(fb) and not members[ra] & members[rb]:
+            if ra != rb and max(fa) < min(fb) and not groups.pairs[ra] & groups.pairs[rb]:
                 gaps += [
                     e
                     for x in by_frame[max(fa)]
@@ -314,6 +341,71 @@ def _tracks(observations: list[_Observation], *, min_overlap: float) -> dict[tup
     merge(gaps)
     roots = sorted({root(n) for n in nodes})
     return {n: roots.index(root(n)) for n in nodes}
+
+
+def _linked_by_motion(
+    result: RunResult,
+    observations: list[_Observation],
+    track: dict[tuple, int],
+    base: int,
+    base_poses: np.ndarray,
+    *,
+    link_sigmas: float,
+) -> dict[tuple, int]:
+    """The tracks with two moving tracks joined where a motion of each moves the part alike relative
+    to the base, as one joint does: a one-degree-of-freedom joint moves by ``exp(Δq ξ)``, so the
+    velocity fields ``log`` of the two relative motions give at the two regions' points are one
+    field scaled by the pairs' Δq. They are when one, scaled to fit the other, misses it by less than
+    ``link_sigmas`` times the pairs' depth noise (median over the points) and each moves the points
+    by more. Best fit first, never two motions of one pair in one track; small parts whose regions in
+    two pairs overlap too little to be joined by :func:`_tracks` are joined here."""
+    moving = _moving_nodes(result, observations, track, base, base_poses)
+    links = []
+    for (a, va), (b, vb) in itertools.combinations(moving.items(), 2):
+        if track[a] == track[b]:
+            continue
+        field_a, field_b = va[1](np.vstack([va[0], vb[0]])), vb[1](np.vstack([va[0], vb[0]]))
+        scale = float(np.sum(field_a * field_b)) / max(float(np.sum(field_b * field_b)), 1e-18)
+        noise = float(np.hypot(result.pairs[a[0]].evidence.noise_m, result.pairs[b[0]].evidence.noise_m))
+        moved = min(np.median(np.linalg.norm(f, axis=1)) for f in (field_a, field_b))
+        miss = float(np.median(np.linalg.norm(field_a - scale * field_b, axis=1)))
+        if moved > link_sigmas * noise and miss < link_sigmas * noise:
+            links.append((miss / noise, track[a], track[b]))
+    pairs: dict[int, set[int]] = {}
+    for node, t in track.items():
+        pairs.setdefault(t, set()).add(node[0])
+    groups = _Groups(pairs)
+    for _, ta, tb in sorted(links):
+        groups.join(ta, tb)
+    return {node: groups.root(t) for node, t in track.items()}
+
+
+def _moving_nodes(
+    result: RunResult,
+    observations: list[_Observation],
+    track: dict[tuple, int],
+    base: int,
+    base_poses: np.ndarray,
+) -> dict[tuple, tuple[np.ndarray, Any]]:
+    """Each moving node (pair, motion) of an AM pair that also found the base: its points (N, 3) in
+    the base's first-frame coordinates, and the velocity field (points (M, 3) -> (M, 3), metres) of
+    the log of its motion relative to the base."""
+    base_of = {pair: m for (pair, m), t in track.items() if t == base}
+    out = {}
+    for o in observations:
+        G = base_poses[o.frame]
+        if not o.forward or not np.isfinite(G).all() or o.pair not in base_of:
+            continue
+        p = result.pairs[o.pair]
+        local = transform(o.points, np.linalg.inv(G))
+        for m in np.unique(o.labels[(o.labels >= 0) & (o.labels != base_of[o.pair])]):
+            motion = {o.pair: p.motions[m].T_target_from_source}
+            parent = {o.pair: p.motions[base_of[o.pair]].T_target_from_source}
+            relative = _relative_motions(result, motion, parent, base_poses)
+            if relative:
+                w, v = _twist_log(relative[0][2])
+                out[(o.pair, int(m))] = (local[o.labels == m], lambda x, w=w, v=v: np.cross(w, x) + v)
+    return out
 
 
 # -- poses chained through pairs ---------------------------------------------------------------------------
@@ -365,20 +457,27 @@ def chain_pair_motions(n_frames: int, pairs, *, origin_m: np.ndarray) -> np.ndar
 # -- 3. base poses --------------------------------------------------------------------------------------
 
 
+def _V(w: np.ndarray) -> np.ndarray:
+    """The matrix (3, 3) by which exp of the twist (w, v) moves the origin: V(w) v."""
+    theta = np.linalg.norm(w)
+    K = np.cross(np.eye(3), w)
+    if theta < 1e-9:
+        return np.eye(3) + K / 2
+    return np.eye(3) + (1 - np.cos(theta)) / theta**2 * K + (theta - np.sin(theta)) / theta**3 * (K @ K)
+
+
+def _twist_log(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The twist (w, v), radians and metres, with exp(w, v) the rigid motion T (4, 4)."""
+    w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+    return w, np.linalg.solve(_V(w), T[:3, 3])
+
+
 def _screw(T: np.ndarray, s: float) -> np.ndarray:
     """The rigid motion T (4, 4) taken ``s`` times along its screw: ``exp(s log T)``."""
-    w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
-
-    def V(w):  # exp of the twist (w, v) moves the origin by V(w) v
-        theta = np.linalg.norm(w)
-        K = np.cross(np.eye(3), w)
-        if theta < 1e-9:
-            return np.eye(3) + K / 2
-        return np.eye(3) + (1 - np.cos(theta)) / theta**2 * K + (theta - np.sin(theta)) / theta**3 * (K @ K)
-
+    w, v = _twist_log(T)
     out = np.eye(4)
     out[:3, :3] = Rotation.from_rotvec(s * w).as_matrix()
-    out[:3, 3] = V(s * w) @ (s * np.linalg.solve(V(w), T[:3, 3]))
+    out[:3, 3] = _V(s * w) @ (s * v)
     return out
 
 
@@ -466,13 +565,13 @@ def _pair_joint(
     """The joint from a part's relative motions (i, j, motion in the base's first-frame coordinates)
     and the number of pairs it explains. The estimator sees the part's pose (origin ``centre_m``)
     moved by each relative motion and by its inverse, and unmoved: for a one-degree-of-freedom joint
-    all lie on one path, ``exp(±Δq ξ)``, with independent errors."""
+    all lie on one path, ``exp(±Δq ξ)``; one pose per pair is independent."""
     start = _translation(centre_m)
     poses = np.stack(
         [start] + [M @ start for _, _, M in relative] + [np.linalg.inv(M) @ start for _, _, M in relative]
     )
-    estimate = estimator.estimate(poses)
     n = len(relative)
+    estimate = estimate_joint(estimator, poses, n_independent=n)
     forward, backward = np.arange(1, n + 1), np.arange(n + 1, 2 * n + 1)
     explained = (
         estimate.inliers[forward]
@@ -500,7 +599,7 @@ def _pair_joint(
         estimate.info,
         n_pairs=n,
         n_pairs_explained=int(explained.sum()),
-        n_poses_explained=int(estimate.inliers.sum()),
+        n_poses_explained=float(estimate.inliers.sum() * n / len(poses)),  # independent ones
     )
     return JointEstimate(
         estimate.type,
@@ -514,6 +613,15 @@ def _pair_joint(
         estimate.scores,
         info,
     ), int(explained.sum())
+
+
+def estimate_joint(estimator: JointEstimator, poses: np.ndarray, *, n_independent: int) -> JointEstimate:
+    """``estimator.estimate(poses, n_independent=...)``, or ``estimator.estimate(poses)`` for an
+    estimator whose ``estimate`` takes no ``n_independent`` (one written before it existed)."""
+    parameters = inspect.signature(estimator.estimate).parameters.values()
+    if any(p.name == "n_independent" or p.kind is p.VAR_KEYWORD for p in parameters):
+        return estimator.estimate(poses, n_independent=n_independent)
+    return estimator.estimate(poses)
 
 
 def joint_motion(estimate: JointEstimate, state: float) -> np.ndarray:
@@ -564,11 +672,16 @@ def find_articulation(
         }
     size = _track_sizes(observations, track)
     motions = _track_motions(result, track)
-    seen = _seen_tracks(result, track, min_pairs=params.min_pairs) if result.label == "articulated" else set()
     base = max(size, key=size.get) if size else 0
     base_poses = chain_interleaved(
         n_frames, [(result.pairs[n].i, result.pairs[n].j, T) for n, T in motions.get(base, {}).items()]
     )
+    if result.label == "articulated":
+        track = _linked_by_motion(
+            result, observations, track, base, base_poses, link_sigmas=params.link_sigmas
+        )
+        size, motions = _track_sizes(observations, track), _track_motions(result, track)
+    seen = _seen_tracks(result, track, min_pairs=params.min_pairs) if result.label == "articulated" else set()
     views, points = _part_points(result, observations, track, base_poses)
     tree = _kinematic_tree(
         result,

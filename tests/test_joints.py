@@ -178,6 +178,31 @@ def test_bad_poses_raise_one_line(poses, problem):
 
 
 @pytest.mark.slow
+def test_poses_given_twice_count_once_with_n_independent():
+    """Each pose given twice, with n_independent the number of distinct ones, weighs as the poses
+    given once: the same BIC scores, type and uncertainties (not a chi-square doubled), up to the
+    few per cent by which the noise levels of fits from other starting pairs differ."""
+    poses = noisy("revolute").poses
+    once = fit_joint(poses)
+    twice = fit_joint(np.concatenate([poses, poses]), n_independent=len(poses))
+    doubled = fit_joint(np.concatenate([poses, poses]))
+    assert twice.type == once.type == "revolute"
+    for name, score in once.scores.items():
+        assert twice.scores[name] == pytest.approx(score, rel=0.05), name
+        assert abs(doubled.scores[name] - score) > 0.5 * abs(score), "counted twice, the evidence doubles"
+    assert twice.axis_direction_std_rad == pytest.approx(once.axis_direction_std_rad, rel=0.05)
+    assert twice.axis_point_std_m == pytest.approx(once.axis_point_std_m, rel=0.05)
+    assert twice.info["n_independent"] == len(poses)
+
+
+@pytest.mark.parametrize("n_independent", [0, 61])
+def test_n_independent_beyond_the_known_poses_is_one_line(n_independent):
+    with pytest.raises(InputError, match="n_independent must be between 1 and the 60 known poses") as err:
+        fit_joint(noisy("revolute").poses, n_independent=n_independent)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.slow
 def test_given_noise_levels_are_used():
     est = fit_joint(
         noisy("revolute").poses, params=BICJointParams(sigma_position_m=0.002, sigma_orientation_rad=0.01)

@@ -3,6 +3,8 @@ parts' motions relative to the base, on a synthetic scene with known motions and
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -10,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from artclass_core import ArtclassError
 from artclass_core.geometry import transform
 from artclass_core.joint_metrics import axis_direction_error_rad, axis_position_error_m, score_articulation
-from artclass_core.parts import chain_interleaved, find_articulation, frame_states
+from artclass_core.parts import PartsParams, chain_interleaved, find_articulation, frame_states
 from artclass_core.plugins import load_registry
 from artclass_core.types import (
     Cloud,
@@ -204,7 +206,6 @@ def test_a_chain_hangs_its_outer_part_on_the_inner_one(bic):
 
 def test_without_scores_every_part_hangs_on_the_base(bic):
     """An estimator that gives no scores cannot rank parents: the tree falls back to the base."""
-    import dataclasses
 
     class Unscored:
         def estimate(self, poses):
@@ -212,6 +213,43 @@ def test_without_scores_every_part_hangs_on_the_base(bic):
 
     art = find_articulation(run_result(chain=True), estimator=Unscored())
     assert [(j.parent, j.child) for j in art.joints] == [(0, 1), (0, 2)]
+
+
+def test_the_estimator_is_told_one_pose_per_pair_is_independent(bic):
+    """The estimator sees each pair's motion twice (and its inverse) and the unmoved pose, and is
+    told the number of pairs; one whose ``estimate`` takes no ``n_independent`` is called without it."""
+    calls = []
+
+    class Told:
+        def estimate(self, poses, *, n_independent=None):
+            calls.append((len(poses), n_independent))
+            return bic.estimate(poses, n_independent=n_independent)
+
+    class Untold:
+        def estimate(self, poses):
+            calls.append((len(poses), None))
+            return bic.estimate(poses)
+
+    told = find_articulation(run_result(), estimator=Told())
+    n_pairs = told.joints[0].estimate.info["n_pairs"]
+    assert calls == [(2 * n_pairs + 1, n_pairs)]
+    _check_hinge(told)
+    _check_hinge(find_articulation(run_result(), estimator=Untold()))
+    assert calls[1] == (2 * n_pairs + 1, None)
+
+
+def test_a_part_whose_regions_overlap_little_is_linked_by_its_motion(bic):
+    """A carried flap whose regions in neighbouring pairs overlap too little to be linked (IoU 0.92-0.95
+    here, the base's 0.96-0.98) falls apart into one part per chain of pairs (i, i + 4); its motions
+    relative to the base, one joint's, link it back into one part with every pair's evidence."""
+    loose = PartsParams(min_overlap=0.955, link_sigmas=0.0)
+    assert len(find_articulation(run_result(carried=True), estimator=bic, params=loose).parts) == 5
+    art = find_articulation(
+        run_result(carried=True), estimator=bic, params=dataclasses.replace(loose, link_sigmas=5.0)
+    )
+    (joint,) = art.joints
+    assert joint.n_pairs == len(run_result().pairs)
+    _check_hinge(art)
 
 
 def test_labels_become_part_images(bic):

@@ -20,8 +20,8 @@ class BICJointEstimator(JointEstimator):
     )
     Params = BICJointParams
 
-    def estimate(self, poses) -> JointEstimate:
-        return fit_joint(poses, params=self.params)
+    def estimate(self, poses, *, n_independent=None) -> JointEstimate:
+        return fit_joint(poses, n_independent=n_independent, params=self.params)
 
 
 @hookimpl

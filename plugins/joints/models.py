@@ -436,13 +436,15 @@ def _recentred(fit: _Fit, poses: _Poses) -> _Fit:
 
 
 def _noise_levels(
-    per_pose: np.ndarray, poses: _Poses, *, n_fitted: int, params: BICJointParams
+    per_pose: np.ndarray, poses: _Poses, *, n_fitted: float, share: float, params: BICJointParams
 ) -> tuple[float, float]:
     """Noise levels (m, rad) from the normalised residuals (N, 6) of the general model: the median
     squared position and rotation error against the median of chi-square with 3 degrees of freedom
     (robust to up to half the poses being outliers), scaled up for the ``n_fitted`` parameters that
-    took part of the noise, kept between the bounds unless given."""
-    scale = np.sqrt(per_pose.size / max(per_pose.size - n_fitted, 1) / chi2.median(3))
+    took part of the noise out of the ``share`` of the residuals that are independent, kept between
+    the bounds unless given."""
+    n_residuals = share * per_pose.size
+    scale = np.sqrt(n_residuals / max(n_residuals - n_fitted, 1) / chi2.median(3))
     sigma_m = poses.sigma_m * scale * np.sqrt(np.median(np.sum(per_pose[:, :3] ** 2, axis=1)))
     sigma_rad = poses.sigma_rad * scale * np.sqrt(np.median(np.sum(per_pose[:, 3:] ** 2, axis=1)))
     sigma_m = float(np.clip(sigma_m, params.min_sigma_position_m, params.max_sigma_position_m))
@@ -465,7 +467,9 @@ def _draw_pairs(n: int, count: int, rng: np.random.Generator) -> np.ndarray:
 # -- the estimate ----------------------------------------------------------------------------------------
 
 
-def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -> JointEstimate:
+def fit_joint(
+    poses: np.ndarray, *, n_independent: int | None = None, params: BICJointParams = BICJointParams()
+) -> JointEstimate:
     """Fit the fixed, prismatic, revolute and screw models to a part's poses and choose one by BIC.
 
     Parameters
@@ -474,6 +478,10 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
         The part's pose in its parent's frame in each frame (``poses[i]`` maps part coordinates to
         parent coordinates, metres; the part's origin is a point of the part, e.g. its centroid).
         A frame whose pose is unknown is NaN.
+    n_independent : int, optional
+        How many of the known poses carry independent errors (default: all of them). When each
+        measurement is given as several poses (a relative motion and its inverse), the chi-square,
+        the BIC and the uncertainties count ``n_independent`` poses' worth of evidence, not N.
     params : BICJointParams
 
     Returns
@@ -486,7 +494,8 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
     Raises
     ------
     InputError
-        If ``poses`` is not (N, 4, 4) or fewer than 3 poses are known.
+        If ``poses`` is not (N, 4, 4), fewer than 3 poses are known, or ``n_independent`` is not
+        between 1 and the number of known poses.
 
     Notes
     -----
@@ -506,7 +515,10 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
     does not beat ``fixed``;
     (2) instead of a per-model inlier/outlier mixture, the poses the general screw model cannot
     explain (beyond the ``outlier_level`` quantile of chi-square with 6 degrees of freedom) are left
-    out of every model's score, so all models are compared on the same poses. The noise levels are
+    out of every model's score, so all models are compared on the same poses. With
+    ``n_independent`` = m of N known poses, every pose counts m / N of an independent one (the
+    chi-square and the number of poses in the BIC and in the degrees of freedom are scaled by m / N,
+    the variances by N / m), as for m poses each given N / m times. The noise levels are
     the screw model's residual RMS unless given. Uncertainties are one standard deviation from the
     inverse of JᵀJ of the chosen model at its optimum.
     """
@@ -516,6 +528,11 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
     known = np.flatnonzero(np.isfinite(poses).all(axis=(1, 2)))
     if len(known) < 3:
         raise InputError(f"a joint needs at least 3 known poses, got {len(known)}")
+    if n_independent is not None and not 1 <= n_independent <= len(known):
+        raise InputError(
+            f"n_independent must be between 1 and the {len(known)} known poses, got {n_independent}"
+        )
+    share = (n_independent or len(known)) / len(known)  # each pose's share of an independent one
     rng = np.random.default_rng(params.seed)
     observed = _Poses(
         Rotation.from_matrix(poses[known, :3, :3]).as_quat(),
@@ -531,7 +548,8 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
     sigma_m, sigma_rad = _noise_levels(
         general.pose_residuals(general.x, observed),
         observed,
-        n_fitted=_n_params(general.shape, len(known)),
+        n_fitted=_n_params(general.shape, share * len(known)),
+        share=share,
         params=params,
     )
     limit = chi2.ppf(params.outlier_level, 6)
@@ -541,7 +559,7 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
     inlier_pairs = _draw_pairs(int(inlier.sum()), params.n_hypotheses, rng)
 
     # 2. every model on the same poses, scored by BIC
-    n = len(fitted.t)
+    n = share * len(fitted.t)  # independent poses
     log_norm = 3 * np.log(2 * np.pi * sigma_m**2) + 3 * np.log(2 * np.pi * sigma_rad**2)
     fits, scores = {}, {}
     for name in MODELS:
@@ -549,7 +567,7 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
         if start is None:
             continue
         fits[name] = _refine(start, fitted, robust=False)
-        scores[name] = fits[name].chi2 + n * log_norm + _n_params(fits[name].shape, n) * np.log(n)
+        scores[name] = share * fits[name].chi2 + n * log_norm + _n_params(fits[name].shape, n) * np.log(n)
     shown = [name for name in scores if _shows_itself(fits[name], fitted, params.distinct_sigmas)]
     chosen = min([name for name in shown if name != "screw"] or ["fixed"], key=scores.get)
     # the screw is the fallback: only when the simpler joint does not explain the poses within the
@@ -558,7 +576,7 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
     if (
         "screw" in shown
         and scores["screw"] < scores[chosen]
-        and fits[chosen].chi2 > chi2.ppf(params.outlier_level, dof)
+        and share * fits[chosen].chi2 > chi2.ppf(params.outlier_level, dof)
     ):
         chosen = "screw"
 
@@ -571,12 +589,14 @@ def fit_joint(poses: np.ndarray, *, params: BICJointParams = BICJointParams()) -
         n_frames=len(poses),
         fitted=fitted,
         scores=scores,
+        share=share,
         params=params,
         info=dict(
             sigma_position_m=float(sigma_m),
             sigma_orientation_rad=float(sigma_rad),
             n_known=int(len(known)),
             n_outliers=int((~inlier).sum()),
+            n_independent=float(share * len(known)),
         ),
     )
 
@@ -598,8 +618,9 @@ def _shows_itself(fit: _Fit, poses: _Poses, factor: float) -> bool:
     return turn > factor * poses.sigma_rad and slide > factor * poses.sigma_m
 
 
-def _n_params(shape: _Shape, n_poses: int) -> int:
-    """BIC's k: the pose at state 0 (6), the joint's own parameters, and a state per pose but one."""
+def _n_params(shape: _Shape, n_poses: float) -> float:
+    """BIC's k: the pose at state 0 (6), the joint's own parameters, and a state per independent
+    pose but one."""
     return 6 + shape.dof + (n_poses - 1 if shape.name != "fixed" else 0)
 
 
@@ -611,6 +632,7 @@ def _estimate(
     n_frames: int,
     fitted: _Poses,
     scores: dict,
+    share: float,
     params: BICJointParams,
     info: dict,
 ) -> JointEstimate:
@@ -619,7 +641,7 @@ def _estimate(
     q, _, t_hat = fit.predict(fitted)
     q_std = fitted.state_std(xi, t_hat) if name != "fixed" else np.zeros(len(q))
     q = q - q[0]  # relative to the first pose the model explains
-    std = np.sqrt(np.clip(np.diag(np.linalg.pinv(fit.jac.T @ fit.jac)), 0.0, None))
+    std = np.sqrt(np.clip(np.diag(np.linalg.pinv(share * fit.jac.T @ fit.jac)), 0.0, None))
     direction = point = None
     dir_std = point_std = float("nan")
     if name in ("revolute", "screw"):
