@@ -344,6 +344,15 @@ def test_a_gripper_is_removed_when_its_colour_is_given():
         assert mask_iou(seg.hand_mask(scene[i], sequence=scene), grippers[i]) > 0.9
         assert mask_iou(seg.segment(scene[i], sequence=scene), box & ~grippers[i]) > 0.85
         assert not plain.hand_mask(scene[i], sequence=scene).any()  # grey is not skin
+    # a robot rig gives its gripper's colour in the sequence's own settings (meta.json)
+    scene.meta["gripper_hsv"] = "0,0,0,180,100,100"
+    assert mask_iou(DepthThresholdSegmenter().hand_mask(scene[0], sequence=scene), grippers[0]) > 0.9
+    skin_only = DepthThresholdSegmenter(DepthThresholdParams(gripper_hsv="0,0,0,0,0,0"))
+    assert not skin_only.hand_mask(scene[0], sequence=scene).any()  # the parameter wins
+    scene.meta["gripper_hsv"] = "0,0,0,180,100"
+    with pytest.raises(InputError, match="sequence's gripper_hsv") as err:
+        DepthThresholdSegmenter().hand_mask(scene[1], sequence=scene)
+    assert err.value.path == str(scene.path)
 
 
 def test_given_hand_masks_are_read_from_the_folder(tmp_path):

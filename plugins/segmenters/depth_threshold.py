@@ -316,6 +316,7 @@ class MaskFreeSegmenter(InstanceSegmenter):
             sequence_path=sequence.path,
             support=planes[0] if planes else None,
             plane_distance_m=self.params.plane_distance_m,
+            rig=sequence.meta,
         )
 
     def not_hand(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
