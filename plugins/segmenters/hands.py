@@ -318,7 +318,9 @@ def find_hands(
         regions = _regions(
             hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2, border=False)
         )
-        contact = on_plane(d, intrinsics, support, step=step, plane_distance_m=plane_distance_m)
+        contact = (
+            on_plane(d, intrinsics, support, step=step, plane_distance_m=plane_distance_m) if regions else None
+        )
         hand = np.zeros(d.shape, bool)
         held_out = [r for r in regions if not rests(r, contact)]  # a skin-coloured object lies on the table
         for r in regions:
