@@ -356,15 +356,34 @@ def above_planes(
     *,
     params: BackgroundParams,
     sigmas: float,
+    window_px: int = 1,
 ) -> np.ndarray:
     """Pixels inside ``[near_m, far_m]`` that lie in front of every plane by more than ``sigmas``
     times its measured noise (``Plane.noise_m``, at least DEPTH_STEP_M): off the plane by more than
-    its noise explains, though maybe nearer than ``plane_distance_m``. bool (H, W)."""
+    its noise explains, though maybe nearer than ``plane_distance_m``. bool (H, W).
+
+    With ``window_px`` > 1 a pixel's height is the mean over the ``window_px`` x ``window_px`` square
+    around it (all with a reading), judged against the noise of that mean measured on the plane in
+    this image (the robust sigma of the means within ``plane_distance_m`` of it): up to
+    ``window_px`` times smaller than a single reading's where the sensor's noise is independent from
+    pixel to pixel, so that a surface a few millimetres proud of the plane stands out of it though
+    its single readings do not."""
     d = clean_depth(depth_m)
-    out = (d >= params.near_m) & (d <= params.far_m) & (d > 0)
+    inside = (d >= params.near_m) & (d <= params.far_m) & (d > 0)
     rays = _rays(
         intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height
     )
+    out = inside
+    if window_px > 1:
+        size = (window_px, window_px)
+        out = inside & (cv2.blur(inside.astype(np.float32), size) > 1.0 - 1e-3)
     for plane in planes:
-        out &= _signed(d, rays, plane) > sigmas * max(plane.noise_m, DEPTH_STEP_M)
+        height = _signed(d, rays, plane)
+        noise = max(plane.noise_m, DEPTH_STEP_M)
+        if window_px > 1:
+            height = cv2.blur(height, size)
+            on = (out & (np.abs(height) < params.plane_distance_m))[::2, ::2]  # a quarter is plenty
+            if on.any():
+                noise = max(1.4826 * float(np.median(np.abs(height[::2, ::2][on]))), DEPTH_STEP_M / window_px)
+        out &= height > sigmas * noise
     return out
