@@ -355,6 +355,27 @@ def test_a_gripper_is_removed_when_its_colour_is_given():
     assert err.value.path == str(scene.path)
 
 
+def test_a_skin_coloured_box_held_by_a_gripper_is_not_taken_for_it():
+    """A wooden (skin-coloured) box held by a grey gripper whose fingers lie on it: skin and the
+    gripper's colour are found apart, so the box neither joins the gripper nor is removed with it."""
+    box = box_mask(130, 130)
+    gripper = hand_shape(175, 150)
+    rgb, depth = render(box, gripper, hand_depth_m=None, hand_colour=GRIPPER)
+    wood = box & ~gripper
+    rgb[wood] = np.clip(
+        np.array([200, 150, 110]) + np.random.default_rng(1).normal(0, 4, (wood.sum(), 3)), 0, 255
+    )
+    assert skin_mask(rgb)[wood].mean() > 0.9
+    scene = Scene([Frame(0, "0", rgb, depth)], name="wooden box")
+    scene.meta["gripper_hsv"] = "0,0,0,180,100,100"
+    seg = DepthThresholdSegmenter()
+    found = seg.hand_mask(scene[0], sequence=scene)
+    assert mask_iou(found, gripper) > 0.85
+    assert np.count_nonzero(found & wood) < 0.05 * np.count_nonzero(wood)
+    chosen = seg.segment(scene[0], sequence=scene)
+    assert not (chosen & gripper).any() and np.count_nonzero(chosen & wood) > 0.5 * np.count_nonzero(wood)
+
+
 def test_given_hand_masks_are_read_from_the_folder(tmp_path):
     scene, box, hands = waving_scene(3, skin=(120, 200, 120))  # a green glove: no skin colour
     scene.path = tmp_path

@@ -9,7 +9,9 @@ union of:
   skin-coloured object behind the hand stays apart); a region is a hand when it reaches the image
   border (a hand is held out from an arm that enters the picture; a skin-coloured object in the
   scene seldom reaches it) and its surface, measured with depth, is at least ``hand_min_area_m2``
-  (two fingers: specks and patches of skin colour on objects are smaller);
+  (two fingers: specks and patches of skin colour on objects are smaller); skin-coloured pixels
+  without a depth reading count only where a closing puts them inside the seen ones (the
+  projector's shadow along an arm on a wooden table does not join the arm to what lies there);
 * **arms and sleeves, whatever their colour**: a region standing out of the background that reaches
   the image border, is not resting on the support plane (none of its pixels away from depth steps
   comes down to it: its lowest points stand off the plane by more than ``plane_distance_m`` plus the
@@ -19,7 +21,8 @@ union of:
   on the table is kept;
 * **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``, or, when
   that is not set, the box the sequence's own settings give as ``gripper_hsv`` (a robot rig knows
-  its gripper: the native folder format reads it from ``meta.json``);
+  its gripper: the native folder format reads it from ``meta.json``); its regions are found apart
+  from the skin-coloured ones, so a wooden object the gripper holds does not join it;
 * **given masks**: one PNG per frame in the folder ``hand_masks`` (a robot knows its own gripper),
   used as they are.
 
@@ -302,24 +305,42 @@ def find_hands(
     """
     if not params.exclude_hands:
         return np.zeros(background.shape, bool)
-    candidates = skin_mask(frame.rgb)
+    # skin and the gripper's colour are two kinds of evidence: their regions are found apart, so that a
+    # skin-coloured object a gripper holds does not join it (a pixel of both colours is skin)
+    kinds = [skin_mask(frame.rgb)]
     gripper = gripper_box(params, rig or {}, sequence_path)
     if gripper is not None:
-        candidates |= hsv_mask(frame.rgb, *gripper)
+        kinds.append(hsv_mask(frame.rgb, *gripper) & ~kinds[0])
+    candidates = np.logical_or.reduce(kinds)
     # cut along depth steps, so that a skin-coloured object behind the hand does not join it; then
     # give the hand back its side of the step (its outline)
     d, touch = clean_depth(frame.depth_m), params.hand_touch_m
     near, far = _depth_range(d, np.ones(background.shape, bool), 1)
     candidates &= ~background
+    # skin pixels without a reading count where a closing puts them inside the seen ones (dropouts on
+    # skin), not in a band along them (the projector's shadow on a wooden table); the gripper's colour
+    # tells its own dropouts from the table's
+    skin = kinds[0] & ~background
+    kinds[0] = skin & ((d > 0) | close_gaps(skin & (d > 0), params.hand_margin_px))
     step = far - near > touch  # no readings around: -inf, not a step
-    if support is None:
-        hand = hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2)
-    else:
-        regions = _regions(
-            hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2, border=False)
+    found = [
+        hand_regions(
+            kind & candidates & ~step,
+            d,
+            intrinsics,
+            min_area_m2=params.hand_min_area_m2,
+            border=support is None,
         )
+        for kind in kinds
+    ]
+    if support is None:
+        hand = np.logical_or.reduce(found)
+    else:
+        regions = [r for kind in found for r in _regions(kind)]
         contact = (
-            on_plane(d, intrinsics, support, step=step, plane_distance_m=plane_distance_m) if regions else None
+            on_plane(d, intrinsics, support, step=step, plane_distance_m=plane_distance_m)
+            if regions
+            else None
         )
         hand = np.zeros(d.shape, bool)
         held_out = [r for r in regions if not rests(r, contact)]  # a skin-coloured object lies on the table
