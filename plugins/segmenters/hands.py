@@ -9,9 +9,7 @@ union of:
   skin-coloured object behind the hand stays apart); a region is a hand when it reaches the image
   border (a hand is held out from an arm that enters the picture; a skin-coloured object in the
   scene seldom reaches it) and its surface, measured with depth, is at least ``hand_min_area_m2``
-  (two fingers: specks and patches of skin colour on objects are smaller); skin-coloured pixels
-  without a depth reading count only where a closing puts them inside the seen ones (the
-  projector's shadow along an arm on a wooden table does not join the arm to what lies there);
+  (two fingers: specks and patches of skin colour on objects are smaller);
 * **arms and sleeves, whatever their colour**: a region standing out of the background that reaches
   the image border, is not resting on the support plane (none of its pixels away from depth steps
   comes down to it: its lowest points stand off the plane by more than ``plane_distance_m`` plus the
@@ -317,11 +315,6 @@ def find_hands(
     d, touch = clean_depth(frame.depth_m), params.hand_touch_m
     near, far = _depth_range(d, np.ones(background.shape, bool), 1)
     candidates &= ~background
-    # skin pixels without a reading count where a closing puts them inside the seen ones (dropouts on
-    # skin), not in a band along them (the projector's shadow on a wooden table); the gripper's colour
-    # tells its own dropouts from the table's
-    skin = kinds[0] & ~background
-    kinds[0] = skin & ((d > 0) | close_gaps(skin & (d > 0), params.hand_margin_px))
     step = far - near > touch  # no readings around: -inf, not a step
     found = [
         hand_regions(
