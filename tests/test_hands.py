@@ -344,6 +344,36 @@ def test_a_gripper_is_removed_when_its_colour_is_given():
         assert mask_iou(seg.hand_mask(scene[i], sequence=scene), grippers[i]) > 0.9
         assert mask_iou(seg.segment(scene[i], sequence=scene), box & ~grippers[i]) > 0.85
         assert not plain.hand_mask(scene[i], sequence=scene).any()  # grey is not skin
+    # a robot rig gives its gripper's colour in the sequence's own settings (meta.json)
+    scene.meta["gripper_hsv"] = "0,0,0,180,100,100"
+    assert mask_iou(DepthThresholdSegmenter().hand_mask(scene[0], sequence=scene), grippers[0]) > 0.9
+    skin_only = DepthThresholdSegmenter(DepthThresholdParams(gripper_hsv="0,0,0,0,0,0"))
+    assert not skin_only.hand_mask(scene[0], sequence=scene).any()  # the parameter wins
+    scene.meta["gripper_hsv"] = "0,0,0,180,100"
+    with pytest.raises(InputError, match="sequence's gripper_hsv") as err:
+        DepthThresholdSegmenter().hand_mask(scene[1], sequence=scene)
+    assert err.value.path == str(scene.path)
+
+
+def test_a_skin_coloured_box_held_by_a_gripper_is_not_taken_for_it():
+    """A wooden (skin-coloured) box held by a grey gripper whose fingers lie on it: skin and the
+    gripper's colour are found apart, so the box neither joins the gripper nor is removed with it."""
+    box = box_mask(130, 130)
+    gripper = hand_shape(175, 150)
+    rgb, depth = render(box, gripper, hand_depth_m=None, hand_colour=GRIPPER)
+    wood = box & ~gripper
+    rgb[wood] = np.clip(
+        np.array([200, 150, 110]) + np.random.default_rng(1).normal(0, 4, (wood.sum(), 3)), 0, 255
+    )
+    assert skin_mask(rgb)[wood].mean() > 0.9
+    scene = Scene([Frame(0, "0", rgb, depth)], name="wooden box")
+    scene.meta["gripper_hsv"] = "0,0,0,180,100,100"
+    seg = DepthThresholdSegmenter()
+    found = seg.hand_mask(scene[0], sequence=scene)
+    assert mask_iou(found, gripper) > 0.85
+    assert np.count_nonzero(found & wood) < 0.05 * np.count_nonzero(wood)
+    chosen = seg.segment(scene[0], sequence=scene)
+    assert not (chosen & gripper).any() and np.count_nonzero(chosen & wood) > 0.5 * np.count_nonzero(wood)
 
 
 def test_given_hand_masks_are_read_from_the_folder(tmp_path):

@@ -371,6 +371,45 @@ def test_hand_occludes_the_object_and_is_never_in_its_mask(tmp_path, object_name
             assert np.linalg.norm(held - centre, axis=1).min() > radius + 0.02
 
 
+def test_arms_reach_out_of_the_picture():
+    """A real arm enters from outside the picture: whenever a hand or gripper is in view, its
+    mask reaches the image border (it never ends in mid-air or comes up through the table)."""
+    for i, plan in enumerate(preset_plans("benchmark")):
+        if plan.hand == "none":
+            continue
+        seq = plan_sequence(
+            object_name=plan.object_name,
+            motion=plan.motion,
+            noise="none",
+            n_frames=plan.n_frames,
+            seed=i,
+            texture=plan.texture,
+            hand=plan.hand,
+            **SMALL,
+        )
+        for f in (0, plan.n_frames // 2, plan.n_frames - 1):
+            hand = seq.render(f).hand
+            if hand.any():
+                edge = hand[0].any() or hand[-1].any() or hand[:, 0].any() or hand[:, -1].any()
+                assert edge, f"{plan.name} frame {f}: the arm ends inside the picture"
+
+
+@pytest.mark.parametrize("noise", ["low", "high"])
+def test_the_rig_records_its_gripper_colour(noise):
+    from artclass_plugins.segmenters.hands import hsv_mask, parse_hsv
+
+    kw = dict(object_name="book", motion="carry", noise=noise, n_frames=2, **SMALL)
+    assert "gripper_hsv" not in plan_sequence(seed=2, hand="hand", **kw).meta
+    inside = []
+    for seed in range(4):  # both gripper colours
+        seq = plan_sequence(seed=seed, hand="gripper", **kw)
+        frame = seq.render(0)
+        box = parse_hsv(seq.meta["gripper_hsv"])
+        inside.append(hsv_mask(frame.rgb, *box)[frame.hand].mean())
+        assert hsv_mask(frame.rgb, *box)[frame.mask].mean() < 0.5  # the red book is not the gripper
+    assert min(inside) > 0.95
+
+
 def test_hand_colours_span_human_skin():
     from artclass_plugins.synth.hands import SKIN_TONES, holder_pieces
 

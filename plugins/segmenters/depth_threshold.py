@@ -263,6 +263,11 @@ def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> l
     return out
 
 
+# Thin objects lying flat are sought in the height above the plane averaged over squares of this many
+# pixels a side (a third of a single reading's noise): an object is a region, not a pixel.
+THIN_WINDOW_PX = 3
+
+
 class MaskFreeSegmenter(InstanceSegmenter):
     """Base of the segmenters that find objects without given masks: the scene's background planes
     from depth, and the hands (:mod:`.hands`) to leave out. ``Params`` include BackgroundParams and
@@ -316,6 +321,7 @@ class MaskFreeSegmenter(InstanceSegmenter):
             sequence_path=sequence.path,
             support=planes[0] if planes else None,
             plane_distance_m=self.params.plane_distance_m,
+            rig=sequence.meta,
         )
 
     def not_hand(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
@@ -355,8 +361,14 @@ class DepthThresholdSegmenter(MaskFreeSegmenter):
             low = background & above_planes(frame.depth_m, K, planes, params=p, sigmas=p.grow_sigmas)
             low = low if allowed is None else low & allowed
             if p.thin_contrast > 0:
+                flat = background & above_planes(
+                    frame.depth_m, K, planes, params=p, sigmas=p.grow_sigmas, window_px=THIN_WINDOW_PX
+                )
                 found += thin_objects(
-                    low, frame.rgb, min_area_fraction=p.min_area_fraction, contrast=p.thin_contrast
+                    flat if allowed is None else flat & allowed,
+                    frame.rgb,
+                    min_area_fraction=p.min_area_fraction,
+                    contrast=p.thin_contrast,
                 )
             if found:
                 found = grow(found, low)

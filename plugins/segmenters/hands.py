@@ -17,7 +17,10 @@ union of:
   sleeve, a glove's cuff, the forearm of a robot arm), is an arm: it is removed with the hand, and
   the hand it holds reaches the border through it. An object that reaches the border while it lies
   on the table is kept;
-* **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``;
+* **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``, or, when
+  that is not set, the box the sequence's own settings give as ``gripper_hsv`` (a robot rig knows
+  its gripper: the native folder format reads it from ``meta.json``); its regions are found apart
+  from the skin-coloured ones, so a wooden object the gripper holds does not join it;
 * **given masks**: one PNG per frame in the folder ``hand_masks`` (a robot knows its own gripper),
   used as they are.
 
@@ -38,8 +41,10 @@ only regions that reach the image border and stand out of the background planes 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -55,6 +60,7 @@ __all__ = [
     "skin_mask",
     "hsv_mask",
     "parse_hsv",
+    "gripper_box",
     "hand_regions",
     "held",
     "load_hand_mask",
@@ -70,11 +76,27 @@ SKIN_CR = (133, 173)
 SKIN_CB = (77, 127)
 
 
-def parse_hsv(text: str) -> tuple[tuple[int, int, int], tuple[int, int, int]] | None:
+def gripper_box(
+    params: HandParams, rig: Mapping[str, Any], sequence_path: Path | str
+) -> tuple[tuple[int, int, int], tuple[int, int, int]] | None:
+    """The gripper's HSV box: the parameter ``gripper_hsv`` when set, else the sequence's own
+    ``gripper_hsv`` (``rig``: its settings, e.g. ``meta.json``), else None.
+
+    Raises :class:`~artclass_core.InputError` naming the sequence when its value is not a box.
+    """
+    if params.gripper_hsv.strip():
+        return parse_hsv(params.gripper_hsv)
+    return parse_hsv(str(rig.get("gripper_hsv") or ""), where=sequence_path)
+
+
+def parse_hsv(
+    text: str, *, where: Path | str | None = None
+) -> tuple[tuple[int, int, int], tuple[int, int, int]] | None:
     """``"h0,s0,v0,h1,s1,v1"`` (OpenCV units: H 0-180, S and V 0-255) as (low, high); None for ``""``.
 
     Raises :class:`~artclass_core.ParamError` naming ``gripper_hsv`` when the text is not six
-    integers in range with low <= high.
+    integers in range with low <= high, or :class:`~artclass_core.InputError` naming ``where`` when
+    the text is a sequence's setting.
     """
     if not text.strip():
         return None
@@ -85,10 +107,13 @@ def parse_hsv(text: str) -> tuple[tuple[int, int, int], tuple[int, int, int]] | 
     highs = (180, 255, 255)
     in_range = len(v) == 6 and all(0 <= x <= highs[k % 3] for k, x in enumerate(v))
     if not in_range or any(v[k] > v[k + 3] for k in range(3)):
-        raise ParamError(
-            f"parameter gripper_hsv = {text!r} is not 'h0,s0,v0,h1,s1,v1' with 0 <= h <= 180, "
+        message = (
+            f"gripper_hsv = {text!r} is not 'h0,s0,v0,h1,s1,v1' with 0 <= h <= 180, "
             "0 <= s, v <= 255 and each low <= its high"
         )
+        if where is not None:
+            raise InputError(f"the sequence's {message}", path=where)
+        raise ParamError(f"parameter {message}")
     return (v[0], v[1], v[2]), (v[3], v[4], v[5])
 
 
@@ -132,7 +157,7 @@ class HandParams(Params):
         help="The gripper's colour as an HSV box 'h0,s0,v0,h1,s1,v1' in OpenCV units "
         "(H 0-180, S and V 0-255), e.g. '0,0,0,180,100,100' for a dark grey "
         "gripper; its regions that reach the image border are removed like "
-        "hands. Empty = none.",
+        "hands. Empty = the sequence's own gripper_hsv (meta.json), if any.",
     )
     hand_masks: str = param(
         "",
@@ -255,6 +280,7 @@ def find_hands(
     sequence_path: Path | str,
     support: Plane | None = None,
     plane_distance_m: float = 0.0,
+    rig: Mapping[str, Any] | None = None,
 ) -> np.ndarray:
     """The hand (and gripper) mask of a frame, with the arms that hold them (see the module
     docstring), not yet grown by its margin.
@@ -268,6 +294,8 @@ def find_hands(
     sequence_path : the sequence folder (``hand_masks`` is relative to it)
     support : the support plane (see :func:`.support.fit_planes`); None = no arm search
     plane_distance_m : metres -- the pixels nearer than this to a plane are background
+    rig : the sequence's settings (``Sequence.meta``); its ``gripper_hsv`` is the gripper's colour
+        when the parameter is not set
 
     Returns
     -------
@@ -275,23 +303,38 @@ def find_hands(
     """
     if not params.exclude_hands:
         return np.zeros(background.shape, bool)
-    candidates = skin_mask(frame.rgb)
-    gripper = parse_hsv(params.gripper_hsv)
+    # skin and the gripper's colour are two kinds of evidence: their regions are found apart, so that a
+    # skin-coloured object a gripper holds does not join it (a pixel of both colours is skin)
+    kinds = [skin_mask(frame.rgb)]
+    gripper = gripper_box(params, rig or {}, sequence_path)
     if gripper is not None:
-        candidates |= hsv_mask(frame.rgb, *gripper)
+        kinds.append(hsv_mask(frame.rgb, *gripper) & ~kinds[0])
+    candidates = np.logical_or.reduce(kinds)
     # cut along depth steps, so that a skin-coloured object behind the hand does not join it; then
     # give the hand back its side of the step (its outline)
     d, touch = clean_depth(frame.depth_m), params.hand_touch_m
     near, far = _depth_range(d, np.ones(background.shape, bool), 1)
     candidates &= ~background
     step = far - near > touch  # no readings around: -inf, not a step
-    if support is None:
-        hand = hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2)
-    else:
-        regions = _regions(
-            hand_regions(candidates & ~step, d, intrinsics, min_area_m2=params.hand_min_area_m2, border=False)
+    found = [
+        hand_regions(
+            kind & candidates & ~step,
+            d,
+            intrinsics,
+            min_area_m2=params.hand_min_area_m2,
+            border=support is None,
         )
-        contact = on_plane(d, intrinsics, support, step=step, plane_distance_m=plane_distance_m)
+        for kind in kinds
+    ]
+    if support is None:
+        hand = np.logical_or.reduce(found)
+    else:
+        regions = [r for kind in found for r in _regions(kind)]
+        contact = (
+            on_plane(d, intrinsics, support, step=step, plane_distance_m=plane_distance_m)
+            if regions
+            else None
+        )
         hand = np.zeros(d.shape, bool)
         held_out = [r for r in regions if not rests(r, contact)]  # a skin-coloured object lies on the table
         for r in regions:

@@ -356,15 +356,35 @@ def above_planes(
     *,
     params: BackgroundParams,
     sigmas: float,
+    window_px: int = 1,
 ) -> np.ndarray:
     """Pixels inside ``[near_m, far_m]`` that lie in front of every plane by more than ``sigmas``
     times its measured noise (``Plane.noise_m``, at least DEPTH_STEP_M): off the plane by more than
-    its noise explains, though maybe nearer than ``plane_distance_m``. bool (H, W)."""
+    its noise explains, though maybe nearer than ``plane_distance_m``. bool (H, W).
+
+    With ``window_px`` > 1 a pixel's height is the mean over the ``window_px`` x ``window_px`` square
+    around it (all with a reading), judged against the noise of that mean measured on the plane in
+    this image (the robust sigma of the means within ``plane_distance_m`` of it): up to
+    ``window_px`` times smaller than a single reading's where the sensor's noise is independent from
+    pixel to pixel, so that a surface a few millimetres proud of the plane stands out of it though
+    its single readings do not."""
     d = clean_depth(depth_m)
-    out = (d >= params.near_m) & (d <= params.far_m) & (d > 0)
+    inside = (d >= params.near_m) & (d <= params.far_m) & (d > 0)
     rays = _rays(
         intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height
     )
+    out = inside
+    if window_px > 1:
+        size = (window_px, window_px)
+        out = cv2.erode(inside.astype(np.uint8), np.ones(size, np.uint8), borderValue=0) > 0
     for plane in planes:
-        out &= _signed(d, rays, plane) > sigmas * max(plane.noise_m, DEPTH_STEP_M)
+        height = _signed(d, rays, plane)
+        noise = max(plane.noise_m, DEPTH_STEP_M)
+        if window_px > 1:
+            height = cv2.blur(height, size)
+            sample = np.abs(height[::4, ::4][out[::4, ::4]])  # a sixteenth is plenty for a median
+            sample = sample[sample < params.plane_distance_m]
+            if sample.size:
+                noise = max(1.4826 * float(np.median(sample)), DEPTH_STEP_M / window_px)
+        out &= height > sigmas * noise
     return out

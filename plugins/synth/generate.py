@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .hands import HOLDER_KINDS, grasp_pose, holder_pieces, wave_path
+from .hands import HOLDER_KINDS, colour_box, grasp_pose, holder_pieces, wave_path
 from .motion import MOTIONS, Trajectory, make_trajectory
 from .objects import OBJECTS, ObjectSpec, part_poses
 from .render import (
@@ -35,7 +35,7 @@ __all__ = [
     "plan_sequence",
 ]
 
-GENERATOR_VERSION = "0.2.0"
+GENERATOR_VERSION = "0.3.0"
 
 #: Surface variants: ``textured`` pieces carry their printed pattern, ``plain`` ones are uniform
 #: colours with shading only.
@@ -351,8 +351,11 @@ def plan_sequence(
         "texture": texture,
         "hand": hand,
     }
-    q = traj.joint_positions
     level = NOISE_LEVELS[noise]
+    grippers = [p for h in holders if h.kind == "gripper" for p in h.pieces]
+    if grippers:  # the rig knows its gripper's colour, as a robot's owner would measure it once
+        meta["gripper_hsv"] = colour_box(grippers, rgb_sigma=level.rgb_sigma)
+    q = traj.joint_positions
     n = len(T_co)
     truth = {
         "joint_type": spec.joint_type,

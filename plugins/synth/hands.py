@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 from .objects import ObjectSpec, Piece, box, cylinder, part_poses, sphere
+from .render import AMBIENT
 
-__all__ = ["HOLDER_KINDS", "SKIN_TONES", "grasp_pose", "holder_pieces", "wave_path"]
+__all__ = ["HOLDER_KINDS", "SKIN_TONES", "colour_box", "grasp_pose", "holder_pieces", "wave_path"]
 
 #: Kinds of holder.
 HOLDER_KINDS = ("hand", "gripper")
@@ -40,6 +42,10 @@ _SLEEVES = (
     (0.85, 0.85, 0.82),
     (0.60, 0.50, 0.35),
 )
+#: Length of the sleeve from the wrist end of the forearm to the shoulder, and of the robot arm behind
+#: the gripper, metres: a real arm reaches out of the picture, it never ends in mid-air.
+SLEEVE_M = 1.2
+ROBOT_ARM_M = 1.2
 _GRIPPER_COLOURS = ((0.55, 0.56, 0.58), (0.12, 0.12, 0.13))
 
 
@@ -82,8 +88,8 @@ def holder_pieces(kind: str, rng: np.random.Generator) -> tuple[Piece, ...]:
         pieces.append(
             cylinder(
                 0.04,
-                0.16,
-                (0.0, 0.0, -0.11 * s - 0.23),
+                SLEEVE_M,
+                (0.0, 0.0, -0.11 * s - 0.15 - SLEEVE_M / 2),
                 sleeve,
                 resolution=12,
                 pattern="stripes",
@@ -101,8 +107,8 @@ def holder_pieces(kind: str, rng: np.random.Generator) -> tuple[Piece, ...]:
             box((0.02, 0.012, 0.05), (0.0, -0.018, -0.01), dark, pattern="plain"),
             cylinder(
                 0.035,
-                0.30,
-                (0.0, 0.0, -0.24),
+                ROBOT_ARM_M,
+                (0.0, 0.0, -0.09 - ROBOT_ARM_M / 2),
                 colour,
                 resolution=16,
                 pattern="stripes",
@@ -111,6 +117,42 @@ def holder_pieces(kind: str, rng: np.random.Generator) -> tuple[Piece, ...]:
             ),
         )
     raise ValueError(f"kind={kind!r} is not one of {HOLDER_KINDS}")
+
+
+# A colour box holds the noisy colours within this many noise sigmas of the noise-free ones.
+_BOX_SIGMAS = 3.0
+
+
+def colour_box(pieces, *, rgb_sigma: float, ambient: float = AMBIENT) -> str:
+    """The HSV box, ``"h0,s0,v0,h1,s1,v1"`` in OpenCV units (H 0-180, S and V 0-255), that holds the
+    colours the camera sees on ``pieces`` (a robot's gripper: what its owner measures once and writes
+    into the rig's settings).
+
+    The box spans both colours of every piece's pattern, lit from the ambient share alone (a face
+    turned from the light) to full light, widened by ``_BOX_SIGMAS`` colour-noise sigmas. Hue is
+    left open (0-180) when the colours are too grey for the noise to leave it defined.
+
+    Parameters
+    ----------
+    pieces : sequence of Piece
+    rgb_sigma : float
+        Colour noise, 8-bit levels.
+    ambient : float
+        Ambient share of the lighting, as rendered.
+    """
+    colours = np.array([c for p in pieces for c in (p.colour, p.colour2)], dtype=float)
+    rgb = np.concatenate([colours * ambient, colours]) * 255.0
+    hsv = cv2.cvtColor(np.clip(np.rint(rgb), 0, 255).astype(np.uint8)[None], cv2.COLOR_RGB2HSV)[0]
+    pad = _BOX_SIGMAS * rgb_sigma
+    top, bottom = rgb.max(1), rgb.min(1)
+    # saturation (max - min) / max, the difference of two channels' independent noises being
+    # sqrt(2) times as wide as one's
+    spread = math.sqrt(2.0) * pad
+    sat = 255.0 * np.minimum((top - bottom + spread) / np.maximum(top, 1.0), 1.0)
+    grey = bool(np.any(top - bottom < spread))
+    h0, h1 = (0, 180) if grey else (int(hsv[:, 0].min()), int(hsv[:, 0].max()))
+    v0, v1 = max(int(np.floor(top.min() - pad)), 0), min(int(np.ceil(top.max() + pad)), 255)
+    return f"{h0},0,{v0},{h1},{int(np.ceil(sat.max()))},{v1}"
 
 
 def _unit(v) -> np.ndarray:
@@ -166,6 +208,7 @@ def grasp_pose(spec: ObjectSpec, part: int, q0, rng: np.random.Generator) -> np.
     pick = candidates[np.argmin(pts[candidates, 1] + rng.uniform(0.0, 0.04, len(candidates)))]
     centroid = pts.mean(0)
     outward = pts[pick] - centroid
+    outward[2] = max(outward[2], 0.0)  # an arm never reaches up from under the table
     outward = _unit(outward) if np.linalg.norm(outward) > 1e-6 else np.array([0.0, -1.0, 0.0])
     # The forearm (-z) points outward and up, the approach (+z) into the part.
     approach = -_unit(outward + rng.uniform(0.5, 0.9) * np.array([0.0, 0.0, 1.0]))

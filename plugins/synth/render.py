@@ -50,6 +50,8 @@ WALL_Y_M = 0.62
 #: ``SceneMesh.part`` of the room and of a hand or gripper (object parts are 0, 1, ...).
 ROOM = -1
 HAND = -2
+#: Ambient share of the lighting (the rest is a directional light near the camera).
+AMBIENT = 0.35
 
 
 @dataclass(frozen=True)
@@ -375,7 +377,7 @@ def render_clean(
     T_camera_from_world: np.ndarray,
     intrinsics: Intrinsics,
     projector_baseline_m: float = PROJECTOR_BASELINE_M,
-    ambient: float = 0.35,
+    ambient: float = AMBIENT,
 ) -> CleanFrame:
     """Ray-cast ``meshes`` through a pinhole camera.
 
