@@ -7,6 +7,8 @@ so the colour image carries a texture that moves with the surface, as optical fl
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -295,6 +297,23 @@ def test_a_second_motion_must_explain_a_coherent_region(region, decision):
     assert out.decision == decision, out.reason
     if decision == "AM":
         assert (out.labels == 1).sum() == region.sum() and (out.labels[region] == 1).all()
+
+
+def test_texture_alone_makes_no_part():
+    """Both motions fit the depth everywhere, and only the optical flow on a coherent region prefers
+    the second (stripes that repeat, shading that moves over a turning surface): one motion. The same
+    region failed in depth by the first motion is a part."""
+    region = GRID[1].ravel() >= 28
+    evidence = drawn_evidence(region)
+    flow_only = dataclasses.replace(
+        evidence,
+        residual_m=np.where(np.isnan(evidence.residual_m), np.nan, 0.0005).astype(np.float32),
+        flow_px=np.stack(
+            [np.full(len(region), np.nan), np.where(region, 20.0, 0.0), np.where(region, 0.0, 20.0)]
+        ).astype(np.float32),
+    )
+    assert DenseRule().decide(flow_only).decision == "RM"
+    assert DenseRule().decide(evidence).decision == "AM"
 
 
 def test_motions_closer_than_the_noise_are_one():

@@ -17,9 +17,10 @@ motion that explains it best: that labelling is the pair's part segmentation, an
 are mixed with another's (two fits that each explain half of a rigid object) is not a part.
 
 Decision: two or more motions that really differ (their relative motion moves the median point of
-each side by more than ``noise_factor`` sigma plus one pixel, and each fails points that the other
-explains) are AM; one motion is RM when it moves
-the median point by as much, else NM. Too few points seen in both frames: skipped.
+each side by more than ``noise_factor`` sigma plus one pixel, and each fails in depth points that the
+other explains: optical flow helps choose the motions, but texture alone makes no part) are AM; one
+motion is RM when it moves the median point by as much, else NM. Too few points seen in both frames:
+skipped.
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ class DenseRuleParams(Params):
         "penalty, 6 ln N (6 parameters, N points).",
     )
     min_part_share: float = param(
-        0.03,
+        0.02,
         unit="fraction",
         bounds=(0.0, 0.5),
         help="A further motion must explain at least this share of the seen points "
@@ -314,6 +315,7 @@ class DenseRule(DecisionRule):
         layout, stride = _layout(ev), int(ev.info.get("stride_px", 1))
         coherence = label_coherence(decisive, layout, stride)
         misfit, enough = p.noise_factor**2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
+        depth = self.costs(ev, noise, np.inf)
         for h in chosen[1:]:
             own, rest = ev.points[forward & (labels == h)], ev.points[forward & (labels >= 0) & (labels != h)]
             apart = min(
@@ -321,9 +323,10 @@ class DenseRule(DecisionRule):
                 _displacement(rest, ev.motions[h], ev.motions[base]),
             )
             # Each motion must fail points the other explains: two fits of one rigid body explain
-            # nearly the same points, a part and its base do not.
+            # nearly the same points, a part and its base do not; and fail them in depth, since
+            # texture alone misleads (stripes that repeat, shading that moves over a turning surface).
             needed = all(
-                int((seen & (costs[a] < misfit / 2) & (costs[b] >= misfit)).sum()) >= enough
+                int((seen & (costs[a] < misfit / 2) & (depth[b] >= misfit)).sum()) >= enough
                 for a, b in ((h, base), (base, h))
             )
             # ... and a part is one region of the image where its motion is clearly the better one.
