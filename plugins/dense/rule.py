@@ -59,7 +59,7 @@ class DenseRuleParams(Params):
         "penalty, 6 ln N (6 parameters, N points).",
     )
     min_part_share: float = param(
-        0.02,
+        0.03,
         unit="fraction",
         bounds=(0.0, 0.5),
         help="A further motion must explain at least this share of the seen points "
