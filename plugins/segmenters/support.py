@@ -211,8 +211,9 @@ def refine_plane(
         inliers = np.abs(points @ normal + offset) < distance_m
         if inliers.sum() < 3:
             break
-        centre = points[inliers].mean(axis=0)
-        spread = points[inliers] - centre
+        held = points[inliers]
+        centre = held.mean(axis=0)
+        spread = held - centre
         normal = np.linalg.eigh(spread.T @ spread)[1][:, 0]  # the direction of least spread
         offset = -float(normal @ centre)
     inliers = np.abs(points @ normal + offset) < distance_m
