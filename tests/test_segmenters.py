@@ -44,6 +44,7 @@ from artclass_plugins.segmenters.selection import (
     fallback_index,
     mask_iou,
     match_instances,
+    steady_pixels,
 )
 from artclass_plugins.segmenters.support import BackgroundParams, above_planes, background_mask, fit_planes
 
@@ -112,6 +113,11 @@ def test_selection_picks_the_moving_box_among_still_ones():
     assert scores[1] > 0.1  # 6 of 36 columns swept (2 x 6 px changed, edges excluded)
     choice = choose_instance(instances, d0, others, d1, change_m=0.01, min_change=0.1, keep_iou=0.3)
     assert choice.index == 1 and choice.rule == "moving"
+    # the frames' steady pixels, computed once and given, score the same
+    steady = steady_pixels(d0, change_m=0.01), steady_pixels(d1, change_m=0.01)
+    assert not steady[0].all() and steady[0].any()  # the boxes' outlines are depth edges
+    again = change_scores(instances, d0, others, d1, change_m=0.01, steady=steady)
+    assert again == (scores, matches, tau)
 
 
 def test_selection_ignores_depth_noise_and_edge_flicker():

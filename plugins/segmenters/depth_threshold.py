@@ -21,6 +21,7 @@ joins two. The shared selection (:mod:`.selection`) picks the one being manipula
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -39,6 +40,7 @@ from .support import (
     clean_depth,
     fit_planes,
     label_regions,
+    plane_height_m,
 )
 
 __all__ = [
@@ -181,20 +183,32 @@ def fill_floors(
             out.append(mask)
             continue
         seen = depth_m[box] > 0
-        around, rim = np.zeros_like(mask), np.zeros_like(mask)
-        around[box] = m & (cv2.dilate(holes.astype(np.uint8), kernel) > 0) & seen
-        rim[box] = holes & (cv2.dilate(m.astype(np.uint8), kernel) > 0) & seen
+        around = m & (cv2.dilate(holes.astype(np.uint8), kernel) > 0) & seen
+        rim = holes & (cv2.dilate(m.astype(np.uint8), kernel) > 0) & seen
         if not rim.any() or not around.any():
             out.append(mask)
             continue
-        gaps = cKDTree(intrinsics.backproject(depth_m, around)).query(intrinsics.backproject(depth_m, rim))[0]
-        which, holes_k = labels[rim[box]], np.arange(1, n)  # backproject's order is row-major, as this
+        corner = (rows[0], cols[0])
+        gaps = cKDTree(_points(depth_m, around, corner, intrinsics)).query(
+            _points(depth_m, rim, corner, intrinsics)
+        )[0]
+        which, holes_k = labels[rim], np.arange(1, n)  # _points' order is row-major, as this
         has_rim = np.bincount(which, minlength=n)[1:] > 0
         good = holes_k[has_rim & (np.asarray(ndimage.median(gaps, which, holes_k)) <= gap_m)]
         filled = mask.copy()
         filled[box] |= np.isin(labels, good)
         out.append(filled)
     return out
+
+
+def _points(
+    depth_m: np.ndarray, where: np.ndarray, corner: tuple[int, int], intrinsics: Intrinsics
+) -> np.ndarray:
+    """The 3-D points (N, 3), metres, of the pixels ``where`` (bool, a crop of the image whose first row
+    and column are ``corner``), in row-major order: :meth:`Intrinsics.backproject` of the crop alone."""
+    v, u = np.nonzero(where)
+    v, u = v + corner[0], u + corner[1]
+    return intrinsics.points(u, v, depth_m[v, u].astype(np.float64))
 
 
 def thin_objects(
@@ -268,15 +282,25 @@ def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> l
 THIN_WINDOW_PX = 3
 
 
+class Scene(NamedTuple):
+    """What depth alone tells of a frame (see :meth:`MaskFreeSegmenter.scene`)."""
+
+    planes: list[Plane]  # the background planes, the support plane first
+    background: np.ndarray  # bool (H, W): see :func:`.support.background_mask`
+    valid: np.ndarray  # bool (H, W): pixels with a depth reading
+    depth_m: np.ndarray  # float32 (H, W), metres, 0 = no reading (:func:`.support.clean_depth`)
+    heights_m: list[np.ndarray]  # float32 (H, W) per plane, metres: :func:`.support.plane_height_m`
+
+
 class MaskFreeSegmenter(InstanceSegmenter):
     """Base of the segmenters that find objects without given masks: the scene's background planes
     from depth, and the hands (:mod:`.hands`) to leave out. ``Params`` include BackgroundParams and
     HandParams."""
 
-    def scene(self, frame: Frame, *, sequence: Sequence) -> tuple[list[Plane], np.ndarray, np.ndarray]:
-        """The background planes of ``frame``, its background mask and its pixels with a reading
-        (see :func:`.support.background_mask`); the last frame's are kept, as hands and instances
-        both need them. The planes are sought first where they lie in the sequence's first frame (see
+    def scene(self, frame: Frame, *, sequence: Sequence) -> Scene:
+        """The background planes of ``frame``, its background mask, its pixels with a reading (see
+        :func:`.support.background_mask`), its clean depth and each plane's height above it; the last
+        frame's are kept, as hands and instances both need them. The planes are sought first where they lie in the sequence's first frame (see
         ``hints`` in :func:`.support.fit_planes`), so the result of a frame does not depend on which
         frames were segmented before it."""
         key = (str(sequence.path), sequence.name, frame.index)
@@ -289,13 +313,12 @@ class MaskFreeSegmenter(InstanceSegmenter):
                     params=self.params,
                     hints=self._first_planes(frame, sequence) if frame.index else None,
                 )
-                last = self._last_scene = (
-                    key,
-                    (
-                        planes,
-                        *background_mask(frame.depth_m, sequence.intrinsics, planes, params=self.params),
-                    ),
+                depth = clean_depth(frame.depth_m)
+                heights = [plane_height_m(depth, sequence.intrinsics, plane) for plane in planes]
+                background, valid = background_mask(
+                    depth, sequence.intrinsics, planes, params=self.params, heights=heights
                 )
+                last = self._last_scene = (key, Scene(planes, background, valid, depth, heights))
             return last[1]
 
     def _first_planes(self, frame: Frame, sequence: Sequence) -> list[Plane]:
@@ -312,16 +335,17 @@ class MaskFreeSegmenter(InstanceSegmenter):
     def hands(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
         if not self.params.exclude_hands:
             return None
-        planes, background, _ = self.scene(frame, sequence=sequence)
+        scene = self.scene(frame, sequence=sequence)
         return find_hands(
             frame,
-            background,
+            scene.background,
             sequence.intrinsics,
             params=self.params,
             sequence_path=sequence.path,
-            support=planes[0] if planes else None,
+            support=scene.planes[0] if scene.planes else None,
             plane_distance_m=self.params.plane_distance_m,
             rig=sequence.meta,
+            support_height_m=scene.heights_m[0] if scene.planes else None,
         )
 
     def not_hand(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
@@ -353,16 +377,22 @@ class DepthThresholdSegmenter(MaskFreeSegmenter):
 
     def instances(self, frame: Frame, *, sequence: Sequence) -> list[np.ndarray]:
         p, K = self.params, sequence.intrinsics
-        planes, background, valid = self.scene(frame, sequence=sequence)
+        planes, background, valid, depth, heights = self.scene(frame, sequence=sequence)
         allowed = self.not_hand(frame, sequence=sequence)
         objects = valid & ~background if allowed is None else valid & ~background & allowed
         found = components(objects, open_px=p.open_px, min_area_fraction=p.min_area_fraction)
         if p.grow_sigmas > 0:
-            low = background & above_planes(frame.depth_m, K, planes, params=p, sigmas=p.grow_sigmas)
+            low = background & above_planes(depth, K, planes, params=p, sigmas=p.grow_sigmas, heights=heights)
             low = low if allowed is None else low & allowed
             if p.thin_contrast > 0:
                 flat = background & above_planes(
-                    frame.depth_m, K, planes, params=p, sigmas=p.grow_sigmas, window_px=THIN_WINDOW_PX
+                    depth,
+                    K,
+                    planes,
+                    params=p,
+                    sigmas=p.grow_sigmas,
+                    window_px=THIN_WINDOW_PX,
+                    heights=heights,
                 )
                 found += thin_objects(
                     flat if allowed is None else flat & allowed,
@@ -372,7 +402,6 @@ class DepthThresholdSegmenter(MaskFreeSegmenter):
                 )
             if found:
                 found = grow(found, low)
-        depth = clean_depth(frame.depth_m)
         found = join_touching(found, depth, K, join_m=p.join_m)
         found = fill_floors(found, depth, K, gap_m=p.plane_distance_m)
         found = fill_dropouts(found, valid, fill_px=p.fill_px)

@@ -281,6 +281,7 @@ def find_hands(
     support: Plane | None = None,
     plane_distance_m: float = 0.0,
     rig: Mapping[str, Any] | None = None,
+    support_height_m: np.ndarray | None = None,
 ) -> np.ndarray:
     """The hand (and gripper) mask of a frame, with the arms that hold them (see the module
     docstring), not yet grown by its margin.
@@ -296,6 +297,8 @@ def find_hands(
     plane_distance_m : metres -- the pixels nearer than this to a plane are background
     rig : the sequence's settings (``Sequence.meta``); its ``gripper_hsv`` is the gripper's colour
         when the parameter is not set
+    support_height_m : ndarray, shape (H, W), metres, optional -- the support plane's
+        :func:`.support.plane_height_m`, when already computed
 
     Returns
     -------
@@ -309,12 +312,15 @@ def find_hands(
     gripper = gripper_box(params, rig or {}, sequence_path)
     if gripper is not None:
         kinds.append(hsv_mask(frame.rgb, *gripper) & ~kinds[0])
-    candidates = np.logical_or.reduce(kinds)
+    candidates = np.logical_or.reduce(kinds) & ~background
+    if not candidates.any():  # nothing skin- or gripper-coloured stands out of the background
+        return _with_given(
+            np.zeros(background.shape, bool), frame, params=params, sequence_path=sequence_path
+        )
     # cut along depth steps, so that a skin-coloured object behind the hand does not join it; then
     # give the hand back its side of the step (its outline)
     d, touch = clean_depth(frame.depth_m), params.hand_touch_m
     near, far = _depth_range(d, np.ones(background.shape, bool), 1)
-    candidates &= ~background
     step = far - near > touch  # no readings around: -inf, not a step
     found = [
         hand_regions(
@@ -331,7 +337,14 @@ def find_hands(
     else:
         regions = [r for kind in found for r in _regions(kind)]
         contact = (
-            on_plane(d, intrinsics, support, step=step, plane_distance_m=plane_distance_m)
+            on_plane(
+                d,
+                intrinsics,
+                support,
+                step=step,
+                plane_distance_m=plane_distance_m,
+                height_m=support_height_m,
+            )
             if regions
             else None
         )
@@ -363,6 +376,13 @@ def find_hands(
         # pixels without a reading are the hand's where a closing of the margin's radius puts them
         # inside it (dropouts on skin), not a band along its side (the sensor's shadow on the table)
         hand &= (d > 0) | close_gaps(hand & (d > 0), params.hand_margin_px)
+    return _with_given(hand, frame, params=params, sequence_path=sequence_path)
+
+
+def _with_given(
+    hand: np.ndarray, frame: Frame, *, params: HandParams, sequence_path: Path | str
+) -> np.ndarray:
+    """``hand`` with the frame's given mask (``hand_masks``) added, when there is one."""
     if params.hand_masks:
         hand |= load_hand_mask(Path(sequence_path) / Path(params.hand_masks).expanduser(), frame)
     return hand
@@ -378,14 +398,21 @@ CONTACT_PIXELS = 2.0
 
 
 def on_plane(
-    depth_m: np.ndarray, intrinsics: Intrinsics, support: Plane, *, step: np.ndarray, plane_distance_m: float
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    support: Plane,
+    *,
+    step: np.ndarray,
+    plane_distance_m: float,
+    height_m: np.ndarray | None = None,
 ) -> np.ndarray:
     """The pixels where what stands on the support plane comes down to it: within
     ``plane_distance_m + CONTACT_SIGMAS * noise + CONTACT_PIXELS * z / fx`` of the plane (the
     background cut, the plane's measured noise and a pixel's size at depth z), with a reading, off
     depth steps (``step``: the flying pixels between an arm and the table behind it are no contact).
+    ``height_m``: the support plane's :func:`.support.plane_height_m`, when already computed.
     bool (H, W)."""
-    height = plane_height_m(depth_m, intrinsics, support)
+    height = plane_height_m(depth_m, intrinsics, support) if height_m is None else height_m
     return (
         (
             height

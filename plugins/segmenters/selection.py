@@ -72,6 +72,7 @@ __all__ = [
     "mask_iou",
     "match_instances",
     "change_scores",
+    "steady_pixels",
     "fallback_index",
     "choose_instance",
 ]
@@ -194,6 +195,13 @@ def _depth_edges(depth_m: np.ndarray, step_m: float) -> np.ndarray:
     return cv2.morphologyEx(depth_m, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > step_m
 
 
+def steady_pixels(depth_m: np.ndarray, *, change_m: float) -> np.ndarray:
+    """The pixels of a depth image with a reading, away from depth edges (their 3x3 neighbourhood
+    spans at most ``change_m`` of depth and has no missing reading): bool (H, W)."""
+    d = clean_depth(depth_m)
+    return (d > 0) & ~_depth_edges(d, change_m)
+
+
 def change_scores(
     instances: list[np.ndarray],
     depth_m: np.ndarray,
@@ -202,6 +210,7 @@ def change_scores(
     *,
     change_m: float,
     ignore: np.ndarray | None = None,
+    steady: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[list[float], list[tuple[int | None, float]], float]:
     """How much each instance changes between this frame and the neighbouring one.
 
@@ -212,6 +221,8 @@ def change_scores(
     others, other_depth_m : the same for the neighbouring frame
     change_m : smallest depth change that counts (metres), and the depth-edge step
     ignore : ndarray of bool, shape (H, W), optional -- pixels left out (a hand in either frame)
+    steady : (ndarray of bool, shape (H, W)) x 2, optional -- :func:`steady_pixels` of this and the
+        neighbouring frame, when already computed
 
     Returns
     -------
@@ -223,7 +234,9 @@ def change_scores(
     """
     matches = match_instances(instances, others)
     d, od = clean_depth(depth_m), clean_depth(other_depth_m)
-    stable = (d > 0) & (od > 0) & ~_depth_edges(d, change_m) & ~_depth_edges(od, change_m)
+    if steady is None:
+        steady = steady_pixels(d, change_m=change_m), steady_pixels(od, change_m=change_m)
+    stable = steady[0] & steady[1]
     if ignore is not None:
         stable &= ~ignore
     diff = np.abs(d - od)
@@ -273,6 +286,7 @@ def choose_instance(
     keep_iou: float,
     ignore: np.ndarray | None = None,
     held: list[bool] | None = None,
+    steady: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Choice:
     """Choose the manipulated instance of a frame (see the module docstring for the rule).
 
@@ -289,6 +303,7 @@ def choose_instance(
     ignore : ndarray of bool, shape (H, W), optional -- pixels left out of the change score (hands)
     held : list of bool, optional -- which instances a hand holds; held instances come first, moving
         or still
+    steady : the two frames' :func:`steady_pixels`, when already computed
 
     Returns
     -------
@@ -301,7 +316,7 @@ def choose_instance(
         scores, matches = [0.0] * len(instances), [(None, 0.0)] * len(instances)
     else:
         scores, matches, tau = change_scores(
-            instances, depth_m, others, other_depth_m, change_m=change_m, ignore=ignore
+            instances, depth_m, others, other_depth_m, change_m=change_m, ignore=ignore, steady=steady
         )
     kept = [mask_iou(m, previous) for m in instances] if previous is not None and previous.any() else None
     moving = [k for k, s in enumerate(scores) if s > min_change]
@@ -356,6 +371,7 @@ class InstanceSegmenter(Segmenter):
         super().__init__(params)
         self._lock = threading.RLock()
         self._states: OrderedDict[tuple, _SequenceState] = OrderedDict()
+        self._steady: OrderedDict[tuple, np.ndarray] = OrderedDict()  # steady_pixels of recent frames
         cache_dir = getattr(self.params, "cache_dir", "")
         self._disk = DiskMaskCache(cache_dir, segmenter=self.name, params=self.params) if cache_dir else None
 
@@ -443,8 +459,9 @@ class InstanceSegmenter(Segmenter):
         if 0 <= nb < n and nb != j:
             others = [m.unpack() for m in self._instances(sequence, nb)]
             other_depth = sequence[nb].depth_m
+            steady = self._steady_pixels(sequence, j, depth), self._steady_pixels(sequence, nb, other_depth)
         else:
-            nb, others, other_depth = None, None, None
+            nb, others, other_depth, steady = None, None, None, None
         ignore, holding = self._hand_evidence(
             sequence, frame if frame is not None else sequence[j], nb, mine, depth
         )
@@ -459,6 +476,7 @@ class InstanceSegmenter(Segmenter):
             keep_iou=p.keep_iou,
             ignore=ignore,
             held=holding,
+            steady=steady,
         )
         choice = dataclasses.replace(choice, neighbour=nb)
         shape = depth.shape
@@ -470,6 +488,16 @@ class InstanceSegmenter(Segmenter):
         if self._disk is not None:
             self._disk.store(sequence.path, sequence.name, name or sequence[j].name, packed.unpack())
         self._append(state, packed, choice)
+
+    def _steady_pixels(self, sequence: Sequence, i: int, depth_m: np.ndarray) -> np.ndarray:
+        """:func:`steady_pixels` of frame ``i``, kept for the last few frames: each frame is compared
+        with the frame ``neighbour_frames`` before it and the one after it."""
+        key = (str(sequence.path), sequence.name, i)
+        if key not in self._steady:
+            self._steady[key] = steady_pixels(depth_m, change_m=self.params.change_m)
+            while len(self._steady) > 2 * self.params.neighbour_frames + 2:
+                self._steady.popitem(last=False)
+        return self._steady[key]
 
     def _hand_evidence(
         self,

@@ -211,8 +211,9 @@ def refine_plane(
         inliers = np.abs(points @ normal + offset) < distance_m
         if inliers.sum() < 3:
             break
-        centre = points[inliers].mean(axis=0)
-        spread = points[inliers] - centre
+        held = points[inliers]
+        centre = held.mean(axis=0)
+        spread = held - centre
         normal = np.linalg.eigh(spread.T @ spread)[1][:, 0]  # the direction of least spread
         offset = -float(normal @ centre)
     inliers = np.abs(points @ normal + offset) < distance_m
@@ -316,7 +317,12 @@ def plane_height_m(depth_m: np.ndarray, intrinsics: Intrinsics, plane: Plane) ->
 
 
 def background_mask(
-    depth_m: np.ndarray, intrinsics: Intrinsics, planes: list[Plane], *, params: BackgroundParams
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    planes: list[Plane],
+    *,
+    params: BackgroundParams,
+    heights: list[np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Which pixels are known background, and which have a usable depth reading.
 
@@ -326,6 +332,8 @@ def background_mask(
     intrinsics : pinhole intrinsics of the depth image
     planes : background planes from :func:`fit_planes`
     params : range and plane settings
+    heights : list of ndarray, shape (H, W), metres, optional -- each plane's
+        :func:`plane_height_m`, when already computed
 
     Returns
     -------
@@ -337,12 +345,16 @@ def background_mask(
     d = clean_depth(depth_m)
     valid = d > 0
     background = valid & ((d < params.near_m) | (d > params.far_m))
-    rx, ry = _rays(
-        intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height
-    )
-    for plane in planes:
-        background |= valid & (_signed(d, (rx, ry), plane) < params.plane_distance_m)
+    for height in _heights(d, intrinsics, planes, heights):
+        background |= valid & (height < params.plane_distance_m)
     return background, valid
+
+
+def _heights(
+    d: np.ndarray, intrinsics: Intrinsics, planes: list[Plane], heights: list[np.ndarray] | None
+) -> list[np.ndarray]:
+    """``heights`` when given, else each plane's :func:`plane_height_m` of the clean depth ``d``."""
+    return heights if heights is not None else [plane_height_m(d, intrinsics, plane) for plane in planes]
 
 
 # Depth images store millimetres: a plane's own pixels stray this far from it with no noise at all.
@@ -357,6 +369,7 @@ def above_planes(
     params: BackgroundParams,
     sigmas: float,
     window_px: int = 1,
+    heights: list[np.ndarray] | None = None,
 ) -> np.ndarray:
     """Pixels inside ``[near_m, far_m]`` that lie in front of every plane by more than ``sigmas``
     times its measured noise (``Plane.noise_m``, at least DEPTH_STEP_M): off the plane by more than
@@ -367,18 +380,15 @@ def above_planes(
     this image (the robust sigma of the means within ``plane_distance_m`` of it): up to
     ``window_px`` times smaller than a single reading's where the sensor's noise is independent from
     pixel to pixel, so that a surface a few millimetres proud of the plane stands out of it though
-    its single readings do not."""
+    its single readings do not. ``heights``: each plane's :func:`plane_height_m`, when already
+    computed."""
     d = clean_depth(depth_m)
     inside = (d >= params.near_m) & (d <= params.far_m) & (d > 0)
-    rays = _rays(
-        intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height
-    )
     out = inside
     if window_px > 1:
         size = (window_px, window_px)
         out = cv2.erode(inside.astype(np.uint8), np.ones(size, np.uint8), borderValue=0) > 0
-    for plane in planes:
-        height = _signed(d, rays, plane)
+    for plane, height in zip(planes, _heights(d, intrinsics, planes, heights)):
         noise = max(plane.noise_m, DEPTH_STEP_M)
         if window_px > 1:
             height = cv2.blur(height, size)

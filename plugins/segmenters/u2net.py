@@ -106,7 +106,7 @@ class U2netSegmenter(MaskFreeSegmenter):
     def instances(self, frame: Frame, *, sequence: Sequence) -> list[np.ndarray]:
         p = self.params
         prob = saliency(frame.rgb, session=load_u2net(p.model_path))
-        _, background, _ = self.scene(frame, sequence=sequence)
+        background = self.scene(frame, sequence=sequence).background
         objects = (prob > p.threshold) & ~background
         allowed = self.not_hand(frame, sequence=sequence)
         return components(
