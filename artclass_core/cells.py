@@ -105,6 +105,12 @@ def checked_cells(cells: Iterable[CellMotion], *, min_fitness: float) -> list[Ce
     return out
 
 
+def scratch_kwargs(rule: DecisionRule, scratch: dict) -> dict[str, dict]:
+    """The keyword that hands a rule the pair's scratch dict, for a rule that keeps evidence in it
+    (:attr:`DecisionRule.uses_scratch`); none for the others."""
+    return {"scratch": scratch} if getattr(rule, "uses_scratch", False) else {}
+
+
 def decide_cells(
     rule: DecisionRule,
     i: int,
@@ -127,9 +133,7 @@ def decide_cells(
         pair.reason = f"only {n_matched} of {len(cells)} cells matched (alpha = {alpha:g})"
         return pair
     extra = {"between": between} if rule.uses_frames_between and None not in between else {}
-    if getattr(rule, "uses_scratch", False):
-        extra["scratch"] = scratch
-    out = rule.decide(cells, source=source, target=target, **extra)
+    out = rule.decide(cells, source=source, target=target, **extra, **scratch_kwargs(rule, scratch))
     if len(out.clusters) != len(cells):
         raise ArtclassError(
             f"rule {rule.name!r} returned {len(out.clusters)} clusters for {len(cells)} cells"

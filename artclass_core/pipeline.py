@@ -187,7 +187,7 @@ class Pipeline(FrameSteps):
     ) -> PairResult:
         """Apply the decision rule to a pair's motion evidence (from a pair registrar)."""
         scratch = {} if scratch is None else scratch
-        out = self.rule.decide(evidence, **self._scratch_arg(scratch))
+        out = self.rule.decide(evidence, **_cells.scratch_kwargs(self.rule, scratch))
         return PairResult(
             i,
             j,
@@ -199,9 +199,6 @@ class Pipeline(FrameSteps):
             evidence=evidence,
             scratch=scratch,
         )
-
-    def _scratch_arg(self, scratch: dict) -> dict[str, dict]:
-        return {"scratch": scratch} if getattr(self.rule, "uses_scratch", False) else {}
 
     def _pair(
         self,
