@@ -315,7 +315,7 @@ class DenseRule(DecisionRule):
         layout, stride = _layout(ev), int(ev.info.get("stride_px", 1))
         coherence = label_coherence(decisive, layout, stride)
         misfit, enough = p.noise_factor**2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
-        depth = self.costs(ev, noise, np.inf)
+        depth = self.costs(ev, noise, np.inf) if len(chosen) > 1 else None  # only a part needs them
         for h in chosen[1:]:
             own, rest = ev.points[forward & (labels == h)], ev.points[forward & (labels >= 0) & (labels != h)]
             apart = min(
