@@ -357,21 +357,12 @@ def motion_arrows(
             "<extra></extra>"
         )
         fig.add_trace(
-            go.Cone(
-                x=centres[:, 0],
-                y=centres[:, 1],
-                z=centres[:, 2],
-                u=vec[:, 0],
-                v=vec[:, 1],
-                w=vec[:, 2],
-                sizemode="raw",
-                sizeref=1.0,
-                anchor="tail",
-                colorscale=[[0, colour], [1, colour]],
-                showscale=False,
+            _arrows(
+                centres,
+                vec,
+                colour,
                 name=name,
-                legendgroup=f"c{order}",
-                showlegend=False,
+                group=f"c{order}",
                 customdata=custom,
                 text=cell_text,
                 hovertemplate=template,
@@ -850,13 +841,29 @@ def part_image(
 
 def _arrow(at: np.ndarray, vector: np.ndarray, colour: str, *, name: str, group: str, text: str) -> go.Cone:
     """One cone of one colour from ``at`` along ``vector`` (metres), drawn to scale, with hover ``text``."""
+    return _arrows(
+        np.asarray(at)[None],
+        np.asarray(vector)[None],
+        colour,
+        name=name,
+        group=group,
+        text=[text],
+        hovertemplate="%{text}<extra></extra>",
+    )
+
+
+def _arrows(
+    tails: np.ndarray, vectors: np.ndarray, colour: str, *, name: str, group: str, **style
+) -> go.Cone:
+    """Cones of one colour from ``tails`` along ``vectors`` (N, 3), metres, drawn to scale, with the
+    trace's other ``style`` (hover text and template, lighting)."""
     return go.Cone(
-        x=[at[0]],
-        y=[at[1]],
-        z=[at[2]],
-        u=[vector[0]],
-        v=[vector[1]],
-        w=[vector[2]],
+        x=tails[:, 0],
+        y=tails[:, 1],
+        z=tails[:, 2],
+        u=vectors[:, 0],
+        v=vectors[:, 1],
+        w=vectors[:, 2],
         sizemode="raw",
         sizeref=1.0,
         anchor="tail",
@@ -865,8 +872,7 @@ def _arrow(at: np.ndarray, vector: np.ndarray, colour: str, *, name: str, group:
         name=name,
         legendgroup=group,
         showlegend=False,
-        text=[text],
-        hovertemplate="%{text}<extra></extra>",
+        **style,
     )
 
 
