@@ -89,7 +89,7 @@ class Config:
             preprocessor="paper",
             registrar=CELL_REGISTRAR,
             rule="paper",
-            pipeline=PipelineParams(prealign=False),
+            pipeline=PipelineParams(prealign=False, slow_factor=1),
         )
 
     def plugin_params(self, registry: Registry, kind: str, name: str | None = None) -> Params:

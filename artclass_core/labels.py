@@ -1,4 +1,5 @@
-"""From pair decisions to a sequence label: the moving max-count filter and the label rule."""
+"""From pair decisions to a sequence label: the longer pair of a slow motion, the moving max-count filter
+and the label rule."""
 
 from __future__ import annotations
 
@@ -26,6 +27,20 @@ def max_count_filter(decisions: list[str], *, w: int) -> list[str]:
         tied = [d for d in counts if counts[d] == top]
         out.append(min(tied, key=SEVERITY.__getitem__))
     return out
+
+
+def with_longer(pair: PairResult, longer: PairResult) -> PairResult:
+    """``longer``, the pair (i, i + slow_factor k), in place of ``pair`` (i, i + k), which showed no
+    motion, when it shows one; else ``pair``. Each keeps the other as :attr:`PairResult.other`."""
+    if longer.decision in ("AM", "RM"):
+        longer.other = pair
+        longer.reason = (
+            f"no motion over {pair.j - pair.i} frames; over {longer.j - longer.i}: {longer.reason}"
+        )
+        return longer
+    if longer.decision != "skipped":
+        pair.other = longer
+    return pair
 
 
 def sequence_label(filtered: Iterable[str]) -> str:

@@ -160,6 +160,14 @@ class PipelineParams(Params):
         help="Window of the moving max-count filter over the pair decisions (1 = no filtering). "
         "The paper leaves w open; 3 removes isolated single-pair errors.",
     )
+    slow_factor: int = param(
+        2,
+        unit="1",
+        bounds=(1, 100),
+        help="A pair (i, i + k) that shows no motion is compared again as (i, i + slow_factor k), "
+        "when the sequence is that long: a slow motion, below the noise over k frames, shows "
+        "over more. 1 = never (the paper's pairs).",
+    )
     cell_size_m: float | None = param(
         None,
         symbol="x",

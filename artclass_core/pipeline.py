@@ -1,5 +1,6 @@
 """The pipeline: frames -> masks -> clouds -> pairs (i, i + k) -> registrations -> pair decisions ->
-moving max-count filter -> sequence label.
+moving max-count filter -> sequence label. A pair that shows no motion is compared again over
+slow_factor k frames, and replaced when the longer pair shows one.
 
 Each step is a method of :class:`Pipeline`; :meth:`Pipeline.run` streams a whole sequence, holding
 only the clouds that pending pairs need. The pieces live in their own modules:
@@ -22,7 +23,7 @@ from .cache import StageCache
 from .config import STAGES, Config, _fitting
 from .errors import InputError, ParamError
 from .frames import FrameSteps
-from .labels import fractions, labelled_result, max_count_filter, sequence_label
+from .labels import fractions, labelled_result, max_count_filter, sequence_label, with_longer
 from .plugins import Registry
 from .scheduler import Progress, add_time, single_threaded_open3d, stream_pairs
 from .types import CellMotion, Cloud, FrameResult, MotionEvidence, PairResult, RunResult, Sequence
@@ -65,7 +66,8 @@ class Pipeline(FrameSteps):
         cache: StageCache | None = None,
     ) -> RunResult:
         """Classify a sequence: read, segment and preprocess each frame once; register and decide each
-        pair (i, i + k); filter the decisions and label the sequence.
+        pair (i, i + k), and again over slow_factor k frames when it shows no motion; filter the
+        decisions and label the sequence.
 
         Parameters
         ----------
@@ -89,10 +91,13 @@ class Pipeline(FrameSteps):
         pairs: list[PairResult] = []
 
         def done(first: FrameResult, pair: PairResult) -> None:
-            pair.truth = sequence.pair_truth(pair.i, pair.j)
+            for p in (pair, pair.other) if pair.other else (pair,):
+                p.truth = sequence.pair_truth(p.i, p.j)
+                if not keep_clouds:
+                    p.evidence, p.scratch = None, {}
             pairs.append(pair)
             if not keep_clouds:
-                first.cloud, pair.evidence, pair.scratch = None, None, {}
+                first.cloud = None
             if progress:
                 progress("pairs", len(pairs), n - k)
 
@@ -104,7 +109,8 @@ class Pipeline(FrameSteps):
             done=done,
             frame=lambda i, t: self._raw_frame(sequence, i, t, cache),  # steps 1, 2
             finish=self._finish_frame,
-            pair=lambda a, b, between, t: self._pair(sequence, a, b, between, t, cache),
+            pair=lambda a, after, t: self._pair(sequence, a, after, t, cache),
+            reach=k * self.params.slow_factor,
         )  # 3, 4
         if all(f.skipped for f in frames):
             reason = Counter(f.skipped for f in frames).most_common(1)[0][0]
@@ -201,6 +207,23 @@ class Pipeline(FrameSteps):
         )
 
     def _pair(
+        self,
+        sequence: Sequence,
+        a: FrameResult,
+        after: tuple[FrameResult, ...],
+        timing: dict[str, float],
+        cache: StageCache | None,
+    ) -> PairResult:
+        """The pair (i, i + k) of frame ``a`` (frame i), given the frames ``after`` it; or, when that pair
+        shows no motion and the frames reach, the pair (i, i + slow_factor k) if it shows one."""
+        k, far = self.params.k, self.params.k * self.params.slow_factor
+        pair = self._pair_of(sequence, a, after[k - 1], after[: k - 1], timing, cache)
+        if pair.decision != "NM" or far == k or len(after) < far:
+            return pair
+        longer = self._pair_of(sequence, a, after[far - 1], after[: far - 1], timing, cache)
+        return with_longer(pair, longer)
+
+    def _pair_of(
         self,
         sequence: Sequence,
         a: FrameResult,

@@ -9,9 +9,10 @@ from typing import TYPE_CHECKING
 from .cache import StageCache
 from .config import AUTO_SEGMENTER, depends_on
 from .errors import ArtclassError
+from .labels import with_longer
 from .params import as_dict
 from .scheduler import each
-from .types import PairResult, RunResult, Sequence
+from .types import FrameResult, PairResult, RunResult, Sequence
 
 if TYPE_CHECKING:
     from .pipeline import Pipeline
@@ -55,8 +56,7 @@ def redecide(
     for i in needed:
         clouds[i] = pipeline.frame(sequence, i, cache=cache).cloud
 
-    def again(p: PairResult) -> tuple[PairResult, float]:
-        t0 = time.perf_counter()
+    def decide(p: PairResult) -> PairResult:
         key = pipeline.pair_key(sequence, p.i, p.j, cache) if cached and (p.cells or p.motions) else None
         scratch = p.scratch if key is None else cache.scratch(key)
         evidence = p.evidence
@@ -70,7 +70,7 @@ def redecide(
         if evidence is not None:
             new = pipeline.decide_motions(p.i, p.j, evidence, scratch=scratch)
         elif not p.cells:  # a frame of the pair was skipped: nothing was registered
-            return dataclasses.replace(p), 0.0
+            return dataclasses.replace(p, other=None)
         else:
             new = pipeline.decide(
                 p.i,
@@ -83,6 +83,37 @@ def redecide(
                 scratch=scratch,
             )
         new.truth = p.truth
+        return new
+
+    k, far = pipeline.params.k, pipeline.params.k * pipeline.params.slow_factor
+    frames = {f.index: f for f in result.frames}
+
+    def frame(m: int) -> FrameResult:
+        if frames[m].cloud is not None or frames[m].skipped:
+            return frames[m]
+        if not cached:
+            raise ArtclassError(
+                f"re-deciding needs the cloud of frame {m}: run with keep_clouds=True, or pass the "
+                f"run's StageCache and its sequence"
+            )
+        return pipeline.frame(sequence, m, cache=cache)
+
+    def register_longer(i: int) -> PairResult | None:
+        """The pair (i, i + slow_factor k), registered now (the run did not need it)."""
+        if far == k or i + far not in frames:
+            return None
+        between = tuple(frames[m] for m in range(i + 1, i + far))
+        new = pipeline._pair_of(sequence, frame(i), frame(i + far), between, {}, cache)
+        new.truth = None if sequence is None else sequence.pair_truth(new.i, new.j)
+        return new
+
+    def again(p: PairResult) -> tuple[PairResult, float]:
+        t0 = time.perf_counter()
+        shorter, longer = (p.other, p) if p.other is not None and p.other.j < p.j else (p, p.other)
+        new = decide(shorter)
+        if new.decision == "NM":
+            longer = register_longer(p.i) if longer is None else decide(longer)
+            new = new if longer is None else with_longer(new, longer)
         return new, time.perf_counter() - t0
 
     done = each(again, result.pairs, workers)
@@ -112,7 +143,7 @@ def check_same_registrations(pipeline: Pipeline, result: RunResult) -> None:
     before = result.params.get("pipeline", {})
     changed += [
         f"{n} {before.get(n)!r} -> {getattr(pipeline.params, n)!r}"
-        for n in ("k", *deps.params)
+        for n in ("k", "slow_factor", *deps.params)
         if before.get(n) != getattr(pipeline.params, n)
     ]
     if changed:

@@ -92,10 +92,11 @@ def stream_pairs(
     *,
     frame: Callable[[int, dict], Any],
     finish: Callable[[Any], Any],
-    pair: Callable[[Any, Any, tuple, dict], Any],
+    pair: Callable[[Any, tuple, dict], Any],
     done: Callable[[Any, Any], None],
     timing: dict[str, float],
     workers: int = 1,
+    reach: int | None = None,
 ) -> list:
     """Compute ``n`` frames and the pairs (i, i + k), holding only what pending pairs need.
 
@@ -104,15 +105,18 @@ def stream_pairs(
     n, k : the number of frames and the frame skip
     frame : ``(i, timing) -> raw frame i`` (run on a worker; adds its stage times to ``timing``)
     finish : ``raw frame -> frame`` (run in the calling thread, in frame order)
-    pair : ``(frame_i, frame_j, frames_between, timing) -> pair`` (run on a worker)
+    pair : ``(frame_i, frames_after, timing) -> pair`` (run on a worker), where ``frames_after`` are
+        frames i + 1 .. i + reach (fewer at the end of the sequence, never fewer than k)
     done : ``(frame_i, pair)`` called in the calling thread as pairs complete, in order
     timing : the jobs' stage timings are added to it (s)
-    workers : threads; at most about ``2 * workers + k`` frames are in flight at once
+    workers : threads; at most about ``2 * workers + reach`` frames are in flight at once
+    reach : how many frames after frame i its pair may use (default, and at least, ``k``)
 
     Returns
     -------
     list : the finished frames, in order
     """
+    reach = max(reach or k, k)
     ahead = 0 if workers == 1 else 2 * workers  # frames read ahead of the one being collected
     frame_jobs: dict[int, Future] = {}
     pair_jobs: deque[tuple[Any, Future]] = deque()
@@ -135,10 +139,11 @@ def stream_pairs(
             merge_timing(timing, job.timing)
             frames.append(fr := finish(job.value))
             pending[j] = fr
-            if j >= k:
-                first = pending.pop(j - k)
-                between = tuple(pending[m] for m in range(j - k + 1, j))
-                pair_jobs.append((first, pool.submit(_timed, pair, first, fr, between)))
+            # Pair i starts once frame i + reach is in, or the last frame is.
+            for i in range(j - reach, j - k + 1) if j == n - 1 else (j - reach,):
+                if i >= 0 and (first := pending.pop(i, None)) is not None:
+                    after = tuple(pending[m] for m in range(i + 1, j + 1))
+                    pair_jobs.append((first, pool.submit(_timed, pair, first, after)))
             collect(block=len(pair_jobs) > 2 * workers)
         while pair_jobs:
             collect(block=True)

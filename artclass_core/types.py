@@ -318,7 +318,8 @@ class Motion:
 
 @dataclass
 class PairResult:
-    """The decision for the frame pair (i, j = i + k) and the cells behind it."""
+    """The decision for the frame pair (i, j): j = i + k, or i + slow_factor k for a slow motion; and the
+    cells or motions behind it."""
 
     i: int
     j: int
@@ -335,6 +336,10 @@ class PairResult:
     evidence: MotionEvidence | None = field(default=None, repr=False)  # what the motions were selected from
     # the rule's scratch space for this pair (DecisionRule.uses_scratch); not part of the result's JSON
     scratch: dict[Any, Any] = field(default_factory=dict, repr=False, compare=False)
+    # The pair of the same frame i over the other baseline, when both were registered (the pipeline's
+    # slow_factor): the pair (i, i + k) that showed no motion, when this longer pair replaced it because
+    # it shows one; or, on a pair (i, i + k) without motion, the longer pair, which showed none either.
+    other: PairResult | None = field(default=None, repr=False)
 
     def to_dict(self, *, cells: bool = True) -> dict[str, Any]:
         d = dict(
@@ -352,6 +357,8 @@ class PairResult:
             d["motions"] = [m.to_dict() for m in self.motions]
         if cells:
             d["cells"] = [c.to_dict() for c in self.cells]
+        if self.other is not None:
+            d["other"] = self.other.to_dict(cells=False)
         return d
 
 

@@ -478,6 +478,39 @@ class TestPipelineRun:
         assert all(f.cloud is None for f in result.frames), "streaming drops the clouds"
         assert result.plugins["segmenter"] == "mask", "auto uses the sequence's own masks"
 
+    def test_a_slow_motion_shows_over_the_longer_pair(self, registry):
+        """A panel turning 1.6 degrees a frame on its hinge moves by less than the noise threshold over
+        k = 3 frames and by more over 6: each pair (i, i + 3) shows no motion, and (i, i + 6) shows the
+        articulation where the sequence is long enough. The same for any number of workers, and when
+        the kept run is decided again, under the same thresholds or under others."""
+        seq = make_sequence("hinge", n_frames=10, step=np.radians(1.6), noise_m=0.0005, seed=3)
+        alone = run(registry, seq, k=3, slow_factor=1)
+        assert alone.label == "static" and {p.decision for p in alone.pairs} == {"NM"}
+        config = Config().with_overrides(registry, {"k": "3"})
+        one, two = (Pipeline(registry, config).run(seq, workers=w, keep_clouds=True) for w in (1, 2))
+        assert one.label == "articulated"
+        assert [(p.i, p.j, p.decision) for p in one.pairs] == [(i, i + 6, "AM") for i in range(4)] + [
+            (i, i + 3, "NM") for i in range(4, 7)
+        ]
+        assert all(
+            p.other.decision == "NM" and (p.other.i, p.other.j) == (p.i, p.i + 3) for p in one.pairs[:4]
+        )
+        assert all(p.other is None for p in one.pairs[4:]), "frame i + 6 is past the end"
+        assert one.pairs[0].reason.startswith("no motion over 3 frames; over 6: ")
+        for a, b in ((one, two), (one, Pipeline(registry, config).redecide(one))):
+            assert_same([p.to_dict(cells=False) for p in a.pairs], [p.to_dict(cells=False) for p in b.pairs])
+        # A lower threshold: the pairs (i, i + 3) show the motion themselves, and the longer pairs go.
+        low = config.with_overrides(registry, {"noise_factor": "1"})
+        again, fresh = (
+            Pipeline(registry, low).redecide(one),
+            Pipeline(registry, low).run(seq, keep_clouds=True),
+        )
+        assert any(p.j - p.i == 3 and p.decision != "NM" for p in again.pairs)
+        # ... and back: the pairs that show no motion again are registered over 6 frames then.
+        back = Pipeline(registry, config).redecide(fresh)
+        for a, b in ((again, fresh), (back, one)):
+            assert_same([p.to_dict(cells=False) for p in a.pairs], [p.to_dict(cells=False) for p in b.pairs])
+
     def test_empty_mask_frames_are_skipped(self, registry):
         result = run(registry, make_sequence("hinge", n_frames=7, empty_frames=(3,)), k=2)
         assert result.frames[3].skipped == "no object found"

@@ -606,8 +606,10 @@ def test_rule_evidence_in_the_memo_is_reused_when_redeciding(registry, hinge):
             decision = "AM" if memo[key] > self.params.q_bar * 10 else "NM"
             return RuleDecision(decision, [0 if c.matched else None for c in cells], ["all"])
 
-    first = Pipeline(registry, config()).run(hinge, keep_clouds=True)
-    pipe = Pipeline(registry, config())
+    # One pair per frame (no longer pairs of slow motions, which would be new evidence).
+    same_pairs = config(pipeline=PipelineParams(k=2, slow_factor=1))
+    first = Pipeline(registry, same_pairs).run(hinge, keep_clouds=True)
+    pipe = Pipeline(registry, same_pairs)
     pipe.rule = Memoising(Memoising.Params(q_bar=0.1))
     one = pipe.redecide(first)
     n_calls = len(calls)
@@ -617,7 +619,7 @@ def test_rule_evidence_in_the_memo_is_reused_when_redeciding(registry, hinge):
     assert len(calls) == n_calls, "the evidence was found again"
     assert [p.decision for p in one.pairs] != [p.decision for p in two.pairs]
     cache = StageCache()
-    streamed = Pipeline(registry, config()).run(hinge, cache=cache)  # no clouds kept in the result
+    streamed = Pipeline(registry, same_pairs).run(hinge, cache=cache)  # no clouds kept in the result
     pipe.redecide(streamed, sequence=hinge, cache=cache)
     n_calls = len(calls)
     assert fingerprint(pipe.redecide(streamed, sequence=hinge, cache=cache)) == fingerprint(two)
