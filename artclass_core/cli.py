@@ -199,7 +199,7 @@ def cmd_evaluate(registry: Registry, args) -> int:
         settings += grid_settings(
             registry,
             {},
-            params={**_overrides(args), "prealign": "false"},
+            params={**_overrides(args), "prealign": "false", "slow_factor": "1"},
             **{**plugins, "preprocessor": "paper", "rule": "paper"},
         )
     outcomes: list[dict[int, Any]] = [{} for _ in settings]
