@@ -36,7 +36,7 @@ class SequenceOutcome:
     seconds: float = 0.0
     joints: dict[str, Any] | None = None  # parts and joints against the truth (sequences with joint truth)
     observable: bool | None = (
-        None  # some pair's truth is AM: the articulation shows at this k (None: no pair truth)
+        None  # some pair's truth is AM: the articulation can show at this k (None: no pair truth)
     )
 
     @property
@@ -80,7 +80,7 @@ class Evaluation:
             n_sequences=n,
             accuracy=sum(o.correct for o in outs) / n if n else 0.0,
             per_class_accuracy=per_class,
-            # Articulated sequences whose articulation some pair (i, i + k) can show at all.
+            # Articulated sequences whose articulation some pair (i, i + k or slow_factor k) can show.
             articulated_observable=dict(
                 n=len(shown),
                 of=sum(o.truth == "articulated" for o in outs),
@@ -204,8 +204,7 @@ def run_outcome(
         o.predicted, o.fractions = result.label, result.fractions
         truthful = [p for p in result.pairs if p.truth and p.decision != "skipped"]
         o.pair_total = len(truthful)
-        known = [p.truth for p in result.pairs if p.truth]
-        o.observable = ("AM" in known) if known else None
+        o.observable = _observable(seq, pipeline.params)
         o.pair_correct = sum(p.decision == p.truth for p in truthful)
         legacy = [(p, seq.pair_truth_legacy(p.i, p.j)) for p in result.pairs if p.decision != "skipped"]
         o.pair_total_legacy = sum(t is not None for _, t in legacy)
@@ -213,6 +212,19 @@ def run_outcome(
         o.n_pairs = len(result.pairs)
     o.seconds = time.perf_counter() - t0
     return o, result
+
+
+def _observable(seq: Sequence, params) -> bool | None:
+    """Whether some pair the pipeline may decide, (i, i + k) or (i, i + slow_factor k), has AM for its
+    truth (None when the sequence has no pair truth): a judgement of the truth alone, not of which
+    pairs the run decided."""
+    truths = [
+        seq.pair_truth(i, i + gap)
+        for gap in {params.k, params.k * params.slow_factor}
+        for i in range(len(seq) - gap)
+    ]
+    known = [t for t in truths if t]
+    return ("AM" in known) if known else None
 
 
 def _score_joints(pipeline: Pipeline, seq: Sequence, result: RunResult, truth: dict) -> dict[str, Any]:
