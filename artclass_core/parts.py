@@ -993,11 +993,14 @@ def _relabelled(
     def label(placements: dict[int, np.ndarray], frames: list[int]) -> dict[int, np.ndarray]:
         poses = np.stack([base_poses @ placements[t] for t in tracks])  # (parts, frames, 4, 4)
         others = placed(placements)
+        if len(others) < 2 or not frames:
+            return {}
+        views_of = _most_apart(poses, frames, others, clouds, n=params.n_views)
         out = {}
-        for f in frames if len(others) > 1 else []:
+        for f in frames:
             points = clouds[f][1]
             residual = np.full((len(tracks), len(points)), np.nan)
-            for g in _most_apart(poses, f, others, points, n=params.n_views):
+            for g in views_of[f]:
                 moves = poses[:, g] @ np.linalg.inv(poses[:, f])
                 residual = np.fmin(residual, _look(moves, points, images[g], reach_m=reach))
             cost = _cost(residual, reach_m=reach)
@@ -1057,20 +1060,34 @@ def _cost(residual_m: np.ndarray, *, reach_m: float) -> np.ndarray:
     return np.where(np.isnan(residual_m), reach_m, np.where(residual_m < reach_m, residual_m, np.inf))
 
 
-def _most_apart(poses: np.ndarray, f: int, frames: list[int], points: np.ndarray, *, n: int) -> list[int]:
-    """The ``n`` frames to which the parts' motions (poses (parts, frames, 4, 4)) move frame ``f``'s
-    points (N, 3) most differently (median over the points of the largest distance between two
-    parts' predictions)."""
-    sample = points[:: max(1, len(points) // _SAMPLE)]
-    moves = poses[:, frames] @ np.linalg.inv(poses[:, f])[:, None]  # (parts, frames, 4, 4)
-    moved = np.einsum("hgij,nj->hgni", moves[..., :3, :3], sample) + moves[..., None, :3, 3]
-    gaps = np.linalg.norm(moved[:, None] - moved[None], axis=-1).max(axis=(0, 1))  # (frames, N)
-    spread = np.median(gaps, axis=1)
-    return [frames[k] for k in np.argsort(-spread, kind="stable") if frames[k] != f][:n]
+def _most_apart(
+    poses: np.ndarray, frames: list[int], others: list[int], clouds: dict, *, n: int
+) -> dict[int, list[int]]:
+    """For each of ``frames``, the ``n`` of ``others`` to which the parts' motions (poses (parts,
+    frames, 4, 4)) move its points most differently: the median, over a thinning of its points, of
+    the largest distance between two parts' predictions."""
+    sample = np.stack([_thinned(clouds[f][1], _SAMPLE) for f in frames])  # (F, S, 3)
+    inverse = np.linalg.inv(poses[:, frames])  # (parts, F, 4, 4)
+    own = np.einsum("hfij,fsj->hfsi", inverse[..., :3, :3], sample) + inverse[:, :, None, :3, 3]
+    there = poses[:, others]  # (parts, G, 4, 4)
+    moved = np.einsum("hgij,hfsj->hfgsi", there[..., :3, :3], own) + there[:, None, :, None, :3, 3]
+    spread = np.zeros((len(frames), len(others)))
+    for a, b in itertools.combinations(range(len(poses)), 2):
+        spread = np.maximum(spread, np.median(np.linalg.norm(moved[a] - moved[b], axis=-1), axis=-1))
+    spread[np.asarray(frames)[:, None] == np.asarray(others)[None]] = -1.0  # never the frame itself
+    return {
+        f: [others[k] for k in np.argsort(-row, kind="stable")[:n] if row[k] >= 0]
+        for f, row in zip(frames, spread)
+    }
+
+
+def _thinned(points: np.ndarray, n: int) -> np.ndarray:
+    """``n`` of the points (N, 3), evenly through their order (repeated when there are fewer)."""
+    return points[np.linspace(0, len(points) - 1, n).astype(int)]
 
 
 #: Points of a frame used to choose the frames it is judged in, and of a part looked up per state.
-_SAMPLE = 64
+_SAMPLE = 32
 _TRACKED_POINTS = 200
 
 
