@@ -998,7 +998,7 @@ def _relabelled(
         views_of = _most_apart(poses, frames, others, clouds, n=params.n_views)
         out = {}
         for f in frames:
-            points = clouds[f][1]
+            points = clouds[f][1][::_LABELLED_EVERY]
             residual = np.full((len(tracks), len(points)), np.nan)
             for g in views_of[f]:
                 moves = poses[:, g] @ np.linalg.inv(poses[:, f])
@@ -1008,7 +1008,8 @@ def _relabelled(
             with np.errstate(invalid="ignore"):
                 decisive = nearest[1] - nearest[0] > params.ambiguity_sigmas * noise
             best = tracks[np.argmin(cost, axis=0)]
-            sure[f] = np.where(decisive, best, -1)
+            sure[f] = np.full(len(clouds[f][1]), -1)
+            sure[f][::_LABELLED_EVERY] = np.where(decisive, best, -1)
             out[f] = sure[f] if decisive.any() else prior[f]
         return out
 
@@ -1089,6 +1090,9 @@ def _thinned(points: np.ndarray, n: int) -> np.ndarray:
 #: Points of a frame used to choose the frames it is judged in, and of a part looked up per state.
 _SAMPLE = 32
 _TRACKED_POINTS = 200
+#: Every how many of a frame's points are labelled: the part image gives each pixel the part of the
+#: nearest labelled point anyway, so every second one gives the same images at half the cost.
+_LABELLED_EVERY = 2
 
 
 def _track_states(
