@@ -295,16 +295,16 @@ def _overlaps(a: _Observation, b: _Observation, same_cloud: bool) -> list[tuple[
         at = np.clip(np.searchsorted(key_b, key_a, sorter=order), 0, len(key_b) - 1)
         hit = key_b[order[at]] == key_a
         la, lb = a.labels[hit], b.labels[order[at[hit]]]
-    out = []
-    ma, mb = np.unique(la[la >= 0]), np.unique(lb[lb >= 0])
-    for m in ma:
-        in_a = la == m
-        for n in mb:
-            in_b = lb == n
-            inter = np.count_nonzero(in_a & in_b)
-            if inter:
-                out.append((inter / np.count_nonzero(in_a | in_b), (a.pair, int(m)), (b.pair, int(n))))
-    return out
+    # the contingency table of the two labellings (row and column 0: no motion)
+    n_b = int(lb.max(initial=-1)) + 2
+    table = np.bincount((la + 1) * n_b + lb + 1, minlength=(int(la.max(initial=-1)) + 2) * n_b)
+    table = table.reshape(-1, n_b)
+    in_a, in_b = table.sum(axis=1)[1:], table.sum(axis=0)[1:]
+    table = table[1:, 1:]
+    return [
+        (float(table[m, n] / (in_a[m] + in_b[n] - table[m, n])), (a.pair, int(m)), (b.pair, int(n)))
+        for m, n in zip(*np.nonzero(table))
+    ]
 
 
 def _pixel_keys(pixels: np.ndarray) -> np.ndarray:
