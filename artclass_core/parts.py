@@ -661,11 +661,22 @@ def estimate_joint(estimator: JointEstimator, poses: np.ndarray, *, n_independen
     return estimator.estimate(poses)
 
 
-def joint_motion(estimate: JointEstimate, state: float) -> np.ndarray:
-    """The motion (4, 4) of the child, in the parent's coordinates, from state 0 to ``state``."""
-    T = np.eye(4)
-    if estimate.axis_direction is None or not np.isfinite(state):
-        return T
+def joint_motion(estimate: JointEstimate, state) -> np.ndarray:
+    """The motion of the child, in the parent's coordinates, from state 0 to ``state``: (4, 4) for
+    one state, (N, 4, 4) for states (N,) (the identity where a state is not finite)."""
+    states = np.asarray(state, float)
+    q = np.where(np.isfinite(states), states, 0.0).reshape(-1)
+    T = np.tile(np.eye(4), (len(q), 1, 1))
+    if estimate.axis_direction is not None:
+        d = np.asarray(estimate.axis_direction, float)
+        if estimate.type == "prismatic":
+            T[:, :3, 3] = q[:, None] * d
+        else:
+            R = Rotation.from_rotvec(q[:, None] * d).as_matrix()
+            c = np.asarray(estimate.axis_point_m, float)
+            pitch = estimate.info.get("pitch_m_per_rad", 0.0)
+            T[:, :3, :3], T[:, :3, 3] = R, c - R @ c + q[:, None] * d * pitch
+    return T.reshape(states.shape + (4, 4))
     d = np.asarray(estimate.axis_direction, float)
     if estimate.type == "prismatic":
         T[:3, 3] = state * d
@@ -883,10 +894,9 @@ def _joint_cost(estimate: JointEstimate) -> float:
 def _placement(parent: np.ndarray, estimate: JointEstimate) -> np.ndarray:
     """A child's placement (n_frames, 4, 4): its parent's, then its joint's motion at each frame's
     state (NaN where the state is unknown)."""
+    known = np.isfinite(estimate.states)
     out = np.full_like(parent, np.nan)
-    for f, q in enumerate(estimate.states):
-        if np.isfinite(q):
-            out[f] = parent[f] @ joint_motion(estimate, q)
+    out[known] = parent[known] @ joint_motion(estimate, estimate.states[known])
     return out
 
 
@@ -1136,7 +1146,7 @@ def _track_states(
         else:
             step = spacing
         grid = np.arange(seen.min() - span, seen.max() + span + step, step)
-        motions = np.stack([joint_motion(e, q) for q in grid])  # (G, 4, 4)
+        motions = joint_motion(e, grid)  # (G, 4, 4)
         for f in todo:
             near = sorted(local, key=lambda g: abs(g - f))[: params.n_views]
             X = np.concatenate([local[g] for g in near])
