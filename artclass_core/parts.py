@@ -1006,14 +1006,19 @@ def _relabelled(
         if len(others) < 2 or not frames:
             return {}
         views_of = _most_apart(poses, frames, others, clouds, n=params.n_views)
+        points = {f: clouds[f][1][::_LABELLED_EVERY] for f in frames}
+        residual = {f: np.full((len(tracks), len(points[f])), np.nan) for f in frames}
+        for g in sorted({g for f in frames for g in views_of[f]}):  # one look-up per frame looked in
+            seen_from = [f for f in frames if g in views_of[f]]
+            moved = [_moved(poses[:, g] @ np.linalg.inv(poses[:, f]), points[f]) for f in seen_from]
+            found = _look_up(np.concatenate(moved, axis=1), images[g], reach_m=reach)
+            for f, part in zip(
+                seen_from, np.split(found, np.cumsum([m.shape[1] for m in moved])[:-1], axis=1)
+            ):
+                residual[f] = np.fmin(residual[f], part)
         out = {}
         for f in frames:
-            points = clouds[f][1][::_LABELLED_EVERY]
-            residual = np.full((len(tracks), len(points)), np.nan)
-            for g in views_of[f]:
-                moves = poses[:, g] @ np.linalg.inv(poses[:, f])
-                residual = np.fmin(residual, _look(moves, points, images[g], reach_m=reach))
-            cost = _cost(residual, reach_m=reach)
+            cost = _cost(residual[f], reach_m=reach)
             nearest = np.sort(cost, axis=0)
             with np.errstate(invalid="ignore"):
                 decisive = nearest[1] - nearest[0] > params.ambiguity_sigmas * noise
@@ -1046,8 +1051,17 @@ def _look(motions: np.ndarray, points: np.ndarray, view, *, reach_m: float) -> n
     (H, N); inf where the camera measured nothing there, NaN where the surface is more than
     ``reach_m`` in front of the point (it hides the point) or the point leaves the image: no
     evidence. A surface far behind the point means the camera sees past it: evidence against."""
+    return _look_up(_moved(motions, points), view, reach_m=reach_m)
+
+
+def _moved(motions: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Points (N, 3) moved by each motion (H, 4, 4): (H, N, 3)."""
+    return points @ motions[:, :3, :3].transpose(0, 2, 1) + motions[:, None, :3, 3]
+
+
+def _look_up(moved: np.ndarray, view, *, reach_m: float) -> np.ndarray:
+    """:func:`_look` of points already moved, (..., 3) in the camera frame of ``view``: (...)."""
     k = view.intrinsics
-    moved = points @ motions[:, :3, :3].transpose(0, 2, 1) + motions[:, None, :3, 3]
     z = moved[..., 2]
     depth = view.scene_depth_m if view.scene_depth_m is not None else view.depth_m
     with np.errstate(invalid="ignore", divide="ignore"):
