@@ -761,9 +761,10 @@ def _track_sizes(observations: list[_Observation], track: dict[tuple, int]) -> d
     """Labelled points of each track over all frames."""
     size: dict[int, int] = {}
     for o in observations:
-        for m, count in zip(*np.unique(o.labels[o.labels >= 0], return_counts=True)):
+        counts = np.bincount(o.labels[o.labels >= 0])
+        for m in np.flatnonzero(counts):
             t = track[(o.pair, int(m))]
-            size[t] = size.get(t, 0) + int(count)
+            size[t] = size.get(t, 0) + int(counts[m])
     return size
 
 
@@ -1093,9 +1094,9 @@ def _most_apart(
     the largest distance between two parts' predictions."""
     sample = np.stack([_thinned(clouds[f][1], _SAMPLE) for f in frames])  # (F, S, 3)
     inverse = np.linalg.inv(poses[:, frames])  # (parts, F, 4, 4)
-    own = np.einsum("hfij,fsj->hfsi", inverse[..., :3, :3], sample) + inverse[:, :, None, :3, 3]
+    own = sample @ inverse[..., :3, :3].swapaxes(-1, -2) + inverse[:, :, None, :3, 3]  # (parts, F, S, 3)
     there = poses[:, others]  # (parts, G, 4, 4)
-    moved = np.einsum("hgij,hfsj->hfgsi", there[..., :3, :3], own) + there[:, None, :, None, :3, 3]
+    moved = own[:, :, None] @ there[:, None, :, :3, :3].swapaxes(-1, -2) + there[:, None, :, None, :3, 3]
     spread = np.zeros((len(frames), len(others)))
     for a, b in itertools.combinations(range(len(poses)), 2):
         spread = np.maximum(spread, np.median(np.linalg.norm(moved[a] - moved[b], axis=-1), axis=-1))
