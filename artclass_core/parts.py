@@ -1042,7 +1042,8 @@ def _relabelled(
     labels.update(label(placements, [f for f in placed(placements) if f not in labels]))
     out = dict(views)
     for f, part in labels.items():
-        out[f] = (clouds[f][0], part, _mask(result, f), _stride(result, f))
+        if (part >= 0).any():  # a frame no pair labelled and where nothing was decided stays unlabelled
+            out[f] = (clouds[f][0], part, _mask(result, f), _stride(result, f))
     return out
 
 
@@ -1136,7 +1137,8 @@ def _track_states(
     state 0 and moved by the joint to each state of a grid (steps that move the part's farthest point
     by one point spacing, over the states seen and as far again either side), are looked up in the
     frame; the state that puts most of them on the surface seen there (at least ``min_seen`` of
-    them) is the frame's. Parents first, so a chain's outer part moves with its inner one."""
+    them) is the frame's. Parents first, so a chain's outer part moves with its inner one (also
+    where its own state is known from the pairs but its parent's was not)."""
     placements = {t: link.placement.copy() for t, link in tree.items()}
     for t, link in tree.items():
         e = link.estimate
@@ -1144,6 +1146,9 @@ def _track_states(
             continue
         parent = placements[link.parent]
         known = np.isfinite(e.states)
+        # a chain's outer part, where its own state is known and its parent's was just found
+        again = known & np.isnan(placements[t]).any(axis=(1, 2)) & np.isfinite(parent).all(axis=(1, 2))
+        placements[t][again] = parent[again] @ joint_motion(e, e.states[again])
         local = {
             f: transform(clouds[f][1][part == t], np.linalg.inv(base_poses[f] @ placements[t][f]))
             for f, part in labels.items()

@@ -293,9 +293,9 @@ def test_labels_become_part_images(bic):
     assert art.label_image(99) is None
 
 
-def _agreement(art, f: int) -> float:
+def _agreement(art, f: int, chain: bool = False) -> float:
     """Share of frame f's points whose pixel in the part image has their true part."""
-    cloud, part = _cloud(f, False)
+    cloud, part = _cloud(f, False, chain)
     u, v = cloud.pixels.T
     return float(np.mean(art.label_image(f)[v, u] == part + 1))
 
@@ -320,6 +320,15 @@ def test_a_frame_no_pair_separates_gets_its_parts(bic):
     assert not np.isfinite(art.joints[0].estimate.states[21]), "no pair gives the state of frame 21"
     assert _agreement(art, 21) > 0.95
     assert (art.label_image(21) == 2).any()
+
+
+def test_a_chain_is_followed_into_frames_no_pair_separates(bic):
+    """The lid's state is found first, then the tip's on the lid."""
+    art = find_articulation(run_result(hidden=range(20, 24), chain=True), estimator=bic)
+    assert [(j.parent, j.child) for j in art.joints] == [(0, 1), (1, 2)]
+    assert not np.isfinite(art.joints[1].estimate.states[22])
+    assert _agreement(art, 22, chain=True) > 0.9
+    assert set(np.unique(art.label_image(22))) == {0, 1, 2, 3}
 
 
 def test_a_moved_point_is_looked_up_where_it_projects():
