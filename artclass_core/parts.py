@@ -32,6 +32,12 @@ those per-pair segments through the frames into parts, and grows the tree of joi
    outer arm of a chain (a lamp's, a folding ruler's) hangs on the inner arm, relative to which it
    has one degree of freedom, not on the base. Every joint and every part's points are given in the
    base's first-frame coordinates with all joints at state 0.
+6. **Part images.** Each frame's segmentation comes from the parts' motions over the whole video,
+   not from one pair's labels (which may be wrong near a seam, or missing where no pair separated
+   the parts): each object point, moved by each part's motion to the frames where the parts' motions
+   differ most, takes the part that puts it on the surface seen there, as multi-body trackers keep
+   their segmentation consistent. In a frame where no pair gave a part's state, the state is found
+   first by looking the part's points up in the frame at each state of its joint.
 """
 
 from __future__ import annotations
@@ -84,6 +90,37 @@ class PartsParams(Params):
         help="Weight of the smoothness term between neighbouring frames' states, relative to a "
         "pair difference: it only places the interleaved chains of pairs relative to each "
         "other.",
+    )
+    ambiguity_sigmas: float = param(
+        3.0,
+        unit="sigma",
+        bounds=(0.0, 100.0),
+        help="An object point takes the part whose motion puts it nearest a surface seen in the "
+        "other frames when the next part's puts it farther by more than this many depth-noise "
+        "levels; otherwise it takes the part of the nearest point that was decided.",
+    )
+    n_views: int = param(
+        4,
+        unit="frames",
+        bounds=(0, 100),
+        help="Each frame's part segmentation comes from the parts' motions: its points are looked up "
+        "in this many other frames (those where the parts' motions move them most differently). "
+        "0: each frame keeps the labels of one pair.",
+    )
+    min_seen: float = param(
+        0.5,
+        unit="fraction",
+        bounds=(0.0, 1.0),
+        help="A part's state is found in a frame no pair relates it in when at least this share of "
+        "its points, moved there by its joint, lands on a surface seen in the frame.",
+    )
+    reach_sigmas: float = param(
+        5.0,
+        unit="sigma",
+        bounds=(0.0, 100.0),
+        help="A part's motion puts an object point on a surface seen in another frame when it lands "
+        "within this many depth-noise levels of it (plus the spacing of the points) along the "
+        "camera's ray.",
     )
 
 
@@ -258,16 +295,16 @@ def _overlaps(a: _Observation, b: _Observation, same_cloud: bool) -> list[tuple[
         at = np.clip(np.searchsorted(key_b, key_a, sorter=order), 0, len(key_b) - 1)
         hit = key_b[order[at]] == key_a
         la, lb = a.labels[hit], b.labels[order[at[hit]]]
-    out = []
-    ma, mb = np.unique(la[la >= 0]), np.unique(lb[lb >= 0])
-    for m in ma:
-        in_a = la == m
-        for n in mb:
-            in_b = lb == n
-            inter = np.count_nonzero(in_a & in_b)
-            if inter:
-                out.append((inter / np.count_nonzero(in_a | in_b), (a.pair, int(m)), (b.pair, int(n))))
-    return out
+    # the contingency table of the two labellings (row and column 0: no motion)
+    n_b = int(lb.max(initial=-1)) + 2
+    table = np.bincount((la + 1) * n_b + lb + 1, minlength=(int(la.max(initial=-1)) + 2) * n_b)
+    table = table.reshape(-1, n_b)
+    in_a, in_b = table.sum(axis=1)[1:], table.sum(axis=0)[1:]
+    table = table[1:, 1:]
+    return [
+        (float(table[m, n] / (in_a[m] + in_b[n] - table[m, n])), (a.pair, int(m)), (b.pair, int(n)))
+        for m, n in zip(*np.nonzero(table))
+    ]
 
 
 def _pixel_keys(pixels: np.ndarray) -> np.ndarray:
@@ -624,11 +661,22 @@ def estimate_joint(estimator: JointEstimator, poses: np.ndarray, *, n_independen
     return estimator.estimate(poses)
 
 
-def joint_motion(estimate: JointEstimate, state: float) -> np.ndarray:
-    """The motion (4, 4) of the child, in the parent's coordinates, from state 0 to ``state``."""
-    T = np.eye(4)
-    if estimate.axis_direction is None or not np.isfinite(state):
-        return T
+def joint_motion(estimate: JointEstimate, state) -> np.ndarray:
+    """The motion of the child, in the parent's coordinates, from state 0 to ``state``: (4, 4) for
+    one state, (N, 4, 4) for states (N,) (the identity where a state is not finite)."""
+    states = np.asarray(state, float)
+    q = np.where(np.isfinite(states), states, 0.0).reshape(-1)
+    T = np.tile(np.eye(4), (len(q), 1, 1))
+    if estimate.axis_direction is not None:
+        d = np.asarray(estimate.axis_direction, float)
+        if estimate.type == "prismatic":
+            T[:, :3, 3] = q[:, None] * d
+        else:
+            R = Rotation.from_rotvec(q[:, None] * d).as_matrix()
+            c = np.asarray(estimate.axis_point_m, float)
+            pitch = estimate.info.get("pitch_m_per_rad", 0.0)
+            T[:, :3, :3], T[:, :3, 3] = R, c - R @ c + q[:, None] * d * pitch
+    return T.reshape(states.shape + (4, 4))
     d = np.asarray(estimate.axis_direction, float)
     if estimate.type == "prismatic":
         T[:3, 3] = state * d
@@ -695,6 +743,8 @@ def find_articulation(
         params=params,
     )
     number = {t: n for n, t in enumerate(tree)}
+    if len(tree) > 1 and params.n_views:
+        views = _relabelled(result, observations, views, tree, base_poses, params=params)
     joints = [
         PartJoint(number[link.parent], number[t], link.estimate, link.n_pairs)
         for t, link in tree.items()
@@ -711,9 +761,10 @@ def _track_sizes(observations: list[_Observation], track: dict[tuple, int]) -> d
     """Labelled points of each track over all frames."""
     size: dict[int, int] = {}
     for o in observations:
-        for m, count in zip(*np.unique(o.labels[o.labels >= 0], return_counts=True)):
+        counts = np.bincount(o.labels[o.labels >= 0])
+        for m in np.flatnonzero(counts):
             t = track[(o.pair, int(m))]
-            size[t] = size.get(t, 0) + int(count)
+            size[t] = size.get(t, 0) + int(counts[m])
     return size
 
 
@@ -844,10 +895,9 @@ def _joint_cost(estimate: JointEstimate) -> float:
 def _placement(parent: np.ndarray, estimate: JointEstimate) -> np.ndarray:
     """A child's placement (n_frames, 4, 4): its parent's, then its joint's motion at each frame's
     state (NaN where the state is unknown)."""
+    known = np.isfinite(estimate.states)
     out = np.full_like(parent, np.nan)
-    for f, q in enumerate(estimate.states):
-        if np.isfinite(q):
-            out[f] = parent[f] @ joint_motion(estimate, q)
+    out[known] = parent[known] @ joint_motion(estimate, estimate.states[known])
     return out
 
 
@@ -911,3 +961,255 @@ def _mask(result: RunResult, frame: int) -> np.ndarray:
 
 def _stride(result: RunResult, frame: int) -> int:
     return int(result.frames[frame].info.get("stride_px", 1) or 1)
+
+
+# -- 6. every frame's segmentation from the parts' motions ---------------------------------------------------
+
+
+def _relabelled(
+    result: RunResult,
+    observations: list[_Observation],
+    views: dict,
+    tree: dict[int, _Link],
+    base_poses: np.ndarray,
+    *,
+    params: PartsParams,
+) -> dict:
+    """Every frame's track labelling from the parts' motions over the video, not from one pair's.
+
+    A frame's object points are moved by each part's motion to the ``n_views`` frames where the
+    parts' motions move them most differently and looked up in those frames' depth images
+    (:func:`_look`); each point takes the part that puts it nearest the surface seen there (the
+    nearer of those frames, so that a point hidden in one is judged by the other). A point that two
+    parts explain about as well (within ``ambiguity_sigmas`` depth-noise levels) is left unlabelled:
+    the part image gives its pixel the part of the nearest labelled point. A frame where no point is
+    decided keeps its pair's labels. This is done first in the frames where every part's pose is
+    known from the pairs, then, once each part's state is found in the others
+    (:func:`_track_states`), in every frame where the parts are placed."""
+    tracks = np.asarray(list(tree))
+    clouds = _frame_clouds(result, observations)
+    images = {f: result.frames[f].cloud.view for f in clouds if _has_depth(result, f)}
+    noise, spacing = _noise(result), _spacing(result)
+    reach = spacing + params.reach_sigmas * noise
+    prior = {f: views[f][1] if f in views else np.full(len(clouds[f][1]), -1) for f in clouds}
+    sure: dict[int, np.ndarray] = {}
+
+    def placed(placements: dict[int, np.ndarray]) -> list[int]:
+        return [
+            f
+            for f in sorted(images)
+            if all(np.isfinite(base_poses[f] @ p[f]).all() for p in placements.values())
+        ]
+
+    def label(placements: dict[int, np.ndarray], frames: list[int]) -> dict[int, np.ndarray]:
+        poses = np.stack([base_poses @ placements[t] for t in tracks])  # (parts, frames, 4, 4)
+        others = placed(placements)
+        if len(others) < 2 or not frames:
+            return {}
+        views_of = _most_apart(poses, frames, others, clouds, n=params.n_views)
+        points = {f: clouds[f][1][::_LABELLED_EVERY] for f in frames}
+        residual = {f: np.full((len(tracks), len(points[f])), np.nan) for f in frames}
+        for g in sorted({g for f in frames for g in views_of[f]}):  # one look-up per frame looked in
+            seen_from = [f for f in frames if g in views_of[f]]
+            moved = [_moved(poses[:, g] @ np.linalg.inv(poses[:, f]), points[f]) for f in seen_from]
+            found = _look_up(np.concatenate(moved, axis=1), images[g], reach_m=reach)
+            for f, part in zip(
+                seen_from, np.split(found, np.cumsum([m.shape[1] for m in moved])[:-1], axis=1)
+            ):
+                residual[f] = np.fmin(residual[f], part)
+        out = {}
+        for f in frames:
+            cost = _cost(residual[f], reach_m=reach)
+            nearest = np.sort(cost, axis=0)
+            with np.errstate(invalid="ignore"):
+                decisive = nearest[1] - nearest[0] > params.ambiguity_sigmas * noise
+            best = tracks[np.argmin(cost, axis=0)]
+            sure[f] = np.full(len(clouds[f][1]), -1)
+            sure[f][::_LABELLED_EVERY] = np.where(decisive, best, -1)
+            out[f] = sure[f] if decisive.any() else prior[f]
+        return out
+
+    placements = {t: link.placement for t, link in tree.items()}
+    known = placed(placements)
+    hidden = [f for f in sorted(images) if f not in known and np.isfinite(base_poses[f]).all()]
+    labels = {}
+    if hidden and known:  # the parts' states there are found from the labels of the nearest frames
+        nearest = {g for f in hidden for g in sorted(known, key=lambda g: abs(g - f))[: params.n_views]}
+        labels = label(placements, sorted(nearest))
+        placements = _track_states(
+            tree, base_poses, clouds, sure, images, reach=reach, spacing=spacing, params=params
+        )
+    labels.update(label(placements, [f for f in placed(placements) if f not in labels]))
+    out = dict(views)
+    for f, part in labels.items():
+        if (part >= 0).any():  # a frame no pair labelled and where nothing was decided stays unlabelled
+            out[f] = (clouds[f][0], part, _mask(result, f), _stride(result, f))
+    return out
+
+
+def _look(motions: np.ndarray, points: np.ndarray, view, *, reach_m: float) -> np.ndarray:
+    """How far (metres, along the ray) each point (N, 3), moved by each motion (H, 4, 4), lands from
+    the surface seen in ``view`` at the pixel it projects onto (projective look-up, as KinectFusion's):
+    (H, N); inf where the camera measured nothing there, NaN where the surface is more than
+    ``reach_m`` in front of the point (it hides the point) or the point leaves the image: no
+    evidence. A surface far behind the point means the camera sees past it: evidence against."""
+    return _look_up(_moved(motions, points), view, reach_m=reach_m)
+
+
+def _moved(motions: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Points (N, 3) moved by each motion (H, 4, 4): (H, N, 3)."""
+    return points @ motions[:, :3, :3].transpose(0, 2, 1) + motions[:, None, :3, 3]
+
+
+def _look_up(moved: np.ndarray, view, *, reach_m: float) -> np.ndarray:
+    """:func:`_look` of points already moved, (..., 3) in the camera frame of ``view``: (...)."""
+    k = view.intrinsics
+    z = moved[..., 2]
+    depth = view.scene_depth_m if view.scene_depth_m is not None else view.depth_m
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = k.fx * moved[..., 0] / z + (k.cx + 0.5)  # + 0.5: the nearest pixel, by truncation
+        v = k.fy * moved[..., 1] / z + (k.cy + 0.5)
+    inside = (z > 0) & (u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])
+    surface = np.zeros(z.shape)
+    surface[inside] = depth[v[inside].astype(np.intp), u[inside].astype(np.intp)]
+    out = np.abs(z - surface)
+    out[surface <= 0] = np.inf
+    out[~inside | ((surface > 0) & (surface < z - reach_m))] = np.nan
+    return out
+
+
+def _cost(residual_m: np.ndarray, *, reach_m: float) -> np.ndarray:
+    """What explaining a point costs a part (parts, N), from the nearest its motion puts the point to a
+    surface seen in the frames looked at (``residual_m``, NaN where hidden in all of them): that
+    distance when it lands on the surface, infinite when it lands off it (the camera sees past it, or
+    no object), ``reach_m`` when it is hidden (no evidence: better than landing off the surface,
+    worse than landing on it)."""
+    return np.where(np.isnan(residual_m), reach_m, np.where(residual_m < reach_m, residual_m, np.inf))
+
+
+def _most_apart(
+    poses: np.ndarray, frames: list[int], others: list[int], clouds: dict, *, n: int
+) -> dict[int, list[int]]:
+    """For each of ``frames``, the ``n`` of ``others`` to which the parts' motions (poses (parts,
+    frames, 4, 4)) move its points most differently: the median, over a thinning of its points, of
+    the largest distance between two parts' predictions."""
+    sample = np.stack([_thinned(clouds[f][1], _SAMPLE) for f in frames])  # (F, S, 3)
+    inverse = np.linalg.inv(poses[:, frames])  # (parts, F, 4, 4)
+    own = sample @ inverse[..., :3, :3].swapaxes(-1, -2) + inverse[:, :, None, :3, 3]  # (parts, F, S, 3)
+    there = poses[:, others]  # (parts, G, 4, 4)
+    moved = own[:, :, None] @ there[:, None, :, :3, :3].swapaxes(-1, -2) + there[:, None, :, None, :3, 3]
+    spread = np.zeros((len(frames), len(others)))
+    for a, b in itertools.combinations(range(len(poses)), 2):
+        spread = np.maximum(spread, np.median(np.linalg.norm(moved[a] - moved[b], axis=-1), axis=-1))
+    spread[np.asarray(frames)[:, None] == np.asarray(others)[None]] = -1.0  # never the frame itself
+    return {
+        f: [others[k] for k in np.argsort(-row, kind="stable")[:n] if row[k] >= 0]
+        for f, row in zip(frames, spread)
+    }
+
+
+def _thinned(points: np.ndarray, n: int) -> np.ndarray:
+    """``n`` of the points (N, 3), evenly through their order (repeated when there are fewer)."""
+    return points[np.linspace(0, len(points) - 1, n).astype(int)]
+
+
+#: Points of a frame used to choose the frames it is judged in, and of a part looked up per state.
+_SAMPLE = 32
+_TRACKED_POINTS = 200
+#: Every how many of a frame's points are labelled: the part image gives each pixel the part of the
+#: nearest labelled point anyway, so every second one gives the same images at half the cost.
+_LABELLED_EVERY = 2
+
+
+def _track_states(
+    tree: dict[int, _Link],
+    base_poses: np.ndarray,
+    clouds: dict[int, tuple[np.ndarray, np.ndarray]],
+    labels: dict[int, np.ndarray],
+    images: dict,
+    *,
+    reach: float,
+    spacing: float,
+    params: PartsParams,
+) -> dict[int, np.ndarray]:
+    """Each part's placement (frames, 4, 4) with its joint's state found in the frames where no pair
+    gave it: the part's points of the nearest frames where they were labelled for sure, brought to
+    state 0 and moved by the joint to each state of a grid (steps that move the part's farthest point
+    by one point spacing, over the states seen and as far again either side), are looked up in the
+    frame; the state that puts most of them on the surface seen there (at least ``min_seen`` of
+    them) is the frame's. Parents first, so a chain's outer part moves with its inner one (also
+    where its own state is known from the pairs but its parent's was not)."""
+    placements = {t: link.placement.copy() for t, link in tree.items()}
+    for t, link in tree.items():
+        e = link.estimate
+        if e is None or e.type not in ("revolute", "prismatic") or e.axis_direction is None:
+            continue
+        parent = placements[link.parent]
+        known = np.isfinite(e.states)
+        # a chain's outer part, where its own state is known and its parent's was just found
+        again = known & np.isnan(placements[t]).any(axis=(1, 2)) & np.isfinite(parent).all(axis=(1, 2))
+        placements[t][again] = parent[again] @ joint_motion(e, e.states[again])
+        local = {
+            f: transform(clouds[f][1][part == t], np.linalg.inv(base_poses[f] @ placements[t][f]))
+            for f, part in labels.items()
+            if known[f] and np.count_nonzero(part == t)
+        }
+        todo = [f for f in sorted(images) if not known[f] and np.isfinite(base_poses[f] @ parent[f]).all()]
+        if not local or not todo:
+            continue
+        seen = e.states[known]
+        span = float(seen.max() - seen.min())
+        if e.type == "revolute":
+            everything = np.concatenate(list(local.values()))
+            lever = np.linalg.norm(np.cross(everything - e.axis_point_m, e.axis_direction), axis=1).max()
+            step = spacing / max(float(lever), spacing)
+        else:
+            step = spacing
+        grid = np.arange(seen.min() - span, seen.max() + span + step, step)
+        motions = joint_motion(e, grid)  # (G, 4, 4)
+        for f in todo:
+            near = sorted(local, key=lambda g: abs(g - f))[: params.n_views]
+            X = np.concatenate([local[g] for g in near])
+            X = X[:: max(1, len(X) // _TRACKED_POINTS)]
+            residual = _look(base_poses[f] @ parent[f] @ motions, X, images[f], reach_m=reach)
+            share = (residual < reach).mean(axis=1)
+            best = int(np.argmax(share))
+            if share[best] >= params.min_seen:
+                placements[t][f] = parent[f] @ motions[best]
+    return placements
+
+
+def _has_depth(result: RunResult, frame: int) -> bool:
+    cloud = result.frames[frame].cloud if frame < len(result.frames) else None
+    view = getattr(cloud, "view", None)
+    return view is not None and view.depth_m is not None
+
+
+def _frame_clouds(
+    result: RunResult, observations: list[_Observation]
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Each frame's object pixels (N, 2) and points (N, 3, camera frame): the ones a pair labelled (a
+    pair's source side first), else the frame's cloud."""
+    out = {}
+    for o in sorted(observations, key=lambda o: (o.frame, not o.forward)):
+        out.setdefault(o.frame, (o.pixels, o.points))
+    for f in result.frames:
+        if f.index not in out and f.cloud is not None and f.cloud.pixels is not None:
+            out[f.index] = (f.cloud.pixels, f.cloud.points)
+    return out
+
+
+def _noise(result: RunResult) -> float:
+    """The pairs' median depth noise, metres."""
+    values = [p.evidence.noise_m for p in result.pairs if p.evidence is not None]
+    return float(np.median(values)) if values else 0.0
+
+
+def _spacing(result: RunResult) -> float:
+    """The pairs' median spacing of the sampled points on the object (pixel size times the stride), metres."""
+    values = [
+        p.evidence.pixel_m * p.evidence.info.get("stride_px", 1)
+        for p in result.pairs
+        if p.evidence is not None
+    ]
+    return float(np.median(values)) if values else 0.0

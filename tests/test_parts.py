@@ -7,12 +7,14 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy import ndimage
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from artclass_core import ArtclassError
 from artclass_core.geometry import transform
 from artclass_core.joint_metrics import axis_direction_error_rad, axis_position_error_m, score_articulation
-from artclass_core.parts import PartsParams, chain_interleaved, find_articulation, frame_states
+from artclass_core.parts import PartsParams, _cost, _look, chain_interleaved, find_articulation, frame_states
 from artclass_core.plugins import load_registry
 from artclass_core.types import (
     Cloud,
@@ -86,15 +88,34 @@ def _cloud(f: int, carried: bool, chain: bool = False) -> tuple[Cloud, np.ndarra
     pixels = np.column_stack([np.rint(u), np.rint(v)]).astype(int)
     mask = np.zeros((K.height, K.width), bool)
     mask[pixels[:, 1], pixels[:, 0]] = True
-    view = View(np.zeros(mask.shape, np.uint8), np.zeros(mask.shape, np.float32), K, mask=mask)
+    depth = _depth_image(pixels, points[:, 2])
+    view = View(np.zeros(mask.shape, np.uint8), depth, K, scene_depth_m=depth, mask=mask)
     return Cloud(f, points, pixels=pixels, view=view, info={"stride_px": 1}), part
 
 
+def _depth_image(pixels: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """A depth image (H, W) of points at ``pixels`` (nearest point first), the pixels between them
+    filled from their nearest neighbour (a depth camera measures every pixel of a surface)."""
+    depth = np.zeros((K.height, K.width), np.float32)
+    order = np.argsort(-z)  # the nearest point written last wins its pixel
+    depth[pixels[order, 1], pixels[order, 0]] = z[order]
+    near = ndimage.binary_closing(depth > 0, np.ones((3, 3)), iterations=2) | (depth > 0)
+    _, (rows, cols) = ndimage.distance_transform_edt(depth == 0, return_indices=True)
+    return np.where(near, depth[rows, cols], 0.0).astype(np.float32)
+
+
 def run_result(
-    *, carried: bool = False, hidden: range = range(0), label: str = "articulated", chain: bool = False
+    *,
+    carried: bool = False,
+    hidden: range = range(0),
+    label: str = "articulated",
+    chain: bool = False,
+    mislabelled: float = 0.0,
 ) -> RunResult:
     """A run of pairs (i, i + k) whose rule found every part's motion exactly (the moving parts' only
-    where they moved and were not hidden), and labelled every point with its part."""
+    where they moved and were not hidden), and labelled every point with its part, but for a
+    ``mislabelled`` share of each pair's points (the part's nearest its neighbour's: a band along the
+    seam) given to the neighbouring part."""
     clouds = [_cloud(f, carried, chain) for f in range(N_FRAMES)]
     frames = [FrameResult(f, f"{f:06d}", clouds[f][0], info={"stride_px": 1}) for f in range(N_FRAMES)]
     pairs = []
@@ -113,6 +134,8 @@ def run_result(
             if found or n == 0
         ]
         labels = np.r_[part_a, part_b] if found else np.zeros(len(part_a) + len(part_b), int)
+        if found and mislabelled:
+            labels[_band(np.vstack([a.points, b.points]), labels, mislabelled)] = 0
         ev = MotionEvidence(
             np.stack([m.T_target_from_source for m in motions]),
             [m.name for m in motions],
@@ -138,6 +161,13 @@ def run_result(
         {},
         {},
     )
+
+
+def _band(points: np.ndarray, labels: np.ndarray, share: float) -> np.ndarray:
+    """The ``share`` of the moving parts' points (labels > 0) nearest the base: indices."""
+    moving = np.flatnonzero(labels > 0)
+    gap = cKDTree(points[labels == 0]).query(points[moving])[0]
+    return moving[np.argsort(gap)[: int(share * len(moving))]]
 
 
 @pytest.fixture(scope="module")
@@ -261,6 +291,61 @@ def test_labels_become_part_images(bic):
     agree = image[v, u] == part + 1
     assert agree.mean() > 0.97  # points sharing a pixel with the other part may differ
     assert art.label_image(99) is None
+
+
+def _agreement(art, f: int, chain: bool = False) -> float:
+    """Share of frame f's points whose pixel in the part image has their true part."""
+    cloud, part = _cloud(f, False, chain)
+    u, v = cloud.pixels.T
+    return float(np.mean(art.label_image(f)[v, u] == part + 1))
+
+
+def test_each_frame_is_labelled_from_the_parts_motions_not_one_pairs_labels(bic):
+    """Every pair gives 40 % of the flap's points (a band along the hinge) to the base; moved by each
+    part's motion to the frames where the flap has turned most, they land on the flap's surface only
+    under the flap's motion, so each frame's part image is right nonetheless."""
+    art = find_articulation(run_result(mislabelled=0.4), estimator=bic)
+    _check_hinge(art)
+    for f in (0, 10, 23):
+        assert _agreement(art, f) > 0.95
+    # the pairs' labels alone leave the band on the base
+    plain = find_articulation(run_result(mislabelled=0.4), estimator=bic, params=PartsParams(n_views=0))
+    assert _agreement(plain, 10) < 0.85
+
+
+def test_a_frame_no_pair_separates_gets_its_parts(bic):
+    """The last frames are in no pair that sees the flap move: the flap's state there is found by
+    looking its points up in the frame at each state of its joint, and the frames get both parts."""
+    art = find_articulation(run_result(hidden=range(20, 24)), estimator=bic)
+    assert not np.isfinite(art.joints[0].estimate.states[21]), "no pair gives the state of frame 21"
+    assert _agreement(art, 21) > 0.95
+    assert (art.label_image(21) == 2).any()
+
+
+def test_a_chain_is_followed_into_frames_no_pair_separates(bic):
+    """The lid's state is found first, then the tip's on the lid."""
+    art = find_articulation(run_result(hidden=range(20, 24), chain=True), estimator=bic)
+    assert [(j.parent, j.child) for j in art.joints] == [(0, 1), (1, 2)]
+    assert not np.isfinite(art.joints[1].estimate.states[22])
+    assert _agreement(art, 22, chain=True) > 0.9
+    assert set(np.unique(art.label_image(22))) == {0, 1, 2, 3}
+
+
+def test_a_moved_point_is_looked_up_where_it_projects():
+    """On the surface, or in front of it (the camera sees past it): its distance along the ray; behind
+    it, or out of the picture: no evidence (NaN). A part pays that distance, or infinitely when it is
+    beyond reach, and the reach when there is no evidence."""
+    cloud, _ = _cloud(0, False)
+    points = cloud.points[:: len(cloud.points) // 50]
+    moves = np.stack([_T(t=(0.0, 0.0, dz)) for dz in (0.0, 0.002, -0.05, 0.05)] + [_T(t=(5.0, 0.0, 0.0))])
+    found = _look(moves, points, cloud.view, reach_m=0.01)
+    assert np.abs(found[0]).max() < 0.002  # 0.5 mm of depth noise, and a pixel's rounding
+    assert np.abs(found[1] - 0.002).max() < 0.002
+    assert (found[2] > 0.045).all()  # 5 cm (or, near the edge, no surface at all: inf)
+    assert np.isnan(found[3]).all() and np.isnan(found[4]).all()
+    np.testing.assert_array_equal(
+        _cost(found, reach_m=0.01)[2:], [[np.inf] * len(points), [0.01] * len(points), [0.01] * len(points)]
+    )
 
 
 def test_a_rigid_sequence_gets_no_joint(bic):
