@@ -1,6 +1,6 @@
 """The compiled (Numba) per-point loops of :mod:`.projective`: projection, look-up and the normal
 equations of projective ICP, one pass over the points where numpy makes a dozen temporary arrays;
-and the image preprocessor's median of the valid neighbours."""
+and the image preprocessor's median of the valid neighbours and normals."""
 
 from __future__ import annotations
 
@@ -289,3 +289,44 @@ def valid_median_kernel(
                 out[v, u] = window[n // 2]
             else:
                 out[v, u] = 0.5 * (window[n // 2 - 1] + window[n // 2])
+
+
+@njit(cache=True, nogil=True)
+def normals_kernel(
+    vertices: np.ndarray, mean: np.ndarray, support: np.ndarray, h: int, min_support: np.float32, out: np.ndarray
+) -> None:
+    """``out`` (H, W, 3) of :func:`.image.normal_map` at the pixels ``h`` or more inside the border:
+    the cross product of the central differences of ``mean`` across 2 h pixels, made unit and turned
+    to face the camera; left as it is (0) where the vertex is missing, the product is 0 or one of the
+    five windows has less than ``min_support`` valid. All in float32, in numpy's order of operations,
+    so the normals are numpy's to the bit."""
+    rows, cols = support.shape
+    tiny = np.float32(1e-12)
+    for v in range(h, rows - h):
+        for u in range(h, cols - h):
+            if not (
+                vertices[v, u, 2] > 0
+                and support[v, u] >= min_support
+                and support[v, u + h] >= min_support
+                and support[v, u - h] >= min_support
+                and support[v + h, u] >= min_support
+                and support[v - h, u] >= min_support
+            ):
+                continue
+            dx0 = mean[v, u + h, 0] - mean[v, u - h, 0]
+            dx1 = mean[v, u + h, 1] - mean[v, u - h, 1]
+            dx2 = mean[v, u + h, 2] - mean[v, u - h, 2]
+            dy0 = mean[v + h, u, 0] - mean[v - h, u, 0]
+            dy1 = mean[v + h, u, 1] - mean[v - h, u, 1]
+            dy2 = mean[v + h, u, 2] - mean[v - h, u, 2]
+            n0 = dx1 * dy2 - dx2 * dy1
+            n1 = dx2 * dy0 - dx0 * dy2
+            n2 = dx0 * dy1 - dx1 * dy0
+            length = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+            if not length > 0:
+                continue
+            length = max(length, tiny)
+            n0, n1, n2 = n0 / length, n1 / length, n2 / length
+            if n0 * vertices[v, u, 0] + n1 * vertices[v, u, 1] + n2 * vertices[v, u, 2] > 0:
+                n0, n1, n2 = -n0, -n1, -n2
+            out[v, u, 0], out[v, u, 1], out[v, u, 2] = n0, n1, n2

@@ -16,7 +16,7 @@ import numpy as np
 
 from artclass_core import ArtclassError, Cloud, Intrinsics
 
-from .image import bounding_box, valid_median
+from .image import bounding_box, normal_map, valid_median, vertex_map
 
 # Gauss-Newton damping, relative to the trace of the normal equations: keeps the step of a group whose
 # points cannot fix all six degrees of freedom (a flat patch slides in its plane) small and unique.
@@ -237,6 +237,7 @@ def warm_up() -> None:
         metres_per_px=0.001,
     )
     valid_median(depth, depth > 0)
+    normal_map(vertex_map(depth, target.intrinsics))
 
 
 def _camera(intr: Intrinsics) -> np.ndarray:
