@@ -23,7 +23,6 @@ from artclass_plugins.dense.projective import (
     NEAR_MASK_PX,
     Target,
     _outside,
-    _quantiles,
     flow_misfit,
     icp,
     kabsch,
@@ -401,13 +400,12 @@ def test_grouped_robust_kabsch_equals_one_fit_per_group():
         assert np.abs(robust_kabsch(sources[g], targets[g], inlier_m=0.002) - want).max() < 1e-9
 
 
-def test_group_quantiles_are_numpys():
+def test_compiled_quantiles_are_numpys():
     rng = np.random.default_rng(4)
-    sizes = np.array([1, 2, 3, 7, 10, 31])
-    values = [rng.integers(0, 4, n).astype(float) if n % 2 else rng.random(n) for n in sizes]
-    start = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-    got = _quantiles(np.concatenate(values), start, 0.66)
-    np.testing.assert_array_equal(got, [np.quantile(v, 0.66) for v in values])
+    for n in (1, 2, 3, 7, 10, 31):
+        values = rng.integers(0, 4, n).astype(float) if n % 2 else rng.random(n)
+        for q in (0.0, 0.25, 0.5, 0.66, 1.0):
+            assert kernels().quantile(values, q) == np.quantile(values, q)
 
 
 def test_opencv_runs_on_one_thread_while_several_workers_do_and_gives_the_same_flow(pair):
@@ -434,7 +432,14 @@ def test_warm_up_loads_the_compiled_loops_a_registration_runs(pair):
     loop was loaded for the argument types the preprocessor and the registrar pass."""
     source, target, _ = pair
     warm_up()
-    names = ("look_kernel", "flow_kernel", "icp_kernel", "valid_median_kernel", "normals_kernel")
+    names = (
+        "look_kernel",
+        "flow_kernel",
+        "icp_kernel",
+        "robust_kabsch_kernel",
+        "valid_median_kernel",
+        "normals_kernel",
+    )
     loaded = {name: list(getattr(kernels(), name).signatures) for name in names}
     assert all(len(s) >= 1 for s in loaded.values())
     frame = _frame(np.eye(4))

@@ -330,3 +330,78 @@ def normals_kernel(
             if n0 * vertices[v, u, 0] + n1 * vertices[v, u, 1] + n2 * vertices[v, u, 2] > 0:
                 n0, n1, n2 = -n0, -n1, -n2
             out[v, u, 0], out[v, u, 1], out[v, u, 2] = n0, n1, n2
+
+
+@njit(cache=True, nogil=True)
+def _kabsch_into(source, target, keep, lo, hi, T):
+    """``T`` (4, 4) := the rigid motion that best maps the kept ``source[lo:hi]`` onto
+    ``target[lo:hi]`` (least squares); the identity when none is kept."""
+    cs, ct = np.zeros(3), np.zeros(3)
+    count = 0
+    for i in range(lo, hi):
+        if keep[i]:
+            count += 1
+            for d in range(3):
+                cs[d] += source[i, d]
+                ct[d] += target[i, d]
+    T[:] = 0.0
+    for d in range(4):
+        T[d, d] = 1.0
+    if count == 0:
+        return
+    cs /= count
+    ct /= count
+    H = np.zeros((3, 3))
+    for i in range(lo, hi):
+        if keep[i]:
+            for a in range(3):
+                s = source[i, a] - cs[a]
+                for b in range(3):
+                    H[a, b] += s * (target[i, b] - ct[b])
+    U, _, Vt = np.linalg.svd(H)
+    V = Vt.T.copy()
+    V[:, 2] *= np.sign(np.linalg.det(V @ U.T))
+    R = V @ U.T
+    T[:3, :3] = R
+    T[:3, 3] = ct - R @ cs
+
+
+@njit(cache=True, nogil=True)
+def quantile(values, q):
+    """``np.quantile(values, q)`` (linear interpolation, numpy's own formula)."""
+    ranked = np.sort(values)
+    virtual = (len(ranked) - 1) * q
+    low = int(np.floor(virtual))
+    gamma = virtual - low
+    a, b = ranked[low], ranked[min(low + 1, len(ranked) - 1)]
+    diff = b - a
+    return b - diff * (1 - gamma) if gamma >= 0.5 else a + diff * gamma
+
+
+@njit(cache=True, nogil=True)
+def robust_kabsch_kernel(source, target, start, inlier_m, rounds, first_share, T):
+    """The fits of :func:`.projective.robust_kabsch`, one group at a time: ``T`` (G, 4, 4) is filled.
+    The pairs are sorted by group, and group g's start at ``start[g]``."""
+    G, N = len(start), len(source)
+    keep = np.ones(N, np.bool_)
+    err = np.empty(N)
+    for g in range(G):
+        lo, hi = start[g], start[g + 1] if g + 1 < G else N
+        _kabsch_into(source, target, keep, lo, hi, T[g])
+        for r in range(rounds):
+            for i in range(lo, hi):
+                q0, q1, q2 = _moved(T[g], source[i, 0], source[i, 1], source[i, 2])
+                e0, e1, e2 = q0 - target[i, 0], q1 - target[i, 1], q2 - target[i, 2]
+                err[i] = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+            # Only the first fit is on every pair: afterwards the inliers of the last fit.
+            limit = max(inlier_m, quantile(err[lo:hi], first_share)) if r == 0 else inlier_m
+            n_new, changed = 0, False
+            for i in range(lo, hi):
+                new = err[i] <= limit
+                n_new += new
+                changed |= new != keep[i]
+            if n_new < 3 or not changed:
+                break
+            for i in range(lo, hi):
+                keep[i] = err[i] <= limit
+            _kabsch_into(source, target, keep, lo, hi, T[g])
