@@ -436,6 +436,7 @@ def test_warm_up_loads_the_compiled_loops_a_registration_runs(pair):
         "look_kernel",
         "flow_kernel",
         "icp_kernel",
+        "group_centres",
         "robust_kabsch_kernel",
         "valid_median_kernel",
         "normals_kernel",

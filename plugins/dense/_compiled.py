@@ -191,6 +191,28 @@ def _normal_equations(
 
 
 @njit(cache=True, nogil=True)
+def group_centres(points, groups, every, min_thinned, centre, thin):
+    """``centre`` (G, 3) := the centroid of each group's points (0 for an empty group); ``thin`` (N,)
+    := the points the coarse ICP iterations use: every ``every``-th point of its group, in order, or
+    every point of a group of fewer than ``min_thinned``. Sums in point order, as np.bincount's."""
+    G = centre.shape[0]
+    count = np.zeros(G, np.int64)
+    rank = np.empty(points.shape[0], np.int64)
+    centre[:] = 0.0
+    for i in range(points.shape[0]):
+        g = groups[i]
+        rank[i] = count[g]
+        count[g] += 1
+        for d in range(3):
+            centre[g, d] += points[i, d]
+    for g in range(G):
+        for d in range(3):
+            centre[g, d] /= max(count[g], 1)
+    for i in range(points.shape[0]):
+        thin[i] = rank[i] % every == 0 or count[groups[i]] < min_thinned
+
+
+@njit(cache=True, nogil=True)
 def icp_kernel(
     points,
     groups,

@@ -173,22 +173,17 @@ def icp(
     each group's normal equations, where numpy makes a dozen temporary arrays of the points.
     """
     T = np.array(T, dtype=np.float64, copy=True)
-    G = len(T)
-    count = np.bincount(groups, minlength=G)
-    centre = (
-        np.stack([np.bincount(groups, points[:, d], minlength=G) for d in range(3)], 1)
-        / np.maximum(count, 1)[:, None]
-    )
-    order = np.argsort(groups, kind="stable")
-    rank = np.empty(len(groups), int)
-    rank[order] = np.arange(len(groups)) - np.repeat(np.cumsum(count) - count, count)
-    thin = (rank % COARSE_THINNING == 0) | (count[groups] < 4 * COARSE_THINNING * min_points)
+    points = np.ascontiguousarray(points, np.float64)
+    groups = np.ascontiguousarray(groups, np.int64)
+    centre = np.zeros((len(T), 3))
+    thin = np.empty(len(points), np.bool_)
+    kernels().group_centres(points, groups, COARSE_THINNING, 4 * COARSE_THINNING * min_points, centre, thin)
     use_flow = flow_px is not None and metres_per_px > 0
     unknown = np.full((len(points), 2), np.nan)
-    inliers = np.zeros(G, np.int64)
+    inliers = np.zeros(len(T), np.int64)
     kernels().icp_kernel(
-        np.ascontiguousarray(points, np.float64),
-        np.ascontiguousarray(groups, np.int64),
+        points,
+        groups,
         T,
         centre,
         thin,
