@@ -273,7 +273,8 @@ def test_compiled_normals_equal_the_numpy_reference_to_the_bit():
     got, ref = normal_map(vertices), _ref_normals(vertices)
     np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32))
     has = ref.any(axis=2)
-    assert 0.2 < has.sum() / (depth > 0).sum() < 1  # the sparse surface keeps normals, the hole's edge does not
+    # the sparse surface keeps normals, the hole's edge does not
+    assert 0.2 < has.sum() / (depth > 0).sum() < 1
 
 
 @pytest.mark.parametrize("use_flow", [False, True])

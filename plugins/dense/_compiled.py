@@ -315,7 +315,12 @@ def valid_median_kernel(
 
 @njit(cache=True, nogil=True)
 def normals_kernel(
-    vertices: np.ndarray, mean: np.ndarray, support: np.ndarray, h: int, min_support: np.float32, out: np.ndarray
+    vertices: np.ndarray,
+    mean: np.ndarray,
+    support: np.ndarray,
+    h: int,
+    min_support: np.float32,
+    out: np.ndarray,
 ) -> None:
     """``out`` (H, W, 3) of :func:`.image.normal_map` at the pixels ``h`` or more inside the border:
     the cross product of the central differences of ``mean`` across 2 h pixels, made unit and turned

@@ -233,7 +233,9 @@ def warm_up() -> None:
         across=np.full((n, 2), np.nan),
         metres_per_px=0.001,
     )
-    robust_kabsch(np.eye(3) + [0, 0, 0.5], np.eye(3) + [0, 0, 0.5], inlier_m=0.01, groups=np.zeros(3, np.int64))
+    robust_kabsch(
+        np.eye(3) + [0, 0, 0.5], np.eye(3) + [0, 0, 0.5], inlier_m=0.01, groups=np.zeros(3, np.int64)
+    )
     valid_median(depth, depth > 0)
     normal_map(vertex_map(depth, target.intrinsics))
 
