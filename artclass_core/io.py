@@ -18,7 +18,8 @@ _COLOR_RGB = getattr(cv2, "IMREAD_COLOR_RGB", None)
 def _read(path: Path, flags: int) -> np.ndarray:
     if not path.is_file():
         raise InputError("file not found", path=path)
-    data = np.fromfile(str(path), dtype=np.uint8)
+    # Read as bytes: Python's file read lets other threads run meanwhile; numpy's fromfile does not.
+    data = np.frombuffer(path.read_bytes(), dtype=np.uint8)
     # OpenCV logs its own warning for a truncated file; the InputError below is the one message shown.
     level = cv2.utils.logging.getLogLevel()
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)

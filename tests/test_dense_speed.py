@@ -18,12 +18,11 @@ from artclass_core.geometry import transform
 from artclass_core.scheduler import worker_pool
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
 from artclass_plugins.dense.flow import flow_targets
-from artclass_plugins.dense.image import ImagePreprocessor
+from artclass_plugins.dense.image import ImagePreprocessor, normal_map, vertex_map
 from artclass_plugins.dense.projective import (
     NEAR_MASK_PX,
     Target,
     _outside,
-    _quantiles,
     flow_misfit,
     icp,
     kabsch,
@@ -235,6 +234,49 @@ def test_look_all_equals_the_numpy_reference(pair):
     assert {SURFACE, FREE_SPACE, OCCLUDED} <= set(np.unique(status).tolist())
 
 
+def _ref_normals(vertices, *, window_px=5, min_support=0.25):
+    valid = (vertices[..., 2] > 0).astype(np.float32)
+    k = (window_px, window_px)
+    support = cv2.blur(valid, k)
+    mean = cv2.blur(vertices * valid[..., None], k) / np.maximum(support, 1e-6)[..., None]
+    h = window_px // 2
+    dx = mean[h:-h, 2 * h :] - mean[h:-h, : -2 * h]
+    dy = mean[2 * h :, h:-h] - mean[: -2 * h, h:-h]
+    n = [
+        dx[..., 1] * dy[..., 2] - dx[..., 2] * dy[..., 1],
+        dx[..., 2] * dy[..., 0] - dx[..., 0] * dy[..., 2],
+        dx[..., 0] * dy[..., 1] - dx[..., 1] * dy[..., 0],
+    ]
+    length = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+    ok = (valid[h:-h, h:-h] > 0) & (length > 0)
+    for window in (support[h:-h, h:-h], support[h:-h, 2 * h :], support[h:-h, : -2 * h]):
+        ok &= window >= min_support
+    ok &= (support[2 * h :, h:-h] >= min_support) & (support[: -2 * h, h:-h] >= min_support)
+    n = [np.where(ok, c / np.maximum(length, 1e-12), 0).astype(np.float32) for c in n]
+    centre = vertices[h:-h, h:-h]
+    facing = n[0] * centre[..., 0] + n[1] * centre[..., 1] + n[2] * centre[..., 2] > 0
+    sign = np.where(facing, -1, 1).astype(np.float32)
+    normals = np.zeros_like(vertices)
+    for axis in range(3):
+        normals[h:-h, h:-h, axis] = n[axis] * sign
+    return normals
+
+
+def test_compiled_normals_equal_the_numpy_reference_to_the_bit():
+    """The egg-crate surface with a third of its pixels lost (as a grazing sensor loses them) and a hole:
+    the normals, their zeros included, are numpy's float32 arithmetic exactly."""
+    frame = _frame(_motion())
+    depth = np.where(frame.mask, frame.depth_m, 0).astype(np.float32)
+    depth[np.random.default_rng(0).random(depth.shape) < 0.35] = 0
+    depth[100:110, 150:170] = 0
+    vertices = vertex_map(depth, INTR)
+    got, ref = normal_map(vertices), _ref_normals(vertices)
+    np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32))
+    has = ref.any(axis=2)
+    # the sparse surface keeps normals, the hole's edge does not
+    assert 0.2 < has.sum() / (depth > 0).sum() < 1
+
+
 @pytest.mark.parametrize("use_flow", [False, True])
 def test_icp_recovers_a_known_motion(pair, use_flow):
     """3 degrees and 1 cm, from the identity: within 0.5 mm at the surface."""
@@ -359,13 +401,12 @@ def test_grouped_robust_kabsch_equals_one_fit_per_group():
         assert np.abs(robust_kabsch(sources[g], targets[g], inlier_m=0.002) - want).max() < 1e-9
 
 
-def test_group_quantiles_are_numpys():
+def test_compiled_quantiles_are_numpys():
     rng = np.random.default_rng(4)
-    sizes = np.array([1, 2, 3, 7, 10, 31])
-    values = [rng.integers(0, 4, n).astype(float) if n % 2 else rng.random(n) for n in sizes]
-    start = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-    got = _quantiles(np.concatenate(values), start, 0.66)
-    np.testing.assert_array_equal(got, [np.quantile(v, 0.66) for v in values])
+    for n in (1, 2, 3, 7, 10, 31):
+        values = rng.integers(0, 4, n).astype(float) if n % 2 else rng.random(n)
+        for q in (0.0, 0.25, 0.5, 0.66, 1.0):
+            assert kernels().quantile(values, q) == np.quantile(values, q)
 
 
 def test_opencv_runs_on_one_thread_while_several_workers_do_and_gives_the_same_flow(pair):
@@ -388,12 +429,22 @@ def test_opencv_runs_on_one_thread_while_several_workers_do_and_gives_the_same_f
 
 
 def test_warm_up_loads_the_compiled_loops_a_registration_runs(pair):
-    """After warm_up, a registration compiles or loads nothing more: each loop was loaded for the
-    argument types the registrar passes."""
+    """After warm_up, preprocessing a frame and registering a pair compile or load nothing more: each
+    loop was loaded for the argument types the preprocessor and the registrar pass."""
     source, target, _ = pair
     warm_up()
-    names = ("look_kernel", "flow_kernel", "icp_kernel")
+    names = (
+        "look_kernel",
+        "flow_kernel",
+        "icp_kernel",
+        "group_centres",
+        "robust_kabsch_kernel",
+        "valid_median_kernel",
+        "normals_kernel",
+    )
     loaded = {name: list(getattr(kernels(), name).signatures) for name in names}
     assert all(len(s) >= 1 for s in loaded.values())
+    frame = _frame(np.eye(4))
+    ImagePreprocessor(ImagePreprocessor.Params()).process(frame, frame.mask, intrinsics=INTR)
     DenseRegistrar(DenseRegistrar.Params()).register_pair(source, target)
     assert {name: list(getattr(kernels(), name).signatures) for name in names} == loaded

@@ -1,6 +1,6 @@
 """The compiled (Numba) per-point loops of :mod:`.projective`: projection, look-up and the normal
 equations of projective ICP, one pass over the points where numpy makes a dozen temporary arrays;
-and the image preprocessor's median of the valid neighbours."""
+and the image preprocessor's median of the valid neighbours and normals."""
 
 from __future__ import annotations
 
@@ -191,6 +191,28 @@ def _normal_equations(
 
 
 @njit(cache=True, nogil=True)
+def group_centres(points, groups, every, min_thinned, centre, thin):
+    """``centre`` (G, 3) := the centroid of each group's points (0 for an empty group); ``thin`` (N,)
+    := the points the coarse ICP iterations use: every ``every``-th point of its group, in order, or
+    every point of a group of fewer than ``min_thinned``. Sums in point order, as np.bincount's."""
+    G = centre.shape[0]
+    count = np.zeros(G, np.int64)
+    rank = np.empty(points.shape[0], np.int64)
+    centre[:] = 0.0
+    for i in range(points.shape[0]):
+        g = groups[i]
+        rank[i] = count[g]
+        count[g] += 1
+        for d in range(3):
+            centre[g, d] += points[i, d]
+    for g in range(G):
+        for d in range(3):
+            centre[g, d] /= max(count[g], 1)
+    for i in range(points.shape[0]):
+        thin[i] = rank[i] % every == 0 or count[groups[i]] < min_thinned
+
+
+@njit(cache=True, nogil=True)
 def icp_kernel(
     points,
     groups,
@@ -289,3 +311,124 @@ def valid_median_kernel(
                 out[v, u] = window[n // 2]
             else:
                 out[v, u] = 0.5 * (window[n // 2 - 1] + window[n // 2])
+
+
+@njit(cache=True, nogil=True)
+def normals_kernel(
+    vertices: np.ndarray,
+    mean: np.ndarray,
+    support: np.ndarray,
+    h: int,
+    min_support: np.float32,
+    out: np.ndarray,
+) -> None:
+    """``out`` (H, W, 3) of :func:`.image.normal_map` at the pixels ``h`` or more inside the border:
+    the cross product of the central differences of ``mean`` across 2 h pixels, made unit and turned
+    to face the camera; left as it is (0) where the vertex is missing, the product is 0 or one of the
+    five windows has less than ``min_support`` valid. All in float32, in numpy's order of operations,
+    so the normals are numpy's to the bit."""
+    rows, cols = support.shape
+    tiny = np.float32(1e-12)
+    for v in range(h, rows - h):
+        for u in range(h, cols - h):
+            if not (
+                vertices[v, u, 2] > 0
+                and support[v, u] >= min_support
+                and support[v, u + h] >= min_support
+                and support[v, u - h] >= min_support
+                and support[v + h, u] >= min_support
+                and support[v - h, u] >= min_support
+            ):
+                continue
+            dx0 = mean[v, u + h, 0] - mean[v, u - h, 0]
+            dx1 = mean[v, u + h, 1] - mean[v, u - h, 1]
+            dx2 = mean[v, u + h, 2] - mean[v, u - h, 2]
+            dy0 = mean[v + h, u, 0] - mean[v - h, u, 0]
+            dy1 = mean[v + h, u, 1] - mean[v - h, u, 1]
+            dy2 = mean[v + h, u, 2] - mean[v - h, u, 2]
+            n0 = dx1 * dy2 - dx2 * dy1
+            n1 = dx2 * dy0 - dx0 * dy2
+            n2 = dx0 * dy1 - dx1 * dy0
+            length = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+            if not length > 0:
+                continue
+            length = max(length, tiny)
+            n0, n1, n2 = n0 / length, n1 / length, n2 / length
+            if n0 * vertices[v, u, 0] + n1 * vertices[v, u, 1] + n2 * vertices[v, u, 2] > 0:
+                n0, n1, n2 = -n0, -n1, -n2
+            out[v, u, 0], out[v, u, 1], out[v, u, 2] = n0, n1, n2
+
+
+@njit(cache=True, nogil=True)
+def _kabsch_into(source, target, keep, lo, hi, T):
+    """``T`` (4, 4) := the rigid motion that best maps the kept ``source[lo:hi]`` onto
+    ``target[lo:hi]`` (least squares); the identity when none is kept."""
+    cs, ct = np.zeros(3), np.zeros(3)
+    count = 0
+    for i in range(lo, hi):
+        if keep[i]:
+            count += 1
+            for d in range(3):
+                cs[d] += source[i, d]
+                ct[d] += target[i, d]
+    T[:] = 0.0
+    for d in range(4):
+        T[d, d] = 1.0
+    if count == 0:
+        return
+    cs /= count
+    ct /= count
+    H = np.zeros((3, 3))
+    for i in range(lo, hi):
+        if keep[i]:
+            for a in range(3):
+                s = source[i, a] - cs[a]
+                for b in range(3):
+                    H[a, b] += s * (target[i, b] - ct[b])
+    U, _, Vt = np.linalg.svd(H)
+    V = Vt.T.copy()
+    V[:, 2] *= np.sign(np.linalg.det(V @ U.T))
+    R = V @ U.T
+    T[:3, :3] = R
+    T[:3, 3] = ct - R @ cs
+
+
+@njit(cache=True, nogil=True)
+def quantile(values, q):
+    """``np.quantile(values, q)`` (linear interpolation, numpy's own formula)."""
+    ranked = np.sort(values)
+    virtual = (len(ranked) - 1) * q
+    low = int(np.floor(virtual))
+    gamma = virtual - low
+    a, b = ranked[low], ranked[min(low + 1, len(ranked) - 1)]
+    diff = b - a
+    return b - diff * (1 - gamma) if gamma >= 0.5 else a + diff * gamma
+
+
+@njit(cache=True, nogil=True)
+def robust_kabsch_kernel(source, target, start, inlier_m, rounds, first_share, T):
+    """The fits of :func:`.projective.robust_kabsch`, one group at a time: ``T`` (G, 4, 4) is filled.
+    The pairs are sorted by group, and group g's start at ``start[g]``."""
+    G, N = len(start), len(source)
+    keep = np.ones(N, np.bool_)
+    err = np.empty(N)
+    for g in range(G):
+        lo, hi = start[g], start[g + 1] if g + 1 < G else N
+        _kabsch_into(source, target, keep, lo, hi, T[g])
+        for r in range(rounds):
+            for i in range(lo, hi):
+                q0, q1, q2 = _moved(T[g], source[i, 0], source[i, 1], source[i, 2])
+                e0, e1, e2 = q0 - target[i, 0], q1 - target[i, 1], q2 - target[i, 2]
+                err[i] = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+            # Only the first fit is on every pair: afterwards the inliers of the last fit.
+            limit = max(inlier_m, quantile(err[lo:hi], first_share)) if r == 0 else inlier_m
+            n_new, changed = 0, False
+            for i in range(lo, hi):
+                new = err[i] <= limit
+                n_new += new
+                changed |= new != keep[i]
+            if n_new < 3 or not changed:
+                break
+            for i in range(lo, hi):
+                keep[i] = err[i] <= limit
+            _kabsch_into(source, target, keep, lo, hi, T[g])

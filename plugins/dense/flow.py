@@ -21,9 +21,14 @@ from .image import bounding_box
 
 FLOW_WIDTH_PX = 320
 _MARGIN_PX = 24
+STRUCTURE_WINDOW_PX = 5
+# How far from a pixel :func:`structure` looks: the Sobel filter's pixel and half its window.
+_STRUCTURE_REACH_PX = 1 + STRUCTURE_WINDOW_PX // 2
 
 
-def structure(gray: np.ndarray, *, window_px: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def structure(
+    gray: np.ndarray, *, window_px: int = STRUCTURE_WINDOW_PX
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The structure tensor of each pixel: its smaller and larger eigenvalues (grey levels per pixel,
     squared) and the angle (radians) of the larger one's eigenvector, the direction across an edge."""
     g = gray.astype(np.float32)
@@ -77,8 +82,10 @@ def flow_targets(
         borderMode=cv2.BORDER_CONSTANT,
         borderValue=np.nan,
     )[:, 0]
+    # The structure tensor only about the source's points: its mask's box, widened by the filters' reach.
+    (q0, q1), (p0, p1) = bounding_box(a.mask, margin_px=_STRUCTURE_REACH_PX)
     small, large, angle = (
-        m[source.pixels[:, 1] - r0, source.pixels[:, 0] - c0] for m in structure(a.gray[r0:r1, c0:c1])
+        m[source.pixels[:, 1] - q0, source.pixels[:, 0] - p0] for m in structure(a.gray[q0:q1, p0:p1])
     )
     across = np.column_stack([np.cos(angle), np.sin(angle)])
     miss = np.column_stack([(f[:, 0] + back[:, 0]) / sx, (f[:, 1] + back[:, 1]) / sy])

@@ -116,34 +116,10 @@ def normal_map(vertices: np.ndarray, *, window_px: int = 5, min_support: float =
     k = (window_px, window_px)
     support = cv2.blur(valid, k)
     mean = cv2.blur(vertices * valid[..., None], k) / np.maximum(support, 1e-6)[..., None]
-    h = window_px // 2
     normals = np.zeros_like(vertices)
-    dx = mean[h:-h, 2 * h :] - mean[h:-h, : -2 * h]
-    dy = mean[2 * h :, h:-h] - mean[: -2 * h, h:-h]
-    # dx x dy and its length, one image per component (numpy's cross and norm of (..., 3) arrays are
-    # several times slower)
-    n = [
-        dx[..., 1] * dy[..., 2] - dx[..., 2] * dy[..., 1],
-        dx[..., 2] * dy[..., 0] - dx[..., 0] * dy[..., 2],
-        dx[..., 0] * dy[..., 1] - dx[..., 1] * dy[..., 0],
-    ]
-    length = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
-    ok = (
-        (valid[h:-h, h:-h] > 0)
-        & (length > 0)
-        & (support[h:-h, h:-h] >= min_support)
-        & (support[h:-h, 2 * h :] >= min_support)
-        & (support[h:-h, : -2 * h] >= min_support)
-        & (support[2 * h :, h:-h] >= min_support)
-        & (support[: -2 * h, h:-h] >= min_support)
-    )
-    length = np.maximum(length, 1e-12)
-    n = [np.where(ok, c / length, 0).astype(np.float32) for c in n]
-    centre = vertices[h:-h, h:-h]
-    facing = n[0] * centre[..., 0] + n[1] * centre[..., 1] + n[2] * centre[..., 2] > 0
-    sign = np.where(facing, -1, 1).astype(np.float32)
-    for axis in range(3):
-        normals[h:-h, h:-h, axis] = n[axis] * sign
+    from .projective import kernels  # Numba, on first use
+
+    kernels().normals_kernel(vertices, mean, support, window_px // 2, np.float32(min_support), normals)
     return normals
 
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from artclass_core import ArtclassError, Cloud, Intrinsics
 
-from .image import bounding_box, valid_median
+from .image import bounding_box, normal_map, valid_median, vertex_map
 
 # Gauss-Newton damping, relative to the trace of the normal equations: keeps the step of a group whose
 # points cannot fix all six degrees of freedom (a flat patch slides in its plane) small and unique.
@@ -24,6 +24,8 @@ _DAMPING = 1e-6
 COARSE_THINNING = 4
 # How far from the object's mask the target's distance image is exact (pixels).
 NEAR_MASK_PX = 8
+# The first robust fit keeps this share of its pairs, the closest.
+_FIRST_SHARE = 0.66
 
 
 @dataclass
@@ -171,22 +173,17 @@ def icp(
     each group's normal equations, where numpy makes a dozen temporary arrays of the points.
     """
     T = np.array(T, dtype=np.float64, copy=True)
-    G = len(T)
-    count = np.bincount(groups, minlength=G)
-    centre = (
-        np.stack([np.bincount(groups, points[:, d], minlength=G) for d in range(3)], 1)
-        / np.maximum(count, 1)[:, None]
-    )
-    order = np.argsort(groups, kind="stable")
-    rank = np.empty(len(groups), int)
-    rank[order] = np.arange(len(groups)) - np.repeat(np.cumsum(count) - count, count)
-    thin = (rank % COARSE_THINNING == 0) | (count[groups] < 4 * COARSE_THINNING * min_points)
+    points = np.ascontiguousarray(points, np.float64)
+    groups = np.ascontiguousarray(groups, np.int64)
+    centre = np.zeros((len(T), 3))
+    thin = np.empty(len(points), np.bool_)
+    kernels().group_centres(points, groups, COARSE_THINNING, 4 * COARSE_THINNING * min_points, centre, thin)
     use_flow = flow_px is not None and metres_per_px > 0
     unknown = np.full((len(points), 2), np.nan)
-    inliers = np.zeros(G, np.int64)
+    inliers = np.zeros(len(T), np.int64)
     kernels().icp_kernel(
-        np.ascontiguousarray(points, np.float64),
-        np.ascontiguousarray(groups, np.int64),
+        points,
+        groups,
         T,
         centre,
         thin,
@@ -236,7 +233,11 @@ def warm_up() -> None:
         across=np.full((n, 2), np.nan),
         metres_per_px=0.001,
     )
+    robust_kabsch(
+        np.eye(3) + [0, 0, 0.5], np.eye(3) + [0, 0, 0.5], inlier_m=0.01, groups=np.zeros(3, np.int64)
+    )
     valid_median(depth, depth > 0)
+    normal_map(vertex_map(depth, target.intrinsics))
 
 
 def _camera(intr: Intrinsics) -> np.ndarray:
@@ -280,66 +281,24 @@ def robust_kabsch(
     Returns
     -------
     (4, 4) ``T_target_from_source``, or (G, 4, 4) one per group when ``groups`` is given
+
+    Notes
+    -----
+    The loop over the groups and their pairs is compiled (Numba): the seeds of a pair are a few
+    dozen small groups, where numpy would spend its time on many small array operations.
     """
     one = groups is None
     groups = np.zeros(len(source), np.int64) if one else np.asarray(groups, np.int64)
     G = int(groups.max()) + 1 if len(groups) else 0
     order = np.argsort(groups, kind="stable")
-    source, target, groups = source[order], target[order], groups[order]
-    start = np.searchsorted(groups, np.arange(G))
-    keep = np.ones(len(source), bool)
-    T = _kabsch_groups(source, target, keep, start)
-    active = np.ones(G, bool)
-    for r in range(rounds):
-        err = np.linalg.norm(
-            np.einsum("nij,nj->ni", T[groups, :3, :3], source) + T[groups, :3, 3] - target, axis=1
-        )
-        # Only the first fit is on every pair: afterwards a group keeps all its pairs only once it stopped.
-        limit = np.maximum(inlier_m, _quantiles(err, start, 0.66))[groups] if r == 0 else inlier_m
-        new = err <= limit
-        active &= (np.add.reduceat(new, start) >= 3) & np.logical_or.reduceat(new != keep, start)
-        if not active.any():
-            break
-        keep = np.where(active[groups], new, keep)
-        T[active] = _kabsch_groups(source, target, keep, start)[active]
+    T = np.empty((G, 4, 4))
+    kernels().robust_kabsch_kernel(
+        np.ascontiguousarray(source[order], np.float64),
+        np.ascontiguousarray(target[order], np.float64),
+        np.searchsorted(groups[order], np.arange(G)),
+        float(inlier_m),
+        int(rounds),
+        _FIRST_SHARE,
+        T,
+    )
     return T[0] if one else T
-
-
-def _kabsch_groups(source: np.ndarray, target: np.ndarray, keep: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """:func:`kabsch` of the kept pairs of each group (G, 4, 4); the pairs are sorted by group, and
-    group g's start at ``start[g]``. Identity for a group with no kept pair."""
-    G = len(start)
-    w = keep.astype(np.float64)
-    count = np.add.reduceat(w, start)
-    cs = np.add.reduceat(source * w[:, None], start) / np.maximum(count, 1)[:, None]
-    ct = np.add.reduceat(target * w[:, None], start) / np.maximum(count, 1)[:, None]
-    size = np.diff(np.append(start, len(source)))
-    a = (source - np.repeat(cs, size, axis=0)) * w[:, None]
-    b = target - np.repeat(ct, size, axis=0)
-    H = np.add.reduceat((a[:, :, None] * b[:, None, :]).reshape(-1, 9), start).reshape(G, 3, 3)
-    U, _, Vt = np.linalg.svd(H)
-    V = np.swapaxes(Vt, 1, 2)
-    d = np.sign(np.linalg.det(V @ np.swapaxes(U, 1, 2)))
-    V[:, :, 2] *= d[:, None]
-    T = np.tile(np.eye(4), (G, 1, 1))
-    R = V @ np.swapaxes(U, 1, 2)
-    T[:, :3, :3] = R
-    T[:, :3, 3] = ct - np.einsum("gij,gj->gi", R, cs)
-    T[count == 0] = np.eye(4)
-    return T
-
-
-def _quantiles(values: np.ndarray, start: np.ndarray, q: float) -> np.ndarray:
-    """``np.quantile(values of group g, q)`` (linear interpolation) of each group, groups as in
-    :func:`_kabsch_groups`."""
-    size = np.diff(np.append(start, len(values)))
-    group = np.repeat(np.arange(len(start)), size)
-    ranked = values[np.lexsort((values, group))]
-    virtual = (size - 1) * q
-    low = np.floor(virtual).astype(np.int64)
-    gamma = virtual - low
-    a = ranked[start + low]
-    b = ranked[start + np.minimum(low + 1, size - 1)]
-    # numpy's own interpolation, so that each quantile is exactly np.quantile's
-    diff = b - a
-    return np.where(gamma >= 0.5, b - diff * (1 - gamma), a + diff * gamma)
