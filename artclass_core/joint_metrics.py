@@ -131,7 +131,8 @@ def _matched_parts(
             every_frame.append([0.0] * len(shown))
             continue
         scores = [
-            mask_iou(truth == t + 1, np.isin(est, [e + 1 for e, tt in match.items() if tt == t])) for t in shown
+            mask_iou(truth == t + 1, np.isin(est, [e + 1 for e, tt in match.items() if tt == t]))
+            for t in shown
         ]
         every_frame.append(scores)
         if (est > 1).any():

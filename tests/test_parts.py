@@ -14,7 +14,15 @@ from scipy.spatial.transform import Rotation
 from artclass_core import ArtclassError
 from artclass_core.geometry import transform
 from artclass_core.joint_metrics import axis_direction_error_rad, axis_position_error_m, score_articulation
-from artclass_core.parts import PartsParams, _cost, _look, chain_interleaved, find_articulation, frame_states
+from artclass_core.parts import (
+    PartsParams,
+    _cost,
+    _look,
+    _one_body_pairs_on,
+    chain_interleaved,
+    find_articulation,
+    frame_states,
+)
 from artclass_core.plugins import load_registry
 from artclass_core.types import (
     Cloud,
@@ -377,6 +385,17 @@ def test_frame_states_from_pair_differences():
     assert std[0] == 0 and (std[np.isfinite(states)][1:] > 0).all()
 
 
+def test_a_pair_with_one_motion_moves_the_base():
+    """A pair that found one motion saw the whole object move as one body: that motion joins the base's
+    track, even when its region overlapped a moving part's more; pairs with two motions keep theirs."""
+    from types import SimpleNamespace
+
+    pairs = [SimpleNamespace(motions=[None] * n) for n in (2, 1, 2)]
+    track = {(0, 0): 0, (0, 1): 1, (1, 0): 1, (2, 0): 0, (2, 1): 1}
+    moved = _one_body_pairs_on(0, SimpleNamespace(pairs=pairs), track)
+    assert moved == {(0, 0): 0, (0, 1): 1, (1, 0): 0, (2, 0): 0, (2, 1): 1}
+
+
 def test_chain_interleaved_ties_the_chains():
     poses = [_carry(f, True) for f in range(10)]
     pairs = [(i, i + 3, poses[i + 3] @ np.linalg.inv(poses[i])) for i in range(7)]
@@ -439,7 +458,9 @@ def test_part_iou_over_every_frame_counts_the_frames_given_up(bic):
     gave_up = dataclasses.replace(art, _views={f: v for f, v in art._views.items() if f < half})
     scores = score_articulation(gave_up, truth, images)
     assert scores["part_iou"] > 0.95
-    assert scores["part_iou_all_frames"] == pytest.approx(full["part_iou_all_frames"] * half / N_FRAMES, abs=0.02)
+    assert scores["part_iou_all_frames"] == pytest.approx(
+        full["part_iou_all_frames"] * half / N_FRAMES, abs=0.02
+    )
 
 
 def test_the_urdf_of_a_found_hinge_moves_like_the_flap(bic, tmp_path):
