@@ -19,6 +19,7 @@ from artclass_core.parts import (
     _cost,
     _look,
     _one_body_pairs_on,
+    _still_track,
     chain_interleaved,
     find_articulation,
     frame_states,
@@ -394,6 +395,23 @@ def test_a_pair_with_one_motion_moves_the_base():
     track = {(0, 0): 0, (0, 1): 1, (1, 0): 1, (2, 0): 0, (2, 1): 1}
     moved = _one_body_pairs_on(0, SimpleNamespace(pairs=pairs), track)
     assert moved == {(0, 0): 0, (0, 1): 1, (1, 0): 0, (2, 0): 0, (2, 1): 1}
+
+
+def test_the_base_is_the_part_left_still_not_the_largest():
+    """A small body that stays still while a large flap turns is the base; when the hand carries both
+    (no part is ever still), or no pair shows the object articulated, the largest part is."""
+    from types import SimpleNamespace
+
+    def run(decision, body_moves_m):
+        motions = [Motion(np.eye(4), "body", 50, body_moves_m), Motion(np.eye(4), "flap", 500, 0.02)]
+        pairs = [SimpleNamespace(decision=decision, motions=motions, info=dict(threshold_m=0.004))] * 3
+        return SimpleNamespace(label="articulated", pairs=pairs)
+
+    track = {(n, m): m for n in range(3) for m in range(2)}
+    size = {0: 150, 1: 1500}
+    assert _still_track(run("AM", 0.001), track, size, min_pairs=2) == 0
+    assert _still_track(run("AM", 0.01), track, size, min_pairs=2) == 1
+    assert _still_track(run("NM", 0.001), track, size, min_pairs=2) == 1
 
 
 def test_chain_interleaved_ties_the_chains():
