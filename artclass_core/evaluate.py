@@ -143,7 +143,8 @@ def _joint_figures(outs: list[SequenceOutcome]) -> dict[str, Any]:
         axis_position_error_mm=_median([j.get("axis_position_error_mm") for j in joints]),
         state_error_deg=states["deg"],
         state_error_mm=states["mm"],
-        part_iou=_median([o.joints["part_iou"] for o in outs if o.joints["part_iou"] is not None]),
+        part_iou=_median([o.joints["part_iou"] for o in outs]),
+        part_iou_all_frames=_median([o.joints.get("part_iou_all_frames") for o in outs]),
     )
 
 
@@ -200,7 +201,7 @@ def run_outcome(
             try:
                 o.joints = _score_joints(pipeline, seq, result, truth)
             except Exception as exc:  # the label stands; the parts are reported as failed
-                o.joints = dict(part_iou=None, joints=[], error=one_line(exc))
+                o.joints = dict(part_iou=None, part_iou_all_frames=None, joints=[], error=one_line(exc))
         o.predicted, o.fractions = result.label, result.fractions
         truthful = [p for p in result.pairs if p.truth and p.decision != "skipped"]
         o.pair_total = len(truthful)
@@ -231,10 +232,10 @@ def _score_joints(pipeline: Pipeline, seq: Sequence, result: RunResult, truth: d
     """The parts and joints of a run against the sequence's joint truth and part images (``parts/``)."""
     articulation = find_articulation(result, estimator=pipeline.registry.create("joint_estimator", "bic"))
     images = {}
-    for f in articulation.frames:
-        path = Path(seq.path) / "parts" / f"{result.frames[f].name}.png"
+    for frame in result.frames:
+        path = Path(seq.path) / "parts" / f"{frame.name}.png"
         if path.is_file():
-            images[f] = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            images[frame.index] = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     forget_clouds(result)  # the run's clouds and evidence were kept for this only
     return score_articulation(articulation, truth, images)
 
@@ -291,7 +292,11 @@ def _joint_lines(rules: list[str], ms: list[dict[str, Any]]) -> list[str]:
         ("median axis position error at the part (mm)", lambda j: _number(j["axis_position_error_mm"])),
         ("median state error, revolute (deg)", lambda j: _number(j["state_error_deg"])),
         ("median state error, prismatic (mm)", lambda j: _number(j["state_error_mm"])),
-        ("median part IoU", lambda j: _number(j["part_iou"], 2)),
+        ("median part IoU, frames where a moving part was found", lambda j: _number(j["part_iou"], 2)),
+        (
+            "median part IoU, every frame (0 where none was found)",
+            lambda j: _number(j.get("part_iou_all_frames"), 2),
+        ),
     ]
     lines = [
         "",
@@ -311,14 +316,15 @@ def _joint_lines(rules: list[str], ms: list[dict[str, Any]]) -> list[str]:
             f"Per object ({rules[0]}):",
             "",
             "| object | joints | type right % | axis direction (deg) | axis position (mm) | state (deg) "
-            "| state (mm) | part IoU |",
-            "|---|---|---|---|---|---|---|---|",
+            "| state (mm) | part IoU, frames with a part found | part IoU, every frame |",
+            "|---|---|---|---|---|---|---|---|---|",
         ]
         for obj, j in first["per_object"].items():
             lines.append(
                 f"| {obj} | {j['n_joints']} | {_pct(j['joint_type_accuracy'])} | "
                 f"{_number(j['axis_direction_error_deg'])} | {_number(j['axis_position_error_mm'])} | "
-                f"{_number(j['state_error_deg'])} | {_number(j['state_error_mm'])} | {_number(j['part_iou'], 2)} |"
+                f"{_number(j['state_error_deg'])} | {_number(j['state_error_mm'])} | {_number(j['part_iou'], 2)} | "
+                f"{_number(j.get('part_iou_all_frames'), 2)} |"
             )
     return lines
 

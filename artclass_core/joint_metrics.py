@@ -101,16 +101,20 @@ def part_iou(
     return scores
 
 
-def _matched_parts(articulation, true_labels: dict[int, np.ndarray]) -> tuple[dict[int, int], list[float]]:
+def _matched_parts(
+    articulation, true_labels: dict[int, np.ndarray]
+) -> tuple[dict[int, int], list[list[float]], list[list[float]]]:
     """Estimated part -> true part (both numbered from 0), matched once for the whole video by the
-    total intersection over union (Hungarian), and the IoU of every true part in every frame that
-    shows a moving part (the matched estimate's, 0 for an unmatched true part)."""
-    frames = [f for f in articulation.frames if f in true_labels]
+    total intersection over union (Hungarian) over the frames with a part image, and the IoU of every
+    true part shown in a frame (the matched estimate's, 0 for an unmatched true part), per frame: over
+    the frames whose part image shows a moving part, and over every frame of ``true_labels`` (a frame
+    without a part image scores 0)."""
+    images = {f: (np.asarray(t), articulation.label_image(f)) for f, t in sorted(true_labels.items())}
+    estimated = {f: pair for f, pair in images.items() if pair[1] is not None}
     n_est = len(articulation.parts)
-    n_true = 1 + max((int(t.max()) for t in true_labels.values()), default=0)
+    n_true = 1 + max((int(t.max()) for t, _ in images.values()), default=0)
     inter, union = np.zeros((n_true, n_est)), np.zeros((n_true, n_est))
-    images = {f: (np.asarray(true_labels[f]), articulation.label_image(f)) for f in frames}
-    for truth, est in images.values():
+    for truth, est in estimated.values():
         for t in range(n_true):
             for e in range(n_est):
                 a, b = truth == t + 1, est == e + 1
@@ -120,17 +124,25 @@ def _matched_parts(articulation, true_labels: dict[int, np.ndarray]) -> tuple[di
         iou = np.nan_to_num(inter / union)
     rows, cols = linear_sum_assignment(iou, maximize=True)
     match = {int(e): int(t) for t, e in zip(rows, cols)}
-    per_frame = []
+    with_moving_part, every_frame = [], []
     for truth, est in images.values():
-        if not (est > 1).any():
+        shown = [t for t in range(n_true) if (truth == t + 1).any()]
+        if est is None:
+            every_frame.append([0.0] * len(shown))
             continue
-        to_true = {e: t for e, t in match.items()}
-        per_frame += [
-            mask_iou(truth == t + 1, np.isin(est, [e + 1 for e, tt in to_true.items() if tt == t]))
-            for t in range(n_true)
-            if (truth == t + 1).any()
+        scores = [
+            mask_iou(truth == t + 1, np.isin(est, [e + 1 for e, tt in match.items() if tt == t]))
+            for t in shown
         ]
-    return match, per_frame
+        every_frame.append(scores)
+        if (est > 1).any():
+            with_moving_part.append(scores)
+    return match, with_moving_part, every_frame
+
+
+def _mean_over(frames: list[list[float]]) -> float | None:
+    scores = [s for frame in frames for s in frame]
+    return float(np.mean(scores)) if scores else None
 
 
 def score_articulation(articulation, truth: dict, true_labels: dict[int, np.ndarray]) -> dict:
@@ -143,19 +155,23 @@ def score_articulation(articulation, truth: dict, true_labels: dict[int, np.ndar
         The sequence's ``truth.json`` (``parts``, ``joints`` with per-frame ``state``,
         ``axis_camera0``, ``origin_camera0_m``, ``part_poses`` and ``part_points_m``).
     true_labels : dict of frame -> ndarray (H, W)
-        The true part images (``parts/*.png``: 0 = not the object, 1 + part index).
+        The true part images (``parts/*.png``: 0 = not the object, 1 + part index), of every frame
+        that has one.
 
     Returns
     -------
-    dict: ``part_iou`` (mean over the true parts and the frames that show a moving part, or None),
+    dict: ``part_iou`` (mean IoU over the true parts and the frames whose estimated part image shows
+    a moving part, or None), ``part_iou_all_frames`` (the same over every frame of ``true_labels``, a
+    frame without an estimated part image scoring 0 for each of its true parts: an estimate that gives
+    up on hard frames scores lower here, not higher; None without any true part image),
     and per estimated joint, matched to the true joint between the true parts its two parts match
     (or, failing that, the true joint of its child's part): ``type``, ``true_type``,
     ``axis_direction_error_deg``, ``axis_position_error_mm`` (at the true moving part in frame 0),
     ``state_error`` and its ``state_unit`` (``deg`` or ``mm``).
     """
-    match, ious = _matched_parts(articulation, true_labels)
+    match, with_moving_part, every_frame = _matched_parts(articulation, true_labels)
     true_joints, true_parts = truth.get("joints") or [], truth.get("parts") or []
-    out = dict(part_iou=float(np.mean(ious)) if ious else None, joints=[])
+    out = dict(part_iou=_mean_over(with_moving_part), part_iou_all_frames=_mean_over(every_frame), joints=[])
     for joint in articulation.joints:
         parent, child = match.get(joint.parent), match.get(joint.child)
         found = [n for n, j in enumerate(true_joints) if {j["parent"], j["child"]} == {parent, child}]

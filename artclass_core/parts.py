@@ -9,7 +9,11 @@ those per-pair segments through the frames into parts, and grows the tree of joi
    and an earlier pair's target are one cloud) or on neighbouring frames (the same pixels, which
    move little in one frame). Overlaps are merged greedily, largest first, never putting two motions
    of one pair into one part.
-2. **Base.** The part with the most labelled points over the video.
+2. **Base.** The part found still (its motion below the rule's threshold) in the most pairs that
+   show the object articulated: the hand moves the part it holds and leaves the base on the table,
+   and the base need not be the largest part. When no part is ever still (the object is carried),
+   the part with the most labelled points. A pair that found one motion saw the whole object move
+   as one body: its motion is the base's.
 3. **Base poses.** The base's motions are chained through the pairs into its pose in every frame,
    relative to the first frame. Pairs (i, i + k) link only every k-th frame; the k interleaved chains
    are tied together by interpolating the first chain's poses in time (constant velocity).
@@ -719,8 +723,10 @@ def find_articulation(
             for m in np.unique(o.labels[o.labels >= 0])
         }
     size = _track_sizes(observations, track)
+    base = _still_track(result, track, size, min_pairs=params.min_pairs)
+    track = _one_body_pairs_on(base, result, track)
+    size = _track_sizes(observations, track)
     motions = _track_motions(result, track)
-    base = max(size, key=size.get) if size else 0
     base_poses = chain_interleaved(
         n_frames, [(result.pairs[n].i, result.pairs[n].j, T) for n, T in motions.get(base, {}).items()]
     )
@@ -766,6 +772,39 @@ def _track_sizes(observations: list[_Observation], track: dict[tuple, int]) -> d
             t = track[(o.pair, int(m))]
             size[t] = size.get(t, 0) + int(counts[m])
     return size
+
+
+def _still_track(result: RunResult, track: dict[tuple, int], size: dict[int, int], *, min_pairs: int) -> int:
+    """The base: of the tracks seen in at least ``min_pairs`` AM pairs, the one found still (its
+    points moved by no more than the rule's motion threshold, ``threshold_m`` of the pair's info) in
+    the most AM pairs; the larger one breaks a tie, and when none is ever still (the object carried
+    throughout, or a rule that gives no threshold) the track with the most labelled points is the base.
+
+    A hand moves the part it holds; what it leaves on the table is the base, which need not be the
+    largest part (a drawer's front, a lamp's shade)."""
+    if not size:
+        return 0
+    candidates = _seen_tracks(result, track, min_pairs=min_pairs) if result.label == "articulated" else set()
+    still = dict.fromkeys(candidates, 0)
+    for (pair, m), t in track.items():
+        p = result.pairs[pair]
+        if (
+            t in candidates
+            and p.decision == "AM"
+            and p.motions[m].displacement_m <= p.info.get("threshold_m", -1.0)
+        ):
+            still[t] += 1
+    if not any(still.values()):
+        return max(size, key=size.get)
+    return max(still, key=lambda t: (still[t], size[t]))
+
+
+def _one_body_pairs_on(base: int, result: RunResult, track: dict[tuple, int]) -> dict[tuple, int]:
+    """``track`` with the motion of every pair that found one motion on the base: the whole object
+    moved as one body there, so that motion is the base's too (and the moving parts are at rest
+    relative to it)."""
+    one_body = {pair for (pair, m) in track if len(result.pairs[pair].motions) == 1}
+    return {node: base if node[0] in one_body else t for node, t in track.items()}
 
 
 def _track_motions(result: RunResult, track: dict[tuple, int]) -> dict[int, dict[int, np.ndarray]]:

@@ -14,7 +14,16 @@ from scipy.spatial.transform import Rotation
 from artclass_core import ArtclassError
 from artclass_core.geometry import transform
 from artclass_core.joint_metrics import axis_direction_error_rad, axis_position_error_m, score_articulation
-from artclass_core.parts import PartsParams, _cost, _look, chain_interleaved, find_articulation, frame_states
+from artclass_core.parts import (
+    PartsParams,
+    _cost,
+    _look,
+    _one_body_pairs_on,
+    _still_track,
+    chain_interleaved,
+    find_articulation,
+    frame_states,
+)
 from artclass_core.plugins import load_registry
 from artclass_core.types import (
     Cloud,
@@ -377,6 +386,34 @@ def test_frame_states_from_pair_differences():
     assert std[0] == 0 and (std[np.isfinite(states)][1:] > 0).all()
 
 
+def test_a_pair_with_one_motion_moves_the_base():
+    """A pair that found one motion saw the whole object move as one body: that motion joins the base's
+    track, even when its region overlapped a moving part's more; pairs with two motions keep theirs."""
+    from types import SimpleNamespace
+
+    pairs = [SimpleNamespace(motions=[None] * n) for n in (2, 1, 2)]
+    track = {(0, 0): 0, (0, 1): 1, (1, 0): 1, (2, 0): 0, (2, 1): 1}
+    moved = _one_body_pairs_on(0, SimpleNamespace(pairs=pairs), track)
+    assert moved == {(0, 0): 0, (0, 1): 1, (1, 0): 0, (2, 0): 0, (2, 1): 1}
+
+
+def test_the_base_is_the_part_left_still_not_the_largest():
+    """A small body that stays still while a large flap turns is the base; when the hand carries both
+    (no part is ever still), or no pair shows the object articulated, the largest part is."""
+    from types import SimpleNamespace
+
+    def run(decision, body_moves_m):
+        motions = [Motion(np.eye(4), "body", 50, body_moves_m), Motion(np.eye(4), "flap", 500, 0.02)]
+        pairs = [SimpleNamespace(decision=decision, motions=motions, info=dict(threshold_m=0.004))] * 3
+        return SimpleNamespace(label="articulated", pairs=pairs)
+
+    track = {(n, m): m for n in range(3) for m in range(2)}
+    size = {0: 150, 1: 1500}
+    assert _still_track(run("AM", 0.001), track, size, min_pairs=2) == 0
+    assert _still_track(run("AM", 0.01), track, size, min_pairs=2) == 1
+    assert _still_track(run("NM", 0.001), track, size, min_pairs=2) == 1
+
+
 def test_chain_interleaved_ties_the_chains():
     poses = [_carry(f, True) for f in range(10)]
     pairs = [(i, i + 3, poses[i + 3] @ np.linalg.inv(poses[i])) for i in range(7)]
@@ -385,9 +422,9 @@ def test_chain_interleaved_ties_the_chains():
     np.testing.assert_allclose(out, np.stack(poses), atol=1e-3)  # the others: interpolated, then chained
 
 
-def test_score_against_the_truth(bic):
-    art = find_articulation(run_result(), estimator=bic)
-    truth = dict(
+def _flap_truth() -> dict:
+    """The generator's truth of the flap of :func:`run_result`."""
+    return dict(
         parts=[dict(parent=-1, joint=None), dict(parent=0, joint=0)],
         joints=[
             dict(
@@ -402,12 +439,20 @@ def test_score_against_the_truth(bic):
         part_points_m=[[BASE.tolist(), LID.tolist()]],
         part_poses=[[np.eye(4).tolist()] * 2],
     )
+
+
+def _true_part_images(frames) -> dict[int, np.ndarray]:
     images = {}
-    for f in art.frames:
+    for f in frames:
         cloud, part = _cloud(f, False)
-        image = np.zeros((K.height, K.width), np.uint8)
-        image[cloud.pixels[:, 1], cloud.pixels[:, 0]] = part + 1
-        images[f] = image
+        images[f] = np.zeros((K.height, K.width), np.uint8)
+        images[f][cloud.pixels[:, 1], cloud.pixels[:, 0]] = part + 1
+    return images
+
+
+def test_score_against_the_truth(bic):
+    art = find_articulation(run_result(), estimator=bic)
+    truth, images = _flap_truth(), _true_part_images(art.frames)
     scores = score_articulation(art, truth, images)
     (joint,) = scores["joints"]
     assert joint["type"] == joint["true_type"] == "revolute"
@@ -418,6 +463,22 @@ def test_score_against_the_truth(bic):
     truth["joints"][0].update(type="prismatic", axis_camera0=[[1.0, 0.0, 0.0]] * N_FRAMES)
     (wrong,) = score_articulation(art, truth, images)["joints"]
     assert wrong["true_type"] == "prismatic" and wrong["axis_direction_error_deg"] > 85
+
+
+def test_part_iou_over_every_frame_counts_the_frames_given_up(bic):
+    """An estimate without part images for the second half of the video keeps its IoU over the frames
+    where it found a moving part, but scores 0 on the frames it gave up over every frame."""
+    art = find_articulation(run_result(), estimator=bic)
+    truth, images = _flap_truth(), _true_part_images(range(N_FRAMES))
+    full = score_articulation(art, truth, images)
+    assert full["part_iou"] == pytest.approx(full["part_iou_all_frames"]) and full["part_iou"] > 0.95
+    half = N_FRAMES // 2
+    gave_up = dataclasses.replace(art, _views={f: v for f, v in art._views.items() if f < half})
+    scores = score_articulation(gave_up, truth, images)
+    assert scores["part_iou"] > 0.95
+    assert scores["part_iou_all_frames"] == pytest.approx(
+        full["part_iou_all_frames"] * half / N_FRAMES, abs=0.02
+    )
 
 
 def test_the_urdf_of_a_found_hinge_moves_like_the_flap(bic, tmp_path):
@@ -475,7 +536,9 @@ def test_evaluation_reports_parts_and_joints():
 
     def outcome(name, truth, joints, iou=0.8):
         o = SequenceOutcome(name, name.split("_")[0], truth, (truth,), truth)
-        o.joints = dict(part_iou=iou if joints else None, joints=joints)
+        o.joints = dict(
+            part_iou=iou if joints else None, part_iou_all_frames=iou / 2 if joints else None, joints=joints
+        )
         return o
 
     hinge = dict(
@@ -511,7 +574,9 @@ def test_evaluation_reports_parts_and_joints():
     assert j["n_joints"] == 2 and j["joint_type_accuracy"] == 0.5
     assert j["axis_direction_error_deg"] == 4.0 and j["axis_position_error_mm"] == 8.0
     assert (j["state_error_deg"], j["state_error_mm"], j["part_iou"]) == (1.0, 4.0, pytest.approx(0.7))
+    assert j["part_iou_all_frames"] == pytest.approx(0.35)
     assert j["per_object"]["drawer"]["joint_type_accuracy"] == 0.0
     text = markdown([Evaluation("dense", outs, {})])
+    assert "| median part IoU, every frame (0 where none was found) | 0.35 |" in text
     assert "| articulated sequences with a moving part found | 2 / 3 |" in text
     assert "| rigid or static sequences with a joint | 1 / 2 |" in text
