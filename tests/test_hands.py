@@ -463,3 +463,32 @@ def test_an_object_resting_on_the_table_at_the_border_is_kept_when_held():
         assert mask_iou(seg.segment(scene[i], sequence=scene), box & ~hands[i]) > 0.85, i
         choice = seg.choice(scene[i], sequence=scene)
         assert choice.held and choice.held[choice.index], i
+
+
+def test_a_gripper_finger_cut_off_from_its_body_is_removed_with_it():
+    """A grey gripper held above the table with one finger seen apart from its body (a gap of 3 px,
+    1 cm farther from the camera): the finger is too small to be a gripper by itself (6 cm^2), so it
+    is found as a piece of the gripper it touches in 3-D, and it is neither an object nor the chosen
+    one. A box of the gripper's colour lying on the table is kept, and chosen."""
+    gripper = hand_shape(200, 110)
+    finger = np.zeros((H, W), bool)
+    finger[130:137, 165:195] = True  # below the palm, 3 px clear of it
+    finger &= ~cv2.dilate(gripper.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+    dark = box_mask(60, 150, 40, 30)  # a dark box of the gripper's colour on the table
+    height = np.where(dark, 0.03, 0.0)
+    depth = table_depth(height)
+    frames = []
+    for i in range(3):
+        rgb, d = render(dark, gripper | finger, hand_depth_m=0.55, hand_colour=GRIPPER, depth=depth, seed=i)
+        d[finger] = 0.56
+        rgb[dark] = np.asarray(GRIPPER) + np.random.default_rng(i).normal(0, 2, (dark.sum(), 3))
+        frames.append(Frame(i, f"{i:06d}", np.clip(rgb, 0, 255).astype(np.uint8), d))
+    scene = Scene(frames, name="gripper finger")
+    scene.meta["gripper_hsv"] = "0,0,0,180,100,100"
+    seg = DepthThresholdSegmenter()
+    for i in range(len(scene)):
+        found = seg.hand_mask(scene[i], sequence=scene)
+        assert np.count_nonzero(found & finger) > 0.8 * np.count_nonzero(finger), i
+        assert np.count_nonzero(found & dark) < 0.05 * np.count_nonzero(dark), i
+        assert not any((m & finger).any() for m in seg.frame_instances(scene[i], sequence=scene)), i
+        assert mask_iou(seg.segment(scene[i], sequence=scene), dark) > 0.85, i

@@ -20,7 +20,9 @@ union of:
 * **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``, or, when
   that is not set, the box the sequence's own settings give as ``gripper_hsv`` (a robot rig knows
   its gripper: the native folder format reads it from ``meta.json``); its regions are found apart
-  from the skin-coloured ones, so a wooden object the gripper holds does not join it;
+  from the skin-coloured ones, so a wooden object the gripper holds does not join it. Its fingers,
+  smaller than ``hand_min_area_m2`` and cut off from its body by a depth step, join it when they
+  touch it in 3-D and do not rest on the support plane;
 * **given masks**: one PNG per frame in the folder ``hand_masks`` (a robot knows its own gripper),
   used as they are.
 
@@ -69,6 +71,8 @@ __all__ = [
     "arms",
     "on_plane",
     "rests",
+    "fingers",
+    "surface_m2",
 ]
 
 # Chai & Ngan (1999): the skin-colour map in YCrCb, 8-bit (OpenCV's YCrCb has the same offsets).
@@ -229,7 +233,7 @@ def hand_regions(
     n, labels, stats = label_regions(_open(candidates))
     if n < 2:
         return np.zeros(candidates.shape, bool)
-    x, y, bw, bh, count = (stats[1:, k] for k in range(5))
+    x, y, bw, bh = (stats[1:, k] for k in range(4))
     reach = _at_border(stats, candidates.shape)
     kept = np.flatnonzero(reach if border else np.ones(n - 1, bool)) + 1
     if not len(kept):
@@ -239,17 +243,22 @@ def hand_regions(
     for k in kept:
         box = np.s_[y[k - 1] : y[k - 1] + bh[k - 1], x[k - 1] : x[k - 1] + bw[k - 1]]
         region = labels[box] == k
-        z = d[box][region]
-        z = z[z > 0]
-        if not len(z):
-            continue
-        # the surface of the pixels with a reading, plus those without one at the mean depth
-        area = (float(np.sum(z * z)) + (count[k - 1] - len(z)) * float(z.mean()) ** 2) / (
-            intrinsics.fx * intrinsics.fy
-        )
-        if area >= min_area_m2:
+        if surface_m2(region, d[box], intrinsics) >= min_area_m2:
             out[box] |= region
     return out
+
+
+def surface_m2(region: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics) -> float:
+    """The surface (m^2) that the pixels ``region`` (bool (H, W)) cover seen from the camera: a pixel at
+    depth z covers (z / fx) (z / fy); pixels without a reading count at the region's mean depth (0 when
+    none has one)."""
+    z = depth_m[region]
+    z = z[z > 0]
+    if not len(z):
+        return 0.0
+    return (float(np.sum(z * z)) + (np.count_nonzero(region) - len(z)) * float(z.mean()) ** 2) / (
+        intrinsics.fx * intrinsics.fy
+    )
 
 
 def load_hand_mask(folder: Path, frame: Frame) -> np.ndarray:
@@ -370,6 +379,16 @@ def find_hands(
             for r, on_arm in zip(held_out, _touching(held_out, arm, d, intrinsics, touch_m=touch)):
                 if on_arm:  # held out by an arm
                     hand |= r
+        if len(kinds) > 1 and hand.any():
+            hand |= fingers(
+                kinds[1] & candidates & ~step & ~hand,
+                hand,
+                d,
+                intrinsics,
+                contact=contact,
+                touch_m=touch,
+                max_area_m2=params.hand_min_area_m2,
+            )
     if hand.any():
         near, far = _depth_range(d, hand, 1)
         hand |= ~background & step & (far > 0) & ((d == 0) | ((d >= near - touch) & (d <= far + touch)))
@@ -466,6 +485,46 @@ def arms(
     reach = np.flatnonzero(_at_border(stats, foreground.shape)) + 1
     regions = [labels == k for k in reach]
     for region, touches in zip(regions, _touching(regions, hands, depth_m, intrinsics, touch_m=touch_m)):
+        if touches and not rests(region, contact):
+            out |= region
+    return out
+
+
+def fingers(
+    pieces: np.ndarray,
+    gripper: np.ndarray,
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    contact: np.ndarray,
+    touch_m: float,
+    max_area_m2: float,
+) -> np.ndarray:
+    """The gripper's fingers among the regions of ``pieces`` (8-connected, after a 3x3 opening): those
+    smaller than ``max_area_m2`` (a hand-sized region has been judged on its own) that touch
+    ``gripper`` in 3-D and do not rest on the support plane. A finger seen below the gripper's body
+    is cut from it by a depth step, and it is too small to count as a gripper by itself.
+
+    Parameters
+    ----------
+    pieces : ndarray of bool, shape (H, W) -- gripper-coloured pixels standing out of the background,
+        away from depth steps, not yet in the hand mask
+    gripper : ndarray of bool, shape (H, W) -- the gripper (and arm) found so far
+    depth_m : ndarray, shape (H, W), metres, 0 = no reading
+    intrinsics : pinhole intrinsics of the image
+    contact : ndarray of bool, shape (H, W) -- the pixels on the support plane (:func:`on_plane`)
+    touch_m : metres -- how far a finger may be from the gripper, in depth and across the image
+    max_area_m2 : square metres -- the largest surface of a finger
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+    """
+    regions = [
+        r for r in _regions(_open(pieces)) if surface_m2(r, depth_m, intrinsics) < max_area_m2
+    ]
+    out = np.zeros(pieces.shape, bool)
+    for region, touches in zip(regions, _touching(regions, gripper, depth_m, intrinsics, touch_m=touch_m)):
         if touches and not rests(region, contact):
             out |= region
     return out
