@@ -15,7 +15,8 @@ Each instance takes back the holes it encloses whose rim meets it within ``plane
 (a tray's floor lying on the table; not the table seen through a handle). Last, it takes the
 dropouts (pixels without a reading) that a closing of radius ``fill_px`` puts inside it. Hands and
 the gripper (:mod:`.hands`) are left out from the start, so a hand neither becomes an object nor
-joins two. The shared selection (:mod:`.selection`) picks the one being manipulated.
+joins two; the instances a hand hides in part, seen farther than ``hand_touch_m`` behind it, are one
+object (a hand passing in front of an object cuts it in two). The shared selection (:mod:`.selection`) picks the one being manipulated.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from scipy.spatial import cKDTree
 
 from artclass_core import Frame, Intrinsics, Sequence, param
 
-from .hands import HandParams, find_hands, widen
+from .hands import HOLD_LINE_M, HandParams, find_hands, held, hidden, pixels_across, widen
 from .selection import InstanceSegmenter, SelectionParams
 from .support import (
     BackgroundParams,
@@ -52,6 +53,7 @@ __all__ = [
     "fill_floors",
     "grow",
     "join_touching",
+    "join_hidden",
     "thin_objects",
 ]
 
@@ -161,6 +163,35 @@ def join_touching(
         np.logical_or.reduce([m for m, g in zip(instances, group) if g == k]) for k in sorted(set(group))
     ]
     return sorted(joined, key=lambda m: -int(m.sum()))
+
+
+def join_hidden(
+    instances: list[np.ndarray],
+    hand: np.ndarray | None,
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    touch_m: float,
+) -> list[np.ndarray]:
+    """Instances that the hand hides in part (:func:`.hands.hidden`: seen beside it, farther than
+    ``touch_m`` behind it, along a line of at least ``HOLD_LINE_M``) made one, when the hand holds none
+    of them (:func:`.hands.held`): a hand or arm passing in front of an object cuts it in two, and
+    both sides are the same object. A hand that holds an object may hide others behind it, which stay
+    apart. Largest first."""
+    if len(instances) < 2 or hand is None:
+        return instances
+    reach_px = pixels_across(touch_m, intrinsics.fx, depth_m[hand & (depth_m > 0)]) if hand.any() else 1
+    if any(
+        held(
+            instances, hand, depth_m, touch_m=touch_m, reach_px=reach_px, line_m=HOLD_LINE_M, fx=intrinsics.fx
+        )
+    ):
+        return instances
+    behind = hidden(instances, hand, depth_m, touch_m=touch_m, line_m=HOLD_LINE_M, fx=intrinsics.fx)
+    if sum(behind) < 2:
+        return instances
+    joined = [np.logical_or.reduce([m for m, b in zip(instances, behind) if b])]
+    return sorted(joined + [m for m, b in zip(instances, behind) if not b], key=lambda m: -int(m.sum()))
 
 
 def fill_floors(
@@ -403,6 +434,9 @@ class DepthThresholdSegmenter(MaskFreeSegmenter):
             if found:
                 found = grow(found, low)
         found = join_touching(found, depth, K, join_m=p.join_m)
+        if allowed is not None:
+            hand = self.hand_mask(frame, sequence=sequence)
+            found = join_hidden(found, hand, depth, K, touch_m=p.hand_touch_m)
         found = fill_floors(found, depth, K, gap_m=p.plane_distance_m)
         found = fill_dropouts(found, valid, fill_px=p.fill_px)
         return keep_within(found, allowed, min_area_fraction=p.min_area_fraction)

@@ -9,7 +9,9 @@ union of:
   skin-coloured object behind the hand stays apart); a region is a hand when it reaches the image
   border (a hand is held out from an arm that enters the picture; a skin-coloured object in the
   scene seldom reaches it) and its surface, measured with depth, is at least ``hand_min_area_m2``
-  (two fingers: specks and patches of skin colour on objects are smaller);
+  (two fingers: specks and patches of skin colour on objects are smaller). A region held above the
+  table also reaches the border through pixels without a reading that do, other than projector
+  shadows (an arm nearer than the sensor's range), and those pixels are the arm's;
 * **arms and sleeves, whatever their colour**: a region standing out of the background that reaches
   the image border, is not resting on the support plane (none of its pixels away from depth steps
   comes down to it: its lowest points stand off the plane by more than ``plane_distance_m`` plus the
@@ -20,9 +22,11 @@ union of:
 * **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``, or, when
   that is not set, the box the sequence's own settings give as ``gripper_hsv`` (a robot rig knows
   its gripper: the native folder format reads it from ``meta.json``); its regions are found apart
-  from the skin-coloured ones, so a wooden object the gripper holds does not join it. Its fingers,
-  smaller than ``hand_min_area_m2`` and cut off from its body by a depth step, join it when they
-  touch it in 3-D and do not rest on the support plane;
+  from the skin-coloured ones, so a wooden object the gripper holds does not join it, and they are
+  cut along the projector's shadows too (:func:`projector_shadows`), so a dark object behind a
+  finger does not join it through the shadow the finger casts. Its fingers, smaller than
+  ``hand_min_area_m2`` and cut off from its body by a depth step or a shadow, join it when they touch
+  it in 3-D and do not rest on the support plane;
 * **given masks**: one PNG per frame in the folder ``hand_masks`` (a robot knows its own gripper),
   used as they are.
 
@@ -30,7 +34,9 @@ The hand mask is grown by ``hand_margin_px`` (its outline's mixed-colour pixels)
 the objects before the handled one is chosen, so a hand alone is never the object; its pixels are
 left out of the change score, so a hand waving in front of a still object does not make the object
 move. An object that the hand touches in 3-D (object pixels next to hand pixels, within
-``hand_touch_m`` of their depth) is *held*, and held objects are preferred (:mod:`.selection`).
+``hand_touch_m`` of their depth, along a line of contact at least ``HOLD_LINE_M`` long, not a couple
+of stray pixels) is *held*, and held objects are preferred (:mod:`.selection`). An object seen on
+both sides of a hand passing in front of it is one object (:func:`hidden`).
 
 Notes
 -----
@@ -65,6 +71,8 @@ __all__ = [
     "gripper_box",
     "hand_regions",
     "held",
+    "hidden",
+    "HOLD_LINE_M",
     "load_hand_mask",
     "find_hands",
     "widen",
@@ -72,6 +80,8 @@ __all__ = [
     "on_plane",
     "rests",
     "fingers",
+    "pixels_across",
+    "projector_shadows",
     "surface_m2",
 ]
 
@@ -327,20 +337,26 @@ def find_hands(
             np.zeros(background.shape, bool), frame, params=params, sequence_path=sequence_path
         )
     # cut along depth steps, so that a skin-coloured object behind the hand does not join it; then
-    # give the hand back its side of the step (its outline)
+    # give the hand back its side of the step (its outline). The gripper is cut along the projector's
+    # shadows too (a dark object behind its finger does not join it through the shadow the finger
+    # casts on it): the pieces of the gripper this cuts off rejoin it as its fingers; a hand's
+    # pieces would not (a small skin-coloured object in the hand looks the same), so its shadows
+    # stay joined
     d, touch = clean_depth(frame.depth_m), params.hand_touch_m
     near, far = _depth_range(d, np.ones(background.shape, bool), 1)
     step = far - near > touch  # no readings around: -inf, not a step
+    shadow = projector_shadows(d, step_m=touch)
     found = [
         hand_regions(
-            kind & candidates & ~step,
+            kind & candidates & ~step & ~(shadow if k else False),
             d,
             intrinsics,
             min_area_m2=params.hand_min_area_m2,
             border=support is None,
         )
-        for kind in kinds
+        for k, kind in enumerate(kinds)
     ]
+    edge = None
     if support is None:
         hand = np.logical_or.reduce(found)
     else:
@@ -362,6 +378,11 @@ def find_hands(
         for r in regions:
             if r[0].any() or r[-1].any() or r[:, 0].any() or r[:, -1].any():
                 hand |= r
+        # an arm too near the sensor to be measured reaches the border through pixels without a reading
+        edge = _edge_gaps(d, shadow)
+        for r in held_out:
+            if not hand[r].any() and _touches(r, edge):
+                hand |= r
         arm = (
             arms(
                 ~background & ~candidates & ~step & (d > 0),
@@ -381,7 +402,7 @@ def find_hands(
                     hand |= r
         if len(kinds) > 1 and hand.any():
             hand |= fingers(
-                kinds[1] & candidates & ~step & ~hand,
+                kinds[1] & candidates & ~step & ~shadow & ~hand,
                 hand,
                 d,
                 intrinsics,
@@ -395,6 +416,8 @@ def find_hands(
         # pixels without a reading are the hand's where a closing of the margin's radius puts them
         # inside it (dropouts on skin), not a band along its side (the sensor's shadow on the table)
         hand &= (d > 0) | close_gaps(hand & (d > 0), params.hand_margin_px)
+        if edge is not None:  # and the arm where it is too near the sensor to be measured
+            hand |= _attached(edge, hand)
     return _with_given(hand, frame, params=params, sequence_path=sequence_path)
 
 
@@ -407,6 +430,9 @@ def _with_given(
     return hand
 
 
+# An instance is held when the hand touches it along at least this length (a fingertip's touch): a
+# couple of pixels where the hand passes close to a still object are no grasp.
+HOLD_LINE_M = 0.005
 # A region rests on the support plane when at least this many of its pixels come down to it (a line
 # of contact, not a stray reading).
 CONTACT_PX = 3
@@ -520,9 +546,7 @@ def fingers(
     -------
     ndarray of bool, shape (H, W)
     """
-    regions = [
-        r for r in _regions(_open(pieces)) if surface_m2(r, depth_m, intrinsics) < max_area_m2
-    ]
+    regions = [r for r in _regions(_open(pieces)) if surface_m2(r, depth_m, intrinsics) < max_area_m2]
     out = np.zeros(pieces.shape, bool)
     for region, touches in zip(regions, _touching(regions, gripper, depth_m, intrinsics, touch_m=touch_m)):
         if touches and not rests(region, contact):
@@ -550,8 +574,52 @@ def _touching(
     seen = other & (depth_m > 0)
     if not seen.any():
         return [False] * len(regions)
-    reach_px = int(np.ceil(touch_m * intrinsics.fx / float(np.median(depth_m[seen]))))
-    return held(regions, other, depth_m, touch_m=touch_m, reach_px=max(reach_px, 1))
+    reach_px = pixels_across(touch_m, intrinsics.fx, depth_m[seen])
+    return held(regions, other, depth_m, touch_m=touch_m, reach_px=reach_px)
+
+
+def pixels_across(distance_m: float, fx: float, depths_m: np.ndarray) -> int:
+    """``distance_m`` across the image, in pixels (at least 1), at the median of ``depths_m`` (metres)."""
+    return max(int(np.ceil(distance_m * fx / float(np.median(depths_m)))), 1)
+
+
+def projector_shadows(depth_m: np.ndarray, *, step_m: float) -> np.ndarray:
+    """The pixels without a reading whose nearest readings to the left and to the right in their row
+    differ by more than ``step_m``: the projector's shadow of a structured-light sensor (its projector
+    sits beside the camera along x), which lies beside a depth edge on whatever is behind it and must
+    not join the two sides. bool (H, W)."""
+    gaps = depth_m == 0
+    if not gaps.any():
+        return gaps
+    h, w = depth_m.shape
+    columns = np.broadcast_to(np.arange(w), (h, w))
+    left = np.maximum.accumulate(np.where(gaps, -1, columns), axis=1)  # -1: none
+    right = w - 1 - np.maximum.accumulate(np.where(gaps[:, ::-1], -1, columns), axis=1)[:, ::-1]  # w: none
+    rows = np.arange(h)[:, None]
+    both = (left >= 0) & (right < w)
+    on_left = depth_m[rows, np.clip(left, 0, w - 1)]
+    on_right = depth_m[rows, np.clip(right, 0, w - 1)]
+    return gaps & both & (np.abs(on_left - on_right) > step_m)
+
+
+def _edge_gaps(depth_m: np.ndarray, shadow: np.ndarray) -> np.ndarray:
+    """The pixels without a reading, other than ``shadow``, connected (8-connected) to the image
+    border: where an arm nearer than the sensor's range leaves the picture. bool (H, W)."""
+    n, labels, stats = label_regions((depth_m == 0) & ~shadow)
+    reach = np.flatnonzero(_at_border(stats, depth_m.shape)) + 1
+    return np.isin(labels, reach) if len(reach) else np.zeros(depth_m.shape, bool)
+
+
+def _attached(mask: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """The connected regions (8-connected) of ``mask`` that have a pixel in or next to ``seed``: bool (H, W)."""
+    n, labels, _ = label_regions(mask)
+    hit = np.unique(labels[widen(seed, 1) & mask])
+    return np.isin(labels, hit[hit > 0]) if len(hit) else np.zeros(mask.shape, bool)
+
+
+def _touches(region: np.ndarray, other: np.ndarray | None) -> bool:
+    """Whether ``region`` has a pixel next to (8-connected) one of ``other``."""
+    return other is not None and bool(np.any(other & widen(region, 1)))
 
 
 def _depth_range(d: np.ndarray, where: np.ndarray, reach_px: int) -> tuple[np.ndarray, np.ndarray]:
@@ -582,10 +650,18 @@ def widen(mask: np.ndarray, radius_px: int) -> np.ndarray:
 
 
 def held(
-    instances: list[np.ndarray], hand: np.ndarray, depth_m: np.ndarray, *, touch_m: float, reach_px: int = 1
+    instances: list[np.ndarray],
+    hand: np.ndarray,
+    depth_m: np.ndarray,
+    *,
+    touch_m: float,
+    reach_px: int = 1,
+    line_m: float = 0.0,
+    fx: float = 0.0,
 ) -> list[bool]:
-    """Which instances the hand touches in 3-D: an instance pixel within ``reach_px`` (a square) of
-    hand pixels, whose depth lies within ``touch_m`` of the range of their depths.
+    """Which instances the hand touches in 3-D: instance pixels within ``reach_px`` (a square) of
+    hand pixels, whose depth lies within ``touch_m`` of the range of their depths, along a line of
+    contact at least ``line_m`` long.
 
     Parameters
     ----------
@@ -594,14 +670,74 @@ def held(
     depth_m : ndarray, shape (H, W), metres, 0 = no reading
     touch_m : depth tolerance, metres
     reach_px : how far from the hand an object pixel may be (the margin removed with the hand, + 1)
+    line_m : metres -- the shortest line of contact: the touching pixels, a band ``reach_px`` wide
+        along the hand, must cover at least ``reach_px * line_m * fx / z`` pixels (z: their median
+        depth); 0 = any touching pixel
+    fx : focal length, pixels (needed when ``line_m`` > 0)
 
     Returns
     -------
     list of bool, one per instance
     """
+    return _along_hand(
+        instances, hand, depth_m, touch_m=touch_m, reach_px=reach_px, line_m=line_m, fx=fx, behind=False
+    )
+
+
+def hidden(
+    instances: list[np.ndarray],
+    hand: np.ndarray,
+    depth_m: np.ndarray,
+    *,
+    touch_m: float,
+    line_m: float,
+    fx: float,
+) -> list[bool]:
+    """Which instances the hand hides in part: at least ``line_m * fx / z`` of their pixels (a line
+    ``line_m`` long at their median depth z) lie within ``touch_m`` of the hand across the image (at
+    the hand's median depth: across the projector's shadow the hand casts on them) and farther than
+    ``touch_m`` behind its nearest reading there. The parameters are those of :func:`held`.
+    list of bool."""
+    seen = hand & (depth_m > 0)
+    if not seen.any():
+        return [False] * len(instances)
+    reach_px = pixels_across(touch_m, fx, depth_m[seen])
+    return _along_hand(
+        instances,
+        hand,
+        depth_m,
+        touch_m=touch_m,
+        reach_px=reach_px,
+        line_m=line_m / reach_px,
+        fx=fx,
+        behind=True,
+    )
+
+
+def _along_hand(
+    instances: list[np.ndarray],
+    hand: np.ndarray,
+    depth_m: np.ndarray,
+    *,
+    touch_m: float,
+    reach_px: int,
+    line_m: float,
+    fx: float,
+    behind: bool,
+) -> list[bool]:
+    """:func:`held` (``behind`` False) or :func:`hidden` (True)."""
     if not hand.any() or not instances:
         return [False] * len(instances)
     d = clean_depth(depth_m)
     near, far = _depth_range(d, hand, reach_px)  # of the hand's readings around each pixel
-    contact = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
-    return [bool(np.any(m & contact)) for m in instances]
+    if behind:
+        along = (d > 0) & ~hand & (d > near + touch_m) & (far > 0)
+    else:
+        along = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
+    out = []
+    for m in instances:
+        line = m & along
+        n = np.count_nonzero(line)
+        least = reach_px * line_m * fx / float(np.median(d[line])) if n and line_m > 0 else 1
+        out.append(bool(n) and n >= least)
+    return out
