@@ -611,7 +611,7 @@ def _edge_gaps(depth_m: np.ndarray, shadow: np.ndarray) -> np.ndarray:
 
 
 def _attached(mask: np.ndarray, seed: np.ndarray) -> np.ndarray:
-    """The connected regions (8-connected) of ``mask`` that have a pixel in or next to ``seed``: bool (H, W)."""
+    """The connected regions (8-connected) of ``mask`` with a pixel in or next to ``seed``: bool (H, W)."""
     n, labels, _ = label_regions(mask)
     hit = np.unique(labels[widen(seed, 1) & mask])
     return np.isin(labels, hit[hit > 0]) if len(hit) else np.zeros(mask.shape, bool)
