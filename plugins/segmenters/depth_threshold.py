@@ -331,7 +331,8 @@ def colour_patches(
     # each pixel's colour averaged over THIN_WINDOW_PX squared pixels: the camera's colour noise
     # divided by THIN_WINDOW_PX, so that it does not pass the contrast by itself
     lab = cv2.blur(lab, (THIN_WINDOW_PX, THIN_WINDOW_PX))
-    distinct = plane & (np.linalg.norm(lab - around, axis=2) >= contrast)
+    diff = lab - around
+    distinct = plane & (np.einsum("ijk,ijk->ij", diff, diff) >= contrast * contrast)
     out = []
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
     for m in components(distinct, open_px=0, min_area_fraction=min_area_fraction):

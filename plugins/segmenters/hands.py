@@ -11,7 +11,7 @@ union of:
   scene seldom reaches it) and its surface, measured with depth, is at least ``hand_min_area_m2``
   (two fingers: specks and patches of skin colour on objects are smaller). A region held above the
   table also reaches the border through pixels without a reading that do, other than projector
-  shadows (an arm nearer than the sensor's range), and those pixels are the arm's;
+  shadows (an arm nearer than the sensor's range);
 * **arms and sleeves, whatever their colour**: a region standing out of the background that reaches
   the image border, is not resting on the support plane (none of its pixels away from depth steps
   comes down to it: its lowest points stand off the plane by more than ``plane_distance_m`` plus the
@@ -356,7 +356,6 @@ def find_hands(
         )
         for k, kind in enumerate(kinds)
     ]
-    edge = None
     if support is None:
         hand = np.logical_or.reduce(found)
     else:
@@ -416,8 +415,6 @@ def find_hands(
         # pixels without a reading are the hand's where a closing of the margin's radius puts them
         # inside it (dropouts on skin), not a band along its side (the sensor's shadow on the table)
         hand &= (d > 0) | close_gaps(hand & (d > 0), params.hand_margin_px)
-        if edge is not None:  # and the arm where it is too near the sensor to be measured
-            hand |= _attached(edge, hand)
     return _with_given(hand, frame, params=params, sequence_path=sequence_path)
 
 
@@ -591,15 +588,15 @@ def projector_shadows(depth_m: np.ndarray, *, step_m: float) -> np.ndarray:
     gaps = depth_m == 0
     if not gaps.any():
         return gaps
-    h, w = depth_m.shape
-    columns = np.broadcast_to(np.arange(w), (h, w))
-    left = np.maximum.accumulate(np.where(gaps, -1, columns), axis=1)  # -1: none
-    right = w - 1 - np.maximum.accumulate(np.where(gaps[:, ::-1], -1, columns), axis=1)[:, ::-1]  # w: none
-    rows = np.arange(h)[:, None]
-    both = (left >= 0) & (right < w)
-    on_left = depth_m[rows, np.clip(left, 0, w - 1)]
-    on_right = depth_m[rows, np.clip(right, 0, w - 1)]
-    return gaps & both & (np.abs(on_left - on_right) > step_m)
+    w = depth_m.shape[1]
+    columns, none = np.arange(w, dtype=np.int32), np.int32(-1)
+    left = np.maximum.accumulate(np.where(gaps, none, columns), axis=1)  # -1: none
+    right = w - 1 - np.maximum.accumulate(np.where(gaps[:, ::-1], none, columns), axis=1)[:, ::-1]  # w: none
+    v, u = np.nonzero(gaps & (left >= 0) & (right < w))
+    apart = np.abs(depth_m[v, left[v, u]] - depth_m[v, right[v, u]]) > step_m
+    out = np.zeros(depth_m.shape, bool)
+    out[v[apart], u[apart]] = True
+    return out
 
 
 def _edge_gaps(depth_m: np.ndarray, shadow: np.ndarray) -> np.ndarray:
@@ -608,13 +605,6 @@ def _edge_gaps(depth_m: np.ndarray, shadow: np.ndarray) -> np.ndarray:
     n, labels, stats = label_regions((depth_m == 0) & ~shadow)
     reach = np.flatnonzero(_at_border(stats, depth_m.shape)) + 1
     return np.isin(labels, reach) if len(reach) else np.zeros(depth_m.shape, bool)
-
-
-def _attached(mask: np.ndarray, seed: np.ndarray) -> np.ndarray:
-    """The connected regions (8-connected) of ``mask`` with a pixel in or next to ``seed``: bool (H, W)."""
-    n, labels, _ = label_regions(mask)
-    hit = np.unique(labels[widen(seed, 1) & mask])
-    return np.isin(labels, hit[hit > 0]) if len(hit) else np.zeros(mask.shape, bool)
 
 
 def _touches(region: np.ndarray, other: np.ndarray | None) -> bool:
