@@ -18,7 +18,11 @@ import pytest
 from test_onnx_segmenters import u2netp_path  # noqa: F401 (the real u2netp weights, a fixture)
 
 from artclass_core import Config, Frame, InputError, Intrinsics, ParamError, Pipeline, Sequence, load_registry
-from artclass_plugins.segmenters.depth_threshold import DepthThresholdParams, DepthThresholdSegmenter
+from artclass_plugins.segmenters.depth_threshold import (
+    DepthThresholdParams,
+    DepthThresholdSegmenter,
+    join_hidden,
+)
 from artclass_plugins.segmenters.hands import (
     HandParams,
     arms,
@@ -28,6 +32,7 @@ from artclass_plugins.segmenters.hands import (
     hsv_mask,
     on_plane,
     parse_hsv,
+    projector_shadows,
     skin_mask,
 )
 from artclass_plugins.segmenters.selection import mask_iou
@@ -215,6 +220,18 @@ def test_held_needs_contact_in_depth_not_only_in_the_image():
     depth[hand], depth[near_box], depth[far_box] = 0.60, 0.61, 0.75
     assert held([near_box, far_box], hand, depth, touch_m=0.02) == [True, False]
     assert held([near_box], np.zeros((H, W), bool), depth, touch_m=0.02) == [False]
+
+
+def test_held_needs_a_line_of_contact_not_a_couple_of_pixels():
+    """A box along the hand's lower edge (100 px, 12 cm at 0.6 m) is held; a box touching its corner
+    (one diagonal pixel) is not, once a 5 mm line of contact (2.5 px at 0.6 m) is asked for."""
+    depth = np.full((H, W), 0.6, np.float32)
+    hand, along, corner = np.zeros((H, W), bool), np.zeros((H, W), bool), np.zeros((H, W), bool)
+    hand[100:140, 100:200] = True
+    along[140:180, 100:200] = True
+    corner[140:160, 200:230] = True
+    assert held([along, corner], hand, depth, touch_m=0.02) == [True, True]
+    assert held([along, corner], hand, depth, touch_m=0.02, line_m=0.005, fx=INTR.fx) == [True, False]
 
 
 def test_arms_reach_the_border_stand_off_the_table_and_touch_the_hand():
@@ -437,6 +454,63 @@ def test_a_sleeve_of_any_colour_is_removed_with_the_hand():
         assert not (mask & hands[i]).any(), i
 
 
+def test_projector_shadows_lie_between_a_near_and_a_far_reading_in_their_row():
+    depth = np.full((3, 12), 0.8, np.float32)
+    depth[:, 3:6] = 0.0  # between 0.8 (left) and 0.6 (right): a shadow
+    depth[:, 6:9] = 0.6
+    depth[1, 9:] = 0.0  # from the object to the border: no reading on one side, not a shadow
+    depth[2, 3:6] = 0.0
+    depth[2, 6:] = 0.81  # between two readings 1 cm apart: a dropout on one surface
+    shadows = projector_shadows(depth, step_m=0.02)
+    assert shadows[0, 3:6].all() and shadows[1, 3:6].all() and not shadows[1, 9:].any()
+    assert not shadows[2].any() and not shadows[depth > 0].any()
+
+
+def test_an_object_the_hand_passes_in_front_of_is_one_object_on_both_sides_of_it():
+    """A box at 0.8 m with an arm 20 cm in front of it across its middle: its two sides are one
+    instance. Held (the arm at the box's depth), or with the box's sides 30 px apart from the arm (a
+    hand near two boxes, hiding neither), they stay apart."""
+    depth = np.full((H, W), 1.0, np.float32)
+    left, right, arm = np.zeros((H, W), bool), np.zeros((H, W), bool), np.zeros((H, W), bool)
+    left[100:150, 100:150] = True
+    right[100:150, 160:210] = True
+    arm[:, 150:160] = True
+    depth[left | right] = 0.8
+    depth[arm] = 0.6
+    joined = join_hidden([left, right], arm, depth, INTR, touch_m=0.02)
+    assert len(joined) == 1 and mask_iou(joined[0], left | right) == 1.0
+    depth[arm] = 0.8
+    assert len(join_hidden([left, right], arm, depth, INTR, touch_m=0.02)) == 2
+    depth[arm] = 0.6
+    far_left, far_right = np.roll(left, -30, axis=1), np.roll(right, 30, axis=1)
+    assert len(join_hidden([far_left, far_right], arm, depth, INTR, touch_m=0.02)) == 2
+
+
+def test_an_arm_too_near_the_sensor_to_be_measured_reaches_the_border_through_it():
+    """A green sleeve from the border to 40 px from the wrist has no depth reading (nearer than the
+    sensor's range), so neither the skin nor the sleeve reaches the border among the readings: the
+    hand is still found (its skin region reaches the border through the pixels without a reading,
+    where they are not between the hand and the table in their row: there they look like the
+    projector's shadow of the hand), and the box is chosen."""
+    box = box_mask(130, 130)
+    frames, hands, sleeves = [], [], []
+    for i in range(3):
+        hand = hand_shape(200 - 6 * i, 110 + 4 * (i % 3))
+        sleeve = hand & (np.arange(W)[None, :] > 240 - 6 * i)
+        rgb, depth = render(box, hand, hand_depth_m=0.55, sleeve=sleeve, seed=i)
+        depth[sleeve] = 0.0
+        frames.append(Frame(i, f"{i:06d}", rgb, depth))
+        hands.append(hand)
+        sleeves.append(sleeve)
+    scene = Scene(frames, name="near sleeve")
+    seg = DepthThresholdSegmenter()
+    for i, sleeve in enumerate(sleeves):
+        found, skin = seg.hand_mask(scene[i], sequence=scene), hands[i] & ~sleeve
+        assert np.count_nonzero(found & skin) > 0.95 * np.count_nonzero(skin), i
+        assert not (found & ~hands[i]).any(), i
+        assert mask_iou(seg.segment(scene[i], sequence=scene), box & ~hands[i]) > 0.85, i
+
+
 def test_an_object_resting_on_the_table_at_the_border_is_kept_when_held():
     """A box lying on the table, cut by the left border, with its front face seen down to the table,
     and a hand from the right border resting its fingers on the box's top: the box is not taken for
@@ -463,3 +537,32 @@ def test_an_object_resting_on_the_table_at_the_border_is_kept_when_held():
         assert mask_iou(seg.segment(scene[i], sequence=scene), box & ~hands[i]) > 0.85, i
         choice = seg.choice(scene[i], sequence=scene)
         assert choice.held and choice.held[choice.index], i
+
+
+def test_a_gripper_finger_cut_off_from_its_body_is_removed_with_it():
+    """A grey gripper held above the table with one finger seen apart from its body (a gap of 3 px,
+    1 cm farther from the camera): the finger is too small to be a gripper by itself (6 cm^2), so it
+    is found as a piece of the gripper it touches in 3-D, and it is neither an object nor the chosen
+    one. A box of the gripper's colour lying on the table is kept, and chosen."""
+    gripper = hand_shape(200, 110)
+    finger = np.zeros((H, W), bool)
+    finger[130:137, 165:195] = True  # below the palm, 3 px clear of it
+    finger &= ~cv2.dilate(gripper.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+    dark = box_mask(60, 150, 40, 30)  # a dark box of the gripper's colour on the table
+    height = np.where(dark, 0.03, 0.0)
+    depth = table_depth(height)
+    frames = []
+    for i in range(3):
+        rgb, d = render(dark, gripper | finger, hand_depth_m=0.55, hand_colour=GRIPPER, depth=depth, seed=i)
+        d[finger] = 0.56
+        rgb[dark] = np.asarray(GRIPPER) + np.random.default_rng(i).normal(0, 2, (dark.sum(), 3))
+        frames.append(Frame(i, f"{i:06d}", np.clip(rgb, 0, 255).astype(np.uint8), d))
+    scene = Scene(frames, name="gripper finger")
+    scene.meta["gripper_hsv"] = "0,0,0,180,100,100"
+    seg = DepthThresholdSegmenter()
+    for i in range(len(scene)):
+        found = seg.hand_mask(scene[i], sequence=scene)
+        assert np.count_nonzero(found & finger) > 0.8 * np.count_nonzero(finger), i
+        assert np.count_nonzero(found & dark) < 0.05 * np.count_nonzero(dark), i
+        assert not any((m & finger).any() for m in seg.frame_instances(scene[i], sequence=scene)), i
+        assert mask_iou(seg.segment(scene[i], sequence=scene), dark) > 0.85, i

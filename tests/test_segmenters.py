@@ -33,6 +33,7 @@ from artclass_plugins.segmenters.cache import PackedMask, params_hash
 from artclass_plugins.segmenters.depth_threshold import (
     DepthThresholdParams,
     DepthThresholdSegmenter,
+    colour_patches,
     components,
     fill_dropouts,
     fill_floors,
@@ -362,6 +363,43 @@ def test_a_thin_object_lying_flat_is_found_by_its_colour():
     )
     bump, _ = scissors_scene(colour=(200, 200, 196))
     assert DepthThresholdSegmenter().instances(bump, sequence=ArraySequence([bump])) == []
+
+
+def test_a_patch_of_colour_on_the_table_is_an_object_when_it_stands_out_of_it_on_average():
+    """A beige ruler 4 mm thick and 6 px wide on a brown table whose readings scatter by 3.5 mm: no
+    reading stands out of the noise by 4 sigmas, the ruler's mean height over its ~700 readings does
+    (the noise of that mean is 0.13 mm); a painted stripe of the same colour and size at the table's
+    height is not an object, nor is a raised stripe along the table's far edge (mixed readings
+    between the table and the wall behind it): half of the ring around it is off the table."""
+    rng = np.random.default_rng(0)
+    noise = 0.0035
+    height = rng.normal(0.0, noise, (H, W)).astype(np.float32)
+    rgb = np.empty((H, W, 3), np.float64)
+    rgb[:] = (150, 110, 70)
+    ruler, paint = np.zeros((H, W), bool), np.zeros((H, W), bool)
+    ruler[60:66, 40:160] = True
+    paint[160:166, 40:160] = True
+    height[ruler] += 0.004
+    rgb[ruler | paint] = (225, 205, 160)
+    rgb = np.clip(rgb + rng.normal(0.0, 4.0, rgb.shape), 0, 255).astype(np.uint8)
+    assert np.count_nonzero(height[ruler] > 4 * noise) < 0.05 * np.count_nonzero(ruler)
+    table = np.ones((H, W), bool)
+    for wall_rows in (0, 60):  # then the wall, beyond the table's far edge: the ruler lies along it
+        table[:wall_rows] = False
+        found = colour_patches(
+            table,
+            rgb,
+            height,
+            noise_m=noise,
+            sigmas=4.0,
+            contrast=10.0,
+            min_area_fraction=0.002,
+            window_px=25,
+        )
+        if wall_rows:
+            assert found == []
+        else:
+            assert len(found) == 1 and mask_iou(found[0], ruler) > 0.8
 
 
 def test_a_ruler_thinner_than_the_noise_allows_per_pixel_is_found_over_a_window():

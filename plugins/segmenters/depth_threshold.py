@@ -9,13 +9,17 @@ than ``grow_sigmas`` times its measured noise and connect to the instance (the l
 an object lying on a table; instances they connect become one: the two levers of pliers lying flat,
 whose pivot is too low to survive the plane removal). Such pixels that form a region of their own,
 whose colour differs from the surface around it by ``thin_contrast``, are an instance too: an
-object a few millimetres thick lying flat (scissors). Instances whose 3-D points still come within
-``join_m`` of each other are one object: the parts of an articulated object touch at their joint.
-Each instance takes back the holes it encloses whose rim meets it within ``plane_distance_m`` in 3-D
-(a tray's floor lying on the table; not the table seen through a handle). Last, it takes the
-dropouts (pixels without a reading) that a closing of radius ``fill_px`` puts inside it. Hands and
-the gripper (:mod:`.hands`) are left out from the start, so a hand neither becomes an object nor
-joins two. The shared selection (:mod:`.selection`) picks the one being manipulated.
+object a few millimetres thick lying flat (scissors); so is a patch of the table whose colour differs
+from the table around it by ``thin_contrast`` and whose mean height stands out of the plane's noise
+(:func:`colour_patches`: a ruler whose single readings are lost in a far sensor's noise).
+Instances whose 3-D points still come within ``join_m`` of each other are one object: the parts of
+an articulated object touch at their joint. Each instance takes back the holes it encloses whose
+rim meets it within ``plane_distance_m`` in 3-D (a tray's floor lying on the table; not the table
+seen through a handle). Last, it takes the dropouts (pixels without a reading) that a closing of
+radius ``fill_px`` puts inside it. Hands and the gripper (:mod:`.hands`) are left out from the
+start, so a hand neither becomes an object nor joins two; the instances a hand hides in part, seen
+farther than ``hand_touch_m`` behind it, are one object (a hand passing in front of an object cuts
+it in two). The shared selection (:mod:`.selection`) picks the one being manipulated.
 """
 
 from __future__ import annotations
@@ -30,9 +34,10 @@ from scipy.spatial import cKDTree
 
 from artclass_core import Frame, Intrinsics, Sequence, param
 
-from .hands import HandParams, find_hands, widen
+from .hands import HOLD_LINE_M, HandParams, find_hands, held, hidden, pixels_across, widen
 from .selection import InstanceSegmenter, SelectionParams
 from .support import (
+    DEPTH_STEP_M,
     BackgroundParams,
     Plane,
     above_planes,
@@ -52,7 +57,9 @@ __all__ = [
     "fill_floors",
     "grow",
     "join_touching",
+    "join_hidden",
     "thin_objects",
+    "colour_patches",
 ]
 
 
@@ -163,6 +170,35 @@ def join_touching(
     return sorted(joined, key=lambda m: -int(m.sum()))
 
 
+def join_hidden(
+    instances: list[np.ndarray],
+    hand: np.ndarray | None,
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    touch_m: float,
+) -> list[np.ndarray]:
+    """Instances that the hand hides in part (:func:`.hands.hidden`: seen beside it, farther than
+    ``touch_m`` behind it, along a line of at least ``HOLD_LINE_M``) made one, when the hand holds none
+    of them (:func:`.hands.held`): a hand or arm passing in front of an object cuts it in two, and
+    both sides are the same object. A hand that holds an object may hide others behind it, which stay
+    apart. Largest first."""
+    if len(instances) < 2 or hand is None:
+        return instances
+    reach_px = pixels_across(touch_m, intrinsics.fx, depth_m[hand & (depth_m > 0)]) if hand.any() else 1
+    if any(
+        held(
+            instances, hand, depth_m, touch_m=touch_m, reach_px=reach_px, line_m=HOLD_LINE_M, fx=intrinsics.fx
+        )
+    ):
+        return instances
+    behind = hidden(instances, hand, depth_m, touch_m=touch_m, line_m=HOLD_LINE_M, fx=intrinsics.fx)
+    if sum(behind) < 2:
+        return instances
+    joined = [np.logical_or.reduce([m for m, b in zip(instances, behind) if b])]
+    return sorted(joined + [m for m, b in zip(instances, behind) if not b], key=lambda m: -int(m.sum()))
+
+
 def fill_floors(
     instances: list[np.ndarray], depth_m: np.ndarray, intrinsics: Intrinsics, *, gap_m: float
 ) -> list[np.ndarray]:
@@ -247,6 +283,73 @@ def thin_objects(
     return out
 
 
+def colour_patches(
+    plane: np.ndarray,
+    rgb: np.ndarray,
+    height_m: np.ndarray,
+    *,
+    noise_m: float,
+    sigmas: float,
+    contrast: float,
+    min_area_fraction: float,
+    window_px: int,
+    surface: np.ndarray | None = None,
+    ring_px: int = 3,
+) -> list[np.ndarray]:
+    """Objects lying flat, found by colour first: the pixels of ``plane`` whose CIE Lab colour differs
+    by at least ``contrast`` (CIE76 delta E, their colour averaged over ``THIN_WINDOW_PX`` squared
+    pixels) from the mean colour of the ``window_px`` square around them, grouped into connected
+    components of at least ``min_area_fraction`` of the image, whose mean height above the plane is
+    more than the plane's noise ``noise_m`` and more than ``sigmas`` times the noise of that mean
+    (``noise_m / sqrt(n)`` over n readings). A pattern on the table is at its height; an object a
+    few millimetres thick stands out of it on average though none of its single readings does. The
+    patch must lie on the table: ``ON_TABLE_SHARE`` of a ring ``ring_px`` wide around it on
+    ``surface`` (not the border between the table and the wall behind it, whose mixed readings stand
+    off the table). Largest first.
+
+    Parameters
+    ----------
+    plane : ndarray of bool, shape (H, W) -- pixels on the support plane, with a reading
+    rgb : ndarray, shape (H, W, 3), uint8, RGB order
+    height_m : ndarray, shape (H, W), metres -- height above the plane (:func:`.support.plane_height_m`)
+    noise_m : metres -- a single reading's noise on the plane
+    window_px : odd side of the square whose mean colour is the surface around a pixel
+    surface : ndarray of bool, shape (H, W), optional -- what may surround an object lying flat (the
+        support plane, the hand that holds it); default ``plane``
+
+    Returns
+    -------
+    list of ndarray of bool, shape (H, W)
+    """
+    if not plane.any():
+        return []
+    surface = plane if surface is None else surface
+    lab = cv2.cvtColor(
+        np.ascontiguousarray(rgb, dtype=np.uint8).astype(np.float32) / 255.0, cv2.COLOR_RGB2Lab
+    )
+    around = cv2.blur(lab, (window_px, window_px))
+    # each pixel's colour averaged over THIN_WINDOW_PX squared pixels: the camera's colour noise
+    # divided by THIN_WINDOW_PX, so that it does not pass the contrast by itself
+    lab = cv2.blur(lab, (THIN_WINDOW_PX, THIN_WINDOW_PX))
+    diff = lab - around
+    distinct = plane & (np.einsum("ijk,ijk->ij", diff, diff) >= contrast * contrast)
+    out = []
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
+    for m in components(distinct, open_px=0, min_area_fraction=min_area_fraction):
+        ring = (cv2.dilate(m.astype(np.uint8), disc) > 0) & ~m
+        h = height_m[m]
+        mean = float(h.mean())
+        lies = np.count_nonzero(ring & surface) >= ON_TABLE_SHARE * np.count_nonzero(ring)
+        if lies and mean > noise_m and mean > sigmas * noise_m / np.sqrt(len(h)):
+            out.append(m)
+    return out
+
+
+def _odd(px: float) -> int:
+    """``px`` rounded up to an odd whole number of pixels, at least 1."""
+    return max(int(np.ceil(px)) // 2 * 2 + 1, 1)
+
+
 def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> list[np.ndarray]:
     """The connected components (8-connected) of a mask after an opening, largest first.
 
@@ -280,6 +383,12 @@ def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> l
 # Thin objects lying flat are sought in the height above the plane averaged over squares of this many
 # pixels a side (a third of a single reading's noise): an object is a region, not a pixel.
 THIN_WINDOW_PX = 3
+# The surface around an object lying flat, whose colour it is told from: a square this wide at the
+# table's depth (wider than a ruler or a blade of scissors).
+THIN_CONTEXT_M = 0.05
+# An object lying flat is surrounded by the table (or the hand holding it): at least this share of a
+# ring around it.
+ON_TABLE_SHARE = 0.75
 
 
 class Scene(NamedTuple):
@@ -400,9 +509,27 @@ class DepthThresholdSegmenter(MaskFreeSegmenter):
                     min_area_fraction=p.min_area_fraction,
                     contrast=p.thin_contrast,
                 )
+                if planes:
+                    table = background & valid & (np.abs(heights[0]) < p.plane_distance_m)
+                    found += colour_patches(
+                        table if allowed is None else table & allowed,
+                        frame.rgb,
+                        heights[0],
+                        surface=table if allowed is None else table | ~allowed,
+                        noise_m=max(planes[0].noise_m, DEPTH_STEP_M),
+                        sigmas=p.grow_sigmas,
+                        contrast=p.thin_contrast,
+                        min_area_fraction=p.min_area_fraction,
+                        window_px=_odd(THIN_CONTEXT_M * K.fx / float(np.median(depth[table])))
+                        if table.any()
+                        else 1,
+                    )
             if found:
                 found = grow(found, low)
         found = join_touching(found, depth, K, join_m=p.join_m)
+        if allowed is not None:
+            hand = self.hand_mask(frame, sequence=sequence)
+            found = join_hidden(found, hand, depth, K, touch_m=p.hand_touch_m)
         found = fill_floors(found, depth, K, gap_m=p.plane_distance_m)
         found = fill_dropouts(found, valid, fill_px=p.fill_px)
         return keep_within(found, allowed, min_area_fraction=p.min_area_fraction)

@@ -9,7 +9,9 @@ union of:
   skin-coloured object behind the hand stays apart); a region is a hand when it reaches the image
   border (a hand is held out from an arm that enters the picture; a skin-coloured object in the
   scene seldom reaches it) and its surface, measured with depth, is at least ``hand_min_area_m2``
-  (two fingers: specks and patches of skin colour on objects are smaller);
+  (two fingers: specks and patches of skin colour on objects are smaller). A region held above the
+  table also reaches the border through pixels without a reading that do, other than projector
+  shadows (an arm nearer than the sensor's range);
 * **arms and sleeves, whatever their colour**: a region standing out of the background that reaches
   the image border, is not resting on the support plane (none of its pixels away from depth steps
   comes down to it: its lowest points stand off the plane by more than ``plane_distance_m`` plus the
@@ -20,7 +22,11 @@ union of:
 * **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``, or, when
   that is not set, the box the sequence's own settings give as ``gripper_hsv`` (a robot rig knows
   its gripper: the native folder format reads it from ``meta.json``); its regions are found apart
-  from the skin-coloured ones, so a wooden object the gripper holds does not join it;
+  from the skin-coloured ones, so a wooden object the gripper holds does not join it, and they are
+  cut along the projector's shadows too (:func:`projector_shadows`), so a dark object behind a
+  finger does not join it through the shadow the finger casts. Its fingers, smaller than
+  ``hand_min_area_m2`` and cut off from its body by a depth step or a shadow, join it when they touch
+  it in 3-D and do not rest on the support plane;
 * **given masks**: one PNG per frame in the folder ``hand_masks`` (a robot knows its own gripper),
   used as they are.
 
@@ -28,7 +34,9 @@ The hand mask is grown by ``hand_margin_px`` (its outline's mixed-colour pixels)
 the objects before the handled one is chosen, so a hand alone is never the object; its pixels are
 left out of the change score, so a hand waving in front of a still object does not make the object
 move. An object that the hand touches in 3-D (object pixels next to hand pixels, within
-``hand_touch_m`` of their depth) is *held*, and held objects are preferred (:mod:`.selection`).
+``hand_touch_m`` of their depth, along a line of contact at least ``HOLD_LINE_M`` long, not a couple
+of stray pixels) is *held*, and held objects are preferred (:mod:`.selection`). An object seen on
+both sides of a hand passing in front of it is one object (:func:`hidden`).
 
 Notes
 -----
@@ -63,12 +71,18 @@ __all__ = [
     "gripper_box",
     "hand_regions",
     "held",
+    "hidden",
+    "HOLD_LINE_M",
     "load_hand_mask",
     "find_hands",
     "widen",
     "arms",
     "on_plane",
     "rests",
+    "fingers",
+    "pixels_across",
+    "projector_shadows",
+    "surface_m2",
 ]
 
 # Chai & Ngan (1999): the skin-colour map in YCrCb, 8-bit (OpenCV's YCrCb has the same offsets).
@@ -229,7 +243,7 @@ def hand_regions(
     n, labels, stats = label_regions(_open(candidates))
     if n < 2:
         return np.zeros(candidates.shape, bool)
-    x, y, bw, bh, count = (stats[1:, k] for k in range(5))
+    x, y, bw, bh = (stats[1:, k] for k in range(4))
     reach = _at_border(stats, candidates.shape)
     kept = np.flatnonzero(reach if border else np.ones(n - 1, bool)) + 1
     if not len(kept):
@@ -239,17 +253,22 @@ def hand_regions(
     for k in kept:
         box = np.s_[y[k - 1] : y[k - 1] + bh[k - 1], x[k - 1] : x[k - 1] + bw[k - 1]]
         region = labels[box] == k
-        z = d[box][region]
-        z = z[z > 0]
-        if not len(z):
-            continue
-        # the surface of the pixels with a reading, plus those without one at the mean depth
-        area = (float(np.sum(z * z)) + (count[k - 1] - len(z)) * float(z.mean()) ** 2) / (
-            intrinsics.fx * intrinsics.fy
-        )
-        if area >= min_area_m2:
+        if surface_m2(region, d[box], intrinsics) >= min_area_m2:
             out[box] |= region
     return out
+
+
+def surface_m2(region: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics) -> float:
+    """The surface (m^2) that the pixels ``region`` (bool (H, W)) cover seen from the camera: a pixel at
+    depth z covers (z / fx) (z / fy); pixels without a reading count at the region's mean depth (0 when
+    none has one)."""
+    z = depth_m[region]
+    z = z[z > 0]
+    if not len(z):
+        return 0.0
+    return (float(np.sum(z * z)) + (np.count_nonzero(region) - len(z)) * float(z.mean()) ** 2) / (
+        intrinsics.fx * intrinsics.fy
+    )
 
 
 def load_hand_mask(folder: Path, frame: Frame) -> np.ndarray:
@@ -318,19 +337,24 @@ def find_hands(
             np.zeros(background.shape, bool), frame, params=params, sequence_path=sequence_path
         )
     # cut along depth steps, so that a skin-coloured object behind the hand does not join it; then
-    # give the hand back its side of the step (its outline)
+    # give the hand back its side of the step (its outline). The gripper is cut along the projector's
+    # shadows too (a dark object behind its finger does not join it through the shadow the finger
+    # casts on it): the pieces of the gripper this cuts off rejoin it as its fingers; a hand's
+    # pieces would not (a small skin-coloured object in the hand looks the same), so its shadows
+    # stay joined
     d, touch = clean_depth(frame.depth_m), params.hand_touch_m
     near, far = _depth_range(d, np.ones(background.shape, bool), 1)
     step = far - near > touch  # no readings around: -inf, not a step
+    shadow = projector_shadows(d, step_m=touch)
     found = [
         hand_regions(
-            kind & candidates & ~step,
+            kind & candidates & ~step & ~(shadow if k else False),
             d,
             intrinsics,
             min_area_m2=params.hand_min_area_m2,
             border=support is None,
         )
-        for kind in kinds
+        for k, kind in enumerate(kinds)
     ]
     if support is None:
         hand = np.logical_or.reduce(found)
@@ -353,6 +377,11 @@ def find_hands(
         for r in regions:
             if r[0].any() or r[-1].any() or r[:, 0].any() or r[:, -1].any():
                 hand |= r
+        # an arm too near the sensor to be measured reaches the border through pixels without a reading
+        edge = _edge_gaps(d, shadow)
+        for r in held_out:
+            if not hand[r].any() and _touches(r, edge):
+                hand |= r
         arm = (
             arms(
                 ~background & ~candidates & ~step & (d > 0),
@@ -370,6 +399,16 @@ def find_hands(
             for r, on_arm in zip(held_out, _touching(held_out, arm, d, intrinsics, touch_m=touch)):
                 if on_arm:  # held out by an arm
                     hand |= r
+        if len(kinds) > 1 and hand.any():
+            hand |= fingers(
+                kinds[1] & candidates & ~step & ~shadow & ~hand,
+                hand,
+                d,
+                intrinsics,
+                contact=contact,
+                touch_m=touch,
+                max_area_m2=params.hand_min_area_m2,
+            )
     if hand.any():
         near, far = _depth_range(d, hand, 1)
         hand |= ~background & step & (far > 0) & ((d == 0) | ((d >= near - touch) & (d <= far + touch)))
@@ -388,6 +427,9 @@ def _with_given(
     return hand
 
 
+# An instance is held when the hand touches it along at least this length (a fingertip's touch): a
+# couple of pixels where the hand passes close to a still object are no grasp.
+HOLD_LINE_M = 0.005
 # A region rests on the support plane when at least this many of its pixels come down to it (a line
 # of contact, not a stray reading).
 CONTACT_PX = 3
@@ -471,6 +513,44 @@ def arms(
     return out
 
 
+def fingers(
+    pieces: np.ndarray,
+    gripper: np.ndarray,
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    contact: np.ndarray,
+    touch_m: float,
+    max_area_m2: float,
+) -> np.ndarray:
+    """The gripper's fingers among the regions of ``pieces`` (8-connected, after a 3x3 opening): those
+    smaller than ``max_area_m2`` (a hand-sized region has been judged on its own) that touch
+    ``gripper`` in 3-D and do not rest on the support plane. A finger seen below the gripper's body
+    is cut from it by a depth step, and it is too small to count as a gripper by itself.
+
+    Parameters
+    ----------
+    pieces : ndarray of bool, shape (H, W) -- gripper-coloured pixels standing out of the background,
+        away from depth steps, not yet in the hand mask
+    gripper : ndarray of bool, shape (H, W) -- the gripper (and arm) found so far
+    depth_m : ndarray, shape (H, W), metres, 0 = no reading
+    intrinsics : pinhole intrinsics of the image
+    contact : ndarray of bool, shape (H, W) -- the pixels on the support plane (:func:`on_plane`)
+    touch_m : metres -- how far a finger may be from the gripper, in depth and across the image
+    max_area_m2 : square metres -- the largest surface of a finger
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+    """
+    regions = [r for r in _regions(_open(pieces)) if surface_m2(r, depth_m, intrinsics) < max_area_m2]
+    out = np.zeros(pieces.shape, bool)
+    for region, touches in zip(regions, _touching(regions, gripper, depth_m, intrinsics, touch_m=touch_m)):
+        if touches and not rests(region, contact):
+            out |= region
+    return out
+
+
 def _regions(mask: np.ndarray) -> list[np.ndarray]:
     """The connected regions (8-connected) of ``mask``: list of bool (H, W)."""
     n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
@@ -491,8 +571,45 @@ def _touching(
     seen = other & (depth_m > 0)
     if not seen.any():
         return [False] * len(regions)
-    reach_px = int(np.ceil(touch_m * intrinsics.fx / float(np.median(depth_m[seen]))))
-    return held(regions, other, depth_m, touch_m=touch_m, reach_px=max(reach_px, 1))
+    reach_px = pixels_across(touch_m, intrinsics.fx, depth_m[seen])
+    return held(regions, other, depth_m, touch_m=touch_m, reach_px=reach_px)
+
+
+def pixels_across(distance_m: float, fx: float, depths_m: np.ndarray) -> int:
+    """``distance_m`` across the image, in pixels (at least 1), at the median of ``depths_m`` (metres)."""
+    return max(int(np.ceil(distance_m * fx / float(np.median(depths_m)))), 1)
+
+
+def projector_shadows(depth_m: np.ndarray, *, step_m: float) -> np.ndarray:
+    """The pixels without a reading whose nearest readings to the left and to the right in their row
+    differ by more than ``step_m``: the projector's shadow of a structured-light sensor (its projector
+    sits beside the camera along x), which lies beside a depth edge on whatever is behind it and must
+    not join the two sides. bool (H, W)."""
+    gaps = depth_m == 0
+    if not gaps.any():
+        return gaps
+    w = depth_m.shape[1]
+    columns, none = np.arange(w, dtype=np.int32), np.int32(-1)
+    left = np.maximum.accumulate(np.where(gaps, none, columns), axis=1)  # -1: none
+    right = w - 1 - np.maximum.accumulate(np.where(gaps[:, ::-1], none, columns), axis=1)[:, ::-1]  # w: none
+    v, u = np.nonzero(gaps & (left >= 0) & (right < w))
+    apart = np.abs(depth_m[v, left[v, u]] - depth_m[v, right[v, u]]) > step_m
+    out = np.zeros(depth_m.shape, bool)
+    out[v[apart], u[apart]] = True
+    return out
+
+
+def _edge_gaps(depth_m: np.ndarray, shadow: np.ndarray) -> np.ndarray:
+    """The pixels without a reading, other than ``shadow``, connected (8-connected) to the image
+    border: where an arm nearer than the sensor's range leaves the picture. bool (H, W)."""
+    n, labels, stats = label_regions((depth_m == 0) & ~shadow)
+    reach = np.flatnonzero(_at_border(stats, depth_m.shape)) + 1
+    return np.isin(labels, reach) if len(reach) else np.zeros(depth_m.shape, bool)
+
+
+def _touches(region: np.ndarray, other: np.ndarray | None) -> bool:
+    """Whether ``region`` has a pixel next to (8-connected) one of ``other``."""
+    return other is not None and bool(np.any(other & widen(region, 1)))
 
 
 def _depth_range(d: np.ndarray, where: np.ndarray, reach_px: int) -> tuple[np.ndarray, np.ndarray]:
@@ -523,10 +640,18 @@ def widen(mask: np.ndarray, radius_px: int) -> np.ndarray:
 
 
 def held(
-    instances: list[np.ndarray], hand: np.ndarray, depth_m: np.ndarray, *, touch_m: float, reach_px: int = 1
+    instances: list[np.ndarray],
+    hand: np.ndarray,
+    depth_m: np.ndarray,
+    *,
+    touch_m: float,
+    reach_px: int = 1,
+    line_m: float = 0.0,
+    fx: float = 0.0,
 ) -> list[bool]:
-    """Which instances the hand touches in 3-D: an instance pixel within ``reach_px`` (a square) of
-    hand pixels, whose depth lies within ``touch_m`` of the range of their depths.
+    """Which instances the hand touches in 3-D: instance pixels within ``reach_px`` (a square) of
+    hand pixels, whose depth lies within ``touch_m`` of the range of their depths, along a line of
+    contact at least ``line_m`` long.
 
     Parameters
     ----------
@@ -535,14 +660,74 @@ def held(
     depth_m : ndarray, shape (H, W), metres, 0 = no reading
     touch_m : depth tolerance, metres
     reach_px : how far from the hand an object pixel may be (the margin removed with the hand, + 1)
+    line_m : metres -- the shortest line of contact: the touching pixels, a band ``reach_px`` wide
+        along the hand, must cover at least ``reach_px * line_m * fx / z`` pixels (z: their median
+        depth); 0 = any touching pixel
+    fx : focal length, pixels (needed when ``line_m`` > 0)
 
     Returns
     -------
     list of bool, one per instance
     """
+    return _along_hand(
+        instances, hand, depth_m, touch_m=touch_m, reach_px=reach_px, line_m=line_m, fx=fx, behind=False
+    )
+
+
+def hidden(
+    instances: list[np.ndarray],
+    hand: np.ndarray,
+    depth_m: np.ndarray,
+    *,
+    touch_m: float,
+    line_m: float,
+    fx: float,
+) -> list[bool]:
+    """Which instances the hand hides in part: at least ``line_m * fx / z`` of their pixels (a line
+    ``line_m`` long at their median depth z) lie within ``touch_m`` of the hand across the image (at
+    the hand's median depth: across the projector's shadow the hand casts on them) and farther than
+    ``touch_m`` behind its nearest reading there. The parameters are those of :func:`held`.
+    list of bool."""
+    seen = hand & (depth_m > 0)
+    if not seen.any():
+        return [False] * len(instances)
+    reach_px = pixels_across(touch_m, fx, depth_m[seen])
+    return _along_hand(
+        instances,
+        hand,
+        depth_m,
+        touch_m=touch_m,
+        reach_px=reach_px,
+        line_m=line_m / reach_px,
+        fx=fx,
+        behind=True,
+    )
+
+
+def _along_hand(
+    instances: list[np.ndarray],
+    hand: np.ndarray,
+    depth_m: np.ndarray,
+    *,
+    touch_m: float,
+    reach_px: int,
+    line_m: float,
+    fx: float,
+    behind: bool,
+) -> list[bool]:
+    """:func:`held` (``behind`` False) or :func:`hidden` (True)."""
     if not hand.any() or not instances:
         return [False] * len(instances)
     d = clean_depth(depth_m)
     near, far = _depth_range(d, hand, reach_px)  # of the hand's readings around each pixel
-    contact = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
-    return [bool(np.any(m & contact)) for m in instances]
+    if behind:
+        along = (d > 0) & ~hand & (d > near + touch_m) & (far > 0)
+    else:
+        along = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
+    out = []
+    for m in instances:
+        line = m & along
+        n = np.count_nonzero(line)
+        least = reach_px * line_m * fx / float(np.median(d[line])) if n and line_m > 0 else 1
+        out.append(bool(n) and n >= least)
+    return out

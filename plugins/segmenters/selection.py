@@ -62,7 +62,7 @@ import numpy as np
 from artclass_core import Frame, Params, Segmenter, Sequence, param
 
 from .cache import DiskMaskCache, PackedMask
-from .hands import HandParams, held, widen
+from .hands import HOLD_LINE_M, HandParams, held, widen
 from .support import clean_depth
 
 __all__ = [
@@ -516,7 +516,13 @@ class InstanceSegmenter(Segmenter):
         other = self.hand_mask(sequence[nb], sequence=sequence) if nb is not None else None
         ignore = widen(hand if other is None else hand | other, p.hand_margin_px)
         return ignore, held(
-            instances, hand, clean_depth(depth_m), touch_m=p.hand_touch_m, reach_px=p.hand_margin_px + 1
+            instances,
+            hand,
+            clean_depth(depth_m),
+            touch_m=p.hand_touch_m,
+            reach_px=p.hand_margin_px + 1,
+            line_m=HOLD_LINE_M,
+            fx=sequence.intrinsics.fx,
         )
 
     @staticmethod
