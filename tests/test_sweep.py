@@ -18,7 +18,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from artclass_core import ArtclassError, ParamError, Pipeline, load_registry, open_sequences
+from artclass_core import ArtclassError, InputError, ParamError, Pipeline, load_registry, open_sequences
 from artclass_core.cli import main
 from artclass_core.sweep import (
     figure,
@@ -208,6 +208,17 @@ def test_two_worker_local_cluster_gives_the_serial_table(registry, sequences, tm
     assert results(on_dask).equals(results(serial))
 
 
+def polled(path: Path) -> pd.DataFrame:
+    """The table at ``path`` while a sweep may replace it: the reader opens the file more than once, and
+    a table renamed over it in between reads as damaged; it is then read again."""
+    for _ in range(20):
+        try:
+            return read_table(path)
+        except InputError:
+            time.sleep(0.05)
+    return read_table(path)
+
+
 def test_interrupted_sweep_resumes_to_the_same_table(root, tmp_path):
     """Kill the command (SIGKILL: nothing gets to clean up) once the first rows are written; run it again."""
     script = Path(sys.executable).with_name("artclass")
@@ -231,7 +242,7 @@ def test_interrupted_sweep_resumes_to_the_same_table(root, tmp_path):
     )
     try:
         deadline = time.monotonic() + 300
-        while not (out.exists() and len(read_table(out)) >= 2) and proc.poll() is None:
+        while not (out.exists() and len(polled(out)) >= 2) and proc.poll() is None:
             assert time.monotonic() < deadline, "no row was written"
             time.sleep(0.05)
         proc.send_signal(signal.SIGKILL)
