@@ -681,14 +681,6 @@ def joint_motion(estimate: JointEstimate, state) -> np.ndarray:
             pitch = estimate.info.get("pitch_m_per_rad", 0.0)
             T[:, :3, :3], T[:, :3, 3] = R, c - R @ c + q[:, None] * d * pitch
     return T.reshape(states.shape + (4, 4))
-    d = np.asarray(estimate.axis_direction, float)
-    if estimate.type == "prismatic":
-        T[:3, 3] = state * d
-        return T
-    R = Rotation.from_rotvec(state * d).as_matrix()
-    c = np.asarray(estimate.axis_point_m, float)
-    T[:3, :3], T[:3, 3] = R, c - R @ c + d * state * estimate.info.get("pitch_m_per_rad", 0.0)
-    return T
 
 
 # -- the whole ---------------------------------------------------------------------------------------------
