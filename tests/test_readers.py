@@ -248,6 +248,17 @@ def test_observable_truth_thresholds_follow_the_sensor_noise():
     assert truth(_two_part_truth(_turn_z(30.0), part_px=1000), 0, 1) == "AM"
 
 
+def test_observable_truth_of_a_moving_part_whose_base_is_hidden_is_a_rigid_motion():
+    truth = folder_mod.observable_pair_truth
+    pull = _shift_x(0.03)  # a drawer pulled out by 3 cm from a static carcass
+    assert truth(_two_part_truth(pull, part_px=1000), 0, 1) == "AM"
+    hidden = _two_part_truth(pull, part_px=1000)
+    hidden["part_valid_px"] = [[20, 1000]] * 2  # the carcass has depth on 20 pixels only
+    assert truth(hidden, 0, 1) == "RM"  # the sensor sees one part move, not a joint
+    hidden["part_valid_px"] = [[20, 20]] * 2  # neither part is seen: the object's own pose decides
+    assert truth(hidden, 0, 1) == "NM"
+
+
 def test_observable_truth_judges_each_side_in_the_others_frame():
     # A lever turning about an axis through its own median point barely moves its median point, but
     # the base's points, seen from the lever, swing round by centimetres: the smaller side decides.

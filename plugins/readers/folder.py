@@ -185,7 +185,8 @@ def observable_pair_truth(truth: dict, i: int, j: int) -> str | None:
     (``observable_joint_motions``), the joint's motion moves the median visible point of each side by
     more than ``OBSERVABLE_SIGMAS`` times the axial depth noise sigma(z) plus one pixel (z / fx) at that
     side's depth. None when no joint does but one moves each side by more than ``AMBIGUOUS_SIGMAS``
-    sigma. Otherwise the object's own motion decides ``RM`` or ``NM`` (``pair_truth_from_states``).
+    sigma. Otherwise the object's own motion decides ``RM`` or ``NM`` (``pair_truth_from_states``); or,
+    when its base is not seen in both frames, the motion of the parts that are.
     """
     fx = truth["sensor"]["fx_px"]
     ambiguous = False
@@ -198,16 +199,30 @@ def observable_pair_truth(truth: dict, i: int, j: int) -> str | None:
         ambiguous |= all(s["displacement_m"] > AMBIGUOUS_SIGMAS * s["sigma_m"] for s in sides)
     if ambiguous:
         return None
+    # No articulation is seen. The object's (its base's) motion is, unless the base is hidden and other
+    # parts are not: a drawer pulled out of a carcass that an arm hides is seen to move.
     poses = truth.get("object_poses") or [None] * len(truth["part_poses"])
-    return pair_truth_from_states(
-        None,
-        None,
-        poses[i],
-        poses[j],
-        joint_eps=PRISMATIC_BAND_M,
-        move_eps_m=MOVE_BAND_M,
-        turn_eps_rad=TURN_BAND_RAD,
-    )
+    seen = _parts_seen(truth, i, j)
+    roots = {m for m, part in enumerate(truth["parts"]) if part["parent"] < 0}
+    seen = [] if roots & set(seen) else [(truth["part_poses"][i][m], truth["part_poses"][j][m]) for m in seen]
+    verdicts = [
+        pair_truth_from_states(
+            None, None, a, b, joint_eps=PRISMATIC_BAND_M, move_eps_m=MOVE_BAND_M, turn_eps_rad=TURN_BAND_RAD
+        )
+        for a, b in seen or [(poses[i], poses[j])]
+    ]
+    return "RM" if "RM" in verdicts else None if None in verdicts else "NM"
+
+
+def _parts_seen(truth: dict, i: int, j: int) -> list[int]:
+    """The parts with depth on at least ``MIN_SIDE_PIXELS`` pixels and ``MIN_SIDE_SHARE`` of the
+    object's pixels in both frames i and j."""
+    counts = [truth["part_valid_px"][f] for f in (i, j)]
+    return [
+        m
+        for m in range(len(counts[0]))
+        if all(px[m] >= max(MIN_SIDE_PIXELS, MIN_SIDE_SHARE * sum(px)) for px in counts)
+    ]
 
 
 #: truth.json keys the observable articulation truth needs.
