@@ -187,7 +187,7 @@ def run_outcome(
 ) -> tuple[SequenceOutcome, RunResult | None]:
     """Run one sequence and score it against its truth. Any failure is caught and recorded as the
     outcome's one-line ``error`` (the result is then None), so that the sequences after it still run."""
-    o = SequenceOutcome(seq.name, seq.object_name, seq.label, tuple(seq.accepted_labels), None)
+    o = outcome_of(seq)
     t0 = time.perf_counter()
     result = None
     truth = getattr(seq, "truth", None)
@@ -202,17 +202,27 @@ def run_outcome(
                 o.joints = _score_joints(pipeline, seq, result, truth)
             except Exception as exc:  # the label stands; the parts are reported as failed
                 o.joints = dict(part_iou=None, part_iou_all_frames=None, joints=[], error=one_line(exc))
-        o.predicted, o.fractions = result.label, result.fractions
-        truthful = [p for p in result.pairs if p.truth and p.decision != "skipped"]
-        o.pair_total = len(truthful)
-        o.observable = _observable(seq, pipeline.params)
-        o.pair_correct = sum(p.decision == p.truth for p in truthful)
-        legacy = [(p, seq.pair_truth_legacy(p.i, p.j)) for p in result.pairs if p.decision != "skipped"]
-        o.pair_total_legacy = sum(t is not None for _, t in legacy)
-        o.pair_correct_legacy = sum(p.decision == t for p, t in legacy)
-        o.n_pairs = len(result.pairs)
+        score_labels(o, pipeline, seq, result)
     o.seconds = time.perf_counter() - t0
     return o, result
+
+
+def outcome_of(seq: Sequence) -> SequenceOutcome:
+    """A sequence's outcome before it is run: its name, object and truth."""
+    return SequenceOutcome(seq.name, seq.object_name, seq.label, tuple(seq.accepted_labels), None)
+
+
+def score_labels(o: SequenceOutcome, pipeline: Pipeline, seq: Sequence, result: RunResult) -> None:
+    """Fill ``o`` with ``result``'s label, class fractions and pair accuracy against ``seq``'s truth."""
+    o.predicted, o.fractions = result.label, result.fractions
+    truthful = [p for p in result.pairs if p.truth and p.decision != "skipped"]
+    o.pair_total = len(truthful)
+    o.observable = _observable(seq, pipeline.params)
+    o.pair_correct = sum(p.decision == p.truth for p in truthful)
+    legacy = [(p, seq.pair_truth_legacy(p.i, p.j)) for p in result.pairs if p.decision != "skipped"]
+    o.pair_total_legacy = sum(t is not None for _, t in legacy)
+    o.pair_correct_legacy = sum(p.decision == t for p, t in legacy)
+    o.n_pairs = len(result.pairs)
 
 
 def _observable(seq: Sequence, params) -> bool | None:

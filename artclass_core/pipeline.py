@@ -217,13 +217,13 @@ class Pipeline(FrameSteps):
         """The pair (i, i + k) of frame ``a`` (frame i), given the frames ``after`` it; or, when that pair
         shows no motion and the frames reach, the pair (i, i + slow_factor k) if it shows one."""
         k, far = self.params.k, self.params.k * self.params.slow_factor
-        pair = self._pair_of(sequence, a, after[k - 1], after[: k - 1], timing, cache)
+        pair = self.pair_of(sequence, a, after[k - 1], after[: k - 1], timing, cache)
         if pair.decision != "NM" or far == k or len(after) < far:
             return pair
-        longer = self._pair_of(sequence, a, after[far - 1], after[: far - 1], timing, cache)
+        longer = self.pair_of(sequence, a, after[far - 1], after[: far - 1], timing, cache)
         return with_longer(pair, longer)
 
-    def _pair_of(
+    def pair_of(
         self,
         sequence: Sequence,
         a: FrameResult,
@@ -232,7 +232,9 @@ class Pipeline(FrameSteps):
         timing: dict[str, float],
         cache: StageCache | None,
     ) -> PairResult:
-        """Register (or take from ``cache``) and decide the pair of two frames."""
+        """Register (or take from ``cache``) and decide the pair of two frames ``a`` and ``b`` of
+        ``sequence`` (frame results with their clouds; ``between`` are the frames in between, for a
+        rule that uses them), adding the stages' seconds to ``timing``."""
         if a.cloud is None or b.cloud is None:
             skipped = a if a.cloud is None else b
             return PairResult(

@@ -103,7 +103,7 @@ def redecide(
         if far == k or i + far not in frames:
             return None
         between = tuple(frames[m] for m in range(i + 1, i + far))
-        new = pipeline._pair_of(sequence, frame(i), frame(i + far), between, {}, cache)
+        new = pipeline.pair_of(sequence, frame(i), frame(i + far), between, {}, cache)
         new.truth = None if sequence is None else sequence.pair_truth(new.i, new.j)
         return new
 
