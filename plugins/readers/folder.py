@@ -203,13 +203,15 @@ def observable_pair_truth(truth: dict, i: int, j: int) -> str | None:
     # parts are not: a drawer pulled out of a carcass that an arm hides is seen to move.
     poses = truth.get("object_poses") or [None] * len(truth["part_poses"])
     seen = _parts_seen(truth, i, j)
-    roots = {m for m, part in enumerate(truth["parts"]) if part["parent"] < 0}
-    seen = [] if roots & set(seen) else [(truth["part_poses"][i][m], truth["part_poses"][j][m]) for m in seen]
+    if not seen or any(truth["parts"][m]["parent"] < 0 for m in seen):
+        moves = [(poses[i], poses[j])]
+    else:
+        moves = [(truth["part_poses"][i][m], truth["part_poses"][j][m]) for m in seen]
     verdicts = [
         pair_truth_from_states(
             None, None, a, b, joint_eps=PRISMATIC_BAND_M, move_eps_m=MOVE_BAND_M, turn_eps_rad=TURN_BAND_RAD
         )
-        for a, b in seen or [(poses[i], poses[j])]
+        for a, b in moves
     ]
     return "RM" if "RM" in verdicts else None if None in verdicts else "NM"
 
