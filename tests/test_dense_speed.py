@@ -473,6 +473,7 @@ def test_warm_up_loads_the_compiled_loops_a_registration_runs(pair):
         "valid_median_kernel",
         "normals_kernel",
         "cost_kernel",
+        "distinct_kernel",
     )
     loaded = {name: list(getattr(kernels(), name).signatures) for name in names}
     assert all(len(s) >= 1 for s in loaded.values())

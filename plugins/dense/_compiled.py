@@ -424,6 +424,28 @@ def _kabsch_into(source, target, keep, lo, hi, T):
 
 
 @njit(cache=True, nogil=True)
+def distinct_kernel(T, moment, tolerance, keep):
+    """``keep`` (H,) := the motions ``T`` (H, 3, 4) that no earlier kept one is within ``tolerance``
+    of: the RMS of (T_i - T_j) x over points x of second moment ``moment`` (4, 4), homogeneous."""
+    keep[:] = False
+    for i in range(T.shape[0]):
+        far = True
+        for j in range(i):
+            if not keep[j]:
+                continue
+            total = 0.0
+            for a in range(3):
+                for k in range(4):
+                    dk = T[i, a, k] - T[j, a, k]
+                    for m in range(4):
+                        total += dk * moment[k, m] * (T[i, a, m] - T[j, a, m])
+            if not np.sqrt(max(total, 0.0)) > tolerance:
+                far = False
+                break
+        keep[i] = far
+
+
+@njit(cache=True, nogil=True)
 def quantile(values, q):
     """``np.quantile(values, q)`` (linear interpolation, numpy's own formula)."""
     ranked = np.sort(values)

@@ -283,6 +283,7 @@ def warm_up() -> None:
     robust_kabsch(
         np.eye(3) + [0, 0, 0.5], np.eye(3) + [0, 0, 0.5], inlier_m=0.01, groups=np.zeros(3, np.int64)
     )
+    kernels().distinct_kernel(motions[:, :3].copy(), np.eye(4), 0.001, np.empty(1, np.bool_))
     valid_median(depth, depth > 0)
     normal_map(vertex_map(depth, target.intrinsics))
 
