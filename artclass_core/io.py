@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -15,18 +18,45 @@ from .errors import InputError
 _COLOR_RGB = getattr(cv2, "IMREAD_COLOR_RGB", None)
 
 
+class _QuietOpenCV:
+    """OpenCV's log silenced while any thread decodes an image: OpenCV logs its own warning for a
+    truncated file, and the InputError of :func:`_read` is the one message shown.
+
+    The log level is process-wide, so the first decoder in silences it and the last one out restores
+    it; each thread saving and restoring the level itself would, when two decodes overlap, leave the
+    log silenced for good."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._decoding = 0
+        self._level = cv2.utils.logging.LOG_LEVEL_WARNING
+
+    @contextmanager
+    def __call__(self) -> Iterator[None]:
+        with self._lock:
+            if self._decoding == 0:
+                self._level = cv2.utils.logging.getLogLevel()
+                cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+            self._decoding += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._decoding -= 1
+                if self._decoding == 0:
+                    cv2.utils.logging.setLogLevel(self._level)
+
+
+_quiet_opencv = _QuietOpenCV()
+
+
 def _read(path: Path, flags: int) -> np.ndarray:
     if not path.is_file():
         raise InputError("file not found", path=path)
     # Read as bytes: Python's file read lets other threads run meanwhile; numpy's fromfile does not.
     data = np.frombuffer(path.read_bytes(), dtype=np.uint8)
-    # OpenCV logs its own warning for a truncated file; the InputError below is the one message shown.
-    level = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
-    try:
+    with _quiet_opencv():
         image = cv2.imdecode(data, flags) if data.size else None
-    finally:
-        cv2.utils.logging.setLogLevel(level)
     if image is None:
         raise InputError("unreadable or truncated image", path=path)
     return image

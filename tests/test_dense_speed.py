@@ -24,6 +24,7 @@ from artclass_plugins.dense.projective import (
     Target,
     _outside,
     flow_misfit,
+    hypothesis_costs,
     icp,
     kabsch,
     kernels,
@@ -317,6 +318,36 @@ def test_flow_misfit_equals_the_numpy_reference(pair):
     assert np.nanmedian(misfit[1]) < 2.0 < np.nanmedian(misfit[0])  # the true motion matches the flow
 
 
+def _ref_costs(residual, status, flow, *, noise_m, flow_sigma_px, worst):
+    """The plain numpy expression of the costs."""
+    with np.errstate(invalid="ignore"):
+        fit = np.minimum(np.square(residual / noise_m), worst)
+        flow = np.minimum(np.square(flow / flow_sigma_px), worst)
+    cost = np.where(status == SURFACE, fit, worst / 2)
+    cost = np.where((status == FREE_SPACE) | (status == OFF_OBJECT), worst, cost)
+    return (cost + np.nan_to_num(flow, nan=0.0)).astype(np.float32)
+
+
+@pytest.mark.parametrize("noise_m", [0.0013, np.float64(0.0013), np.float32(0.0013)])
+def test_compiled_costs_equal_the_numpy_expression_to_the_bit(noise_m):
+    """Each scale as a Python float (float32 arithmetic) or a NumPy float (its own dtype's)."""
+    rng = np.random.default_rng(5)
+    shape = (7, 3000)
+    residual = (rng.normal(0, 0.004, shape)).astype(np.float32)
+    flow = np.abs(rng.normal(0, 3.0, shape)).astype(np.float32)
+    status = rng.choice(np.array([SURFACE, OCCLUDED, FREE_SPACE, OFF_OBJECT, UNSEEN], np.int8), shape)
+    residual[status != SURFACE] = np.nan
+    residual[0, :10] = np.nan  # a surface point without a residual stays NaN
+    flow[rng.random(shape) < 0.4] = np.nan
+    flow[1, :5] = np.inf
+    for flow_sigma in (0.7, np.float64(0.7)):
+        kw = dict(noise_m=noise_m, flow_sigma_px=flow_sigma, worst=9.0)
+        got, want = hypothesis_costs(residual, status, flow, **kw), _ref_costs(residual, status, flow, **kw)
+        assert got.dtype == want.dtype == np.float32
+        np.testing.assert_array_equal(got, want)
+        assert np.isnan(got[0, :10][status[0, :10] == SURFACE]).all()
+
+
 def test_distance_to_the_mask_is_exact_near_it():
     rng = np.random.default_rng(3)
     mask = np.zeros((120, 160), bool)
@@ -441,6 +472,8 @@ def test_warm_up_loads_the_compiled_loops_a_registration_runs(pair):
         "robust_kabsch_kernel",
         "valid_median_kernel",
         "normals_kernel",
+        "cost_kernel",
+        "distinct_kernel",
     )
     loaded = {name: list(getattr(kernels(), name).signatures) for name in names}
     assert all(len(s) >= 1 for s in loaded.values())

@@ -69,6 +69,36 @@ def look_kernel(motions, points, scene, depth, normals, outside, camera, reach, 
                 residual[k, i] = -gap if np.isnan(plane) else plane
 
 
+@njit(cache=True, nogil=True)
+def cost_kernel(residual, status, flow, scale, worst, half, flow_scale, flow_worst, out):
+    """``out`` (H, N) float32 := each point's cost under each hypothesis (:func:`.rule.point_costs`):
+    the squared residual in units of ``scale`` and the squared flow misfit in units of
+    ``flow_scale``, each at most its ``worst``; ``worst`` where the point lands in free space or off
+    the object, ``half`` where it is hidden or unseen; a NaN flow misfit adds nothing. Each scale
+    comes with its worst (and half) in the dtype numpy computes that term in (float32 beside a Python
+    float, float64 beside a NumPy float64), so the costs are numpy's to the bit."""
+    no_flow = flow_worst - flow_worst
+    for h in range(residual.shape[0]):
+        for i in range(residual.shape[1]):
+            s = status[h, i]
+            if s == SURFACE:
+                c = residual[h, i] / scale
+                c = c * c
+                if c > worst:  # as np.minimum: NaN stays NaN
+                    c = worst
+            elif s == FREE_SPACE or s == OFF_OBJECT:
+                c = worst
+            else:
+                c = half
+            f = flow[h, i] / flow_scale
+            f = f * f
+            if f > flow_worst:
+                f = flow_worst
+            if f != f:
+                f = no_flow
+            out[h, i] = c + f
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def flow_kernel(motions, points, flow_px, across, camera, out):
     for k in range(motions.shape[0]):
@@ -391,6 +421,28 @@ def _kabsch_into(source, target, keep, lo, hi, T):
     R = V @ U.T
     T[:3, :3] = R
     T[:3, 3] = ct - R @ cs
+
+
+@njit(cache=True, nogil=True)
+def distinct_kernel(T, moment, tolerance, keep):
+    """``keep`` (H,) := the motions ``T`` (H, 3, 4) that no earlier kept one is within ``tolerance``
+    of: the RMS of (T_i - T_j) x over points x of second moment ``moment`` (4, 4), homogeneous."""
+    keep[:] = False
+    for i in range(T.shape[0]):
+        far = True
+        for j in range(i):
+            if not keep[j]:
+                continue
+            total = 0.0
+            for a in range(3):
+                for k in range(4):
+                    dk = T[i, a, k] - T[j, a, k]
+                    for m in range(4):
+                        total += dk * moment[k, m] * (T[i, a, m] - T[j, a, m])
+            if not np.sqrt(max(total, 0.0)) > tolerance:
+                far = False
+                break
+        keep[i] = far
 
 
 @njit(cache=True, nogil=True)

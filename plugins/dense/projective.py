@@ -126,6 +126,48 @@ def flow_misfit(
     return out
 
 
+def hypothesis_costs(
+    residual_m: np.ndarray,
+    status: np.ndarray,
+    flow_px: np.ndarray,
+    *,
+    noise_m: float,
+    flow_sigma_px: float,
+    worst: float,
+) -> np.ndarray:
+    """Each point's cost (H, N) float32 under each hypothesis: its squared residual in units of
+    ``noise_m`` and its squared flow misfit in units of ``flow_sigma_px``, each at most ``worst``;
+    ``worst`` for a point sent into free space or off the object, half of it for one hidden or out
+    of view; a NaN flow misfit adds nothing.
+
+    Parameters
+    ----------
+    residual_m, flow_px : (H, N) float32, metres and pixels (NaN where unknown)
+    status : (H, N) int8, one of SURFACE, OCCLUDED, FREE_SPACE, OFF_OBJECT, UNSEEN
+
+    Notes
+    -----
+    One compiled pass, with numpy's arithmetic: each term is computed in the dtype numpy gives it
+    (float32, or float64 when a scale is a NumPy float64), so the costs equal the numpy expression
+    ``min((r / noise)^2, worst)`` etc. to the bit.
+    """
+    out = np.empty(residual_m.shape, np.float32)
+    depth = np.result_type(residual_m, noise_m, worst).type
+    flow = np.result_type(flow_px, flow_sigma_px, worst).type
+    kernels().cost_kernel(
+        np.ascontiguousarray(residual_m),
+        np.ascontiguousarray(status),
+        np.ascontiguousarray(flow_px),
+        depth(noise_m),
+        depth(worst),
+        depth(worst / 2),
+        flow(flow_sigma_px),
+        flow(worst),
+        out,
+    )
+    return out
+
+
 def icp(
     points: np.ndarray,
     groups: np.ndarray,
@@ -223,6 +265,11 @@ def warm_up() -> None:
     motions = np.eye(4)[None]
     look_all(motions, points, target, reach_m=np.full(n, 0.01), off_object_px=1.0)
     flow_misfit(motions, points, np.zeros((n, 2)), np.full((n, 2), np.nan), target.intrinsics)
+    residual = np.zeros((1, n), np.float32)
+    for noise in (0.001, np.float64(0.001)):  # float32 and float64 depth terms
+        hypothesis_costs(
+            residual, np.zeros((1, n), np.int8), residual, noise_m=noise, flow_sigma_px=1.0, worst=9.0
+        )
     icp(
         points,
         np.zeros(n, np.int64),
@@ -236,6 +283,7 @@ def warm_up() -> None:
     robust_kabsch(
         np.eye(3) + [0, 0, 0.5], np.eye(3) + [0, 0, 0.5], inlier_m=0.01, groups=np.zeros(3, np.int64)
     )
+    kernels().distinct_kernel(motions[:, :3].copy(), np.eye(4), 0.001, np.empty(1, np.bool_))
     valid_median(depth, depth > 0)
     normal_map(vertex_map(depth, target.intrinsics))
 

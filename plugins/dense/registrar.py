@@ -28,7 +28,7 @@ from artclass_core.types import SURFACE
 
 from .flow import flow_targets
 from .image import ImageParams, noise_m
-from .projective import Target, flow_misfit, icp, look_all, robust_kabsch
+from .projective import Target, flow_misfit, icp, kernels, look_all, robust_kabsch
 from .rule import DenseRuleParams, point_costs, regions, select
 
 _MIN_FLOW_MATCHES = 6
@@ -324,16 +324,10 @@ def _distinct(hyps: list, names: list, points: np.ndarray, tolerance_m: float) -
     of where an earlier one does is dropped."""
     sample = points[:: max(1, len(points) // 200)]
     x = np.column_stack([sample, np.ones(len(sample))])
-    moment = x.T @ x / len(x)  # (4, 4) second moment
-    T = np.stack(hyps)[:, :3]
-    D = T[:, None] - T[None]  # (H, H, 3, 4)
-    # The mean of |(T_i - T_j) x|^2 over the sample, from its second moment.
-    rms = np.sqrt(np.maximum(np.einsum("ijak,kl,ijal->ij", D, moment, D), 0))
-    keep: list[int] = []
-    for i in range(len(hyps)):
-        if not keep or rms[i, keep].min() > tolerance_m:
-            keep.append(i)
-    return [hyps[i] for i in keep], [names[i] for i in keep]
+    moment = x.T @ x / len(x)  # (4, 4) second moment: the mean of |(T_i - T_j) x|^2 follows from it
+    keep = np.empty(len(hyps), np.bool_)
+    kernels().distinct_kernel(np.ascontiguousarray(np.stack(hyps)[:, :3]), moment, float(tolerance_m), keep)
+    return [h for h, k in zip(hyps, keep) if k], [n for n, k in zip(names, keep) if k]
 
 
 def _look_all(hyps: list, points: np.ndarray, tgt: Target, reach: np.ndarray):

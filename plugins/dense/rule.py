@@ -32,7 +32,9 @@ import numpy as np
 
 from artclass_core import DecisionRule, Motion, MotionEvidence, Params, RuleDecision, param
 from artclass_core.geometry import transform
-from artclass_core.types import FREE_SPACE, OFF_OBJECT, SURFACE
+from artclass_core.types import SURFACE
+
+from .projective import hypothesis_costs
 
 
 @dataclass(frozen=True)
@@ -90,13 +92,14 @@ def point_costs(
 ) -> np.ndarray:
     """Cost (H, N) of explaining each point by each hypothesis, in squared noise units (depth noise
     ``noise_m``, default the evidence's own; flow noise ``flow_sigma_px``)."""
-    worst = noise_factor**2
-    with np.errstate(invalid="ignore"):
-        fit = np.minimum(np.square(ev.residual_m / (noise_m or ev.noise_m)), worst)
-        flow = np.minimum(np.square(ev.flow_px / flow_sigma_px), worst)
-    cost = np.where(ev.status == SURFACE, fit, worst / 2)
-    cost = np.where((ev.status == FREE_SPACE) | (ev.status == OFF_OBJECT), worst, cost)
-    return (cost + np.nan_to_num(flow, nan=0.0)).astype(np.float32)
+    return hypothesis_costs(
+        ev.residual_m,
+        ev.status,
+        ev.flow_px,
+        noise_m=noise_m or ev.noise_m,
+        flow_sigma_px=flow_sigma_px,
+        worst=noise_factor**2,
+    )
 
 
 def _grid(pixels: np.ndarray, stride: int, *, pad: int) -> tuple[np.ndarray, tuple[int, int]]:
