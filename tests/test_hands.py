@@ -26,7 +26,6 @@ from artclass_plugins.segmenters.depth_threshold import (
 from artclass_plugins.segmenters.hands import (
     HandParams,
     arms,
-    depth_steps,
     find_hands,
     hand_regions,
     held,
@@ -489,19 +488,6 @@ def test_projector_shadows_match_a_numpy_scan_of_the_rows():
         apart = np.abs(depth[v, left[v, u]] - depth[v, right[v, u]]) > 0.02
         expected[v[apart], u[apart]] = True
         assert np.array_equal(projector_shadows(depth, step_m=0.02), expected)
-
-
-def test_depth_steps_match_the_range_of_the_readings_around_each_pixel():
-    """The compiled 3x3 scan against OpenCV's erosion and dilation of the readings (no readings
-    around: no step)."""
-    rng = np.random.default_rng(1)
-    kernel = np.ones((3, 3), np.uint8)
-    for _ in range(50):
-        depth = _random_depth(rng, tuple(rng.integers(1, 40, 2)))
-        seen = depth > 0
-        near = cv2.erode(np.where(seen, depth, np.float32(np.inf)), kernel, borderValue=np.inf)
-        far = cv2.dilate(np.where(seen, depth, np.float32(0)), kernel, borderValue=0)
-        assert np.array_equal(depth_steps(depth, step_m=0.02), far - near > 0.02)
 
 
 def test_an_object_the_hand_passes_in_front_of_is_one_object_on_both_sides_of_it():

@@ -50,7 +50,13 @@ from artclass_plugins.segmenters.selection import (
     match_instances,
     steady_pixels,
 )
-from artclass_plugins.segmenters.support import BackgroundParams, above_planes, background_mask, fit_planes
+from artclass_plugins.segmenters.support import (
+    BackgroundParams,
+    above_planes,
+    background_mask,
+    fit_planes,
+    label_regions,
+)
 
 YCBV = (Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "ycbv").resolve()
 W, H = 160, 120
@@ -453,6 +459,29 @@ def test_enclosed_holes_match_scipy_fill_holes():
     for _ in range(100):
         mask = rng.random(tuple(rng.integers(1, 40, 2))) < rng.random()
         assert np.array_equal(_holes(mask), ndimage.binary_fill_holes(mask) & ~mask)
+
+
+def test_label_regions_match_opencv_components_with_stats():
+    """Labels and statistics (box, area) of every region, from the compiled statistics pass, equal
+    OpenCV's connectedComponentsWithStats on the mask's bounding box (where label_regions labels)."""
+    rng = np.random.default_rng(4)
+    for _ in range(100):
+        mask = np.zeros(tuple(rng.integers(1, 50, 2)), np.uint8)
+        y0, x0 = rng.integers(0, mask.shape[0]), rng.integers(0, mask.shape[1])
+        part = mask[y0 : y0 + rng.integers(1, 30), x0 : x0 + rng.integers(1, 30)]
+        part[...] = rng.random(part.shape) < rng.random()
+        n, labels, stats = label_regions(mask)
+        x, y, w, h = cv2.boundingRect(mask)
+        if not w:
+            assert n == 1 and not labels.any()
+            continue
+        count, crop, expected, _ = cv2.connectedComponentsWithStats(
+            mask[y : y + h, x : x + w], connectivity=8
+        )
+        assert n == count and np.array_equal(labels[y : y + h, x : x + w], crop)
+        assert np.array_equal(stats[1:, 2:], expected[1:, 2:])
+        assert np.array_equal(stats[1:, :2], expected[1:, :2] + (x, y))
+        assert stats[0, 4] == mask.size - mask.sum()
 
 
 def test_compiled_colour_difference_matches_numpy():

@@ -1,5 +1,6 @@
 """The compiled (Numba) per-pixel loops of the segmenters, one pass over an image where numpy makes
-several full-image temporaries: the projector's shadows (a scan of each row)."""
+several full-image temporaries or OpenCV a slow generic pass: the projector's shadows (a scan of
+each row), the colour difference of the thin-object search and the statistics of labelled regions."""
 
 from __future__ import annotations
 
@@ -39,18 +40,30 @@ def distinct_kernel(colour, around, where, least_sq, out):
 
 
 @njit(cache=True, nogil=True)
-def step_kernel(depth, step, out):
-    """Mark in ``out`` (bool (H, W)) the pixels whose 3x3 neighbourhood (inside the image) holds
-    readings (``depth`` > 0, float32 (H, W)) that differ by more than ``step`` (float32)."""
-    h, w = depth.shape
+def region_stats(labels, n):
+    """OpenCV's component statistics (left, top, width, height, area; int32 (n, 5)) of the labels
+    1 .. n - 1 of ``labels`` (int32 (H, W)), in one pass; row 0 (the background) is left zero."""
+    h, w = labels.shape
+    stats = np.zeros((n, 5), np.int32)
+    x0 = np.full(n, w, np.int32)
+    y0 = np.full(n, h, np.int32)
+    x1 = np.full(n, -1, np.int32)
+    y1 = np.full(n, -1, np.int32)
     for v in range(h):
         for u in range(w):
-            near = np.float32(np.inf)
-            far = np.float32(0)
-            for y in range(max(v - 1, 0), min(v + 2, h)):
-                for x in range(max(u - 1, 0), min(u + 2, w)):
-                    z = depth[y, x]
-                    if z > 0:
-                        near = min(near, z)
-                        far = max(far, z)
-            out[v, u] = far - near > step
+            k = labels[v, u]
+            if k:
+                if u < x0[k]:
+                    x0[k] = u
+                if u > x1[k]:
+                    x1[k] = u
+                if y0[k] == h:
+                    y0[k] = v
+                y1[k] = v
+                stats[k, 4] += 1
+    for k in range(1, n):
+        stats[k, 0] = x0[k]
+        stats[k, 1] = y0[k]
+        stats[k, 2] = x1[k] - x0[k] + 1
+        stats[k, 3] = y1[k] - y0[k] + 1
+    return stats

@@ -59,7 +59,7 @@ import numpy as np
 
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, param
 
-from ._compiled import shadow_kernel, step_kernel
+from ._compiled import shadow_kernel
 from .support import DEPTH_STEP_M, Plane, clean_depth, label_regions, plane_height_m
 
 __all__ = [
@@ -83,7 +83,6 @@ __all__ = [
     "fingers",
     "pixels_across",
     "projector_shadows",
-    "depth_steps",
     "surface_m2",
 ]
 
@@ -345,7 +344,8 @@ def find_hands(
     # pieces would not (a small skin-coloured object in the hand looks the same), so its shadows
     # stay joined
     d, touch = clean_depth(frame.depth_m), params.hand_touch_m
-    step = depth_steps(d, step_m=touch)
+    near, far = _depth_range(d, np.ones(background.shape, bool), 1)
+    step = far - near > touch  # no readings around: -inf, not a step
     shadow = projector_shadows(d, step_m=touch)
     found = [
         hand_regions(
@@ -590,14 +590,6 @@ def projector_shadows(depth_m: np.ndarray, *, step_m: float) -> np.ndarray:
     not join the two sides. bool (H, W)."""
     out = np.zeros(depth_m.shape, bool)
     shadow_kernel(np.ascontiguousarray(depth_m, dtype=np.float32), np.float32(step_m), out)
-    return out
-
-
-def depth_steps(depth_m: np.ndarray, *, step_m: float) -> np.ndarray:
-    """The pixels whose 3x3 neighbourhood holds readings (``depth_m`` > 0, metres) more than
-    ``step_m`` apart: a depth edge, whose mixed readings join neither side. bool (H, W)."""
-    out = np.empty(depth_m.shape, bool)
-    step_kernel(np.ascontiguousarray(depth_m, dtype=np.float32), np.float32(step_m), out)
     return out
 
 
