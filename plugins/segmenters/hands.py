@@ -347,9 +347,10 @@ def find_hands(
     near, far = _depth_range(d, np.ones(background.shape, bool), 1)
     step = far - near > touch  # no readings around: -inf, not a step
     shadow = projector_shadows(d, step_m=touch)
+    apart = candidates & ~step
     found = [
         hand_regions(
-            kind & candidates & ~step & ~(shadow if k else False),
+            kind & (apart & ~shadow if k else apart),
             d,
             intrinsics,
             min_area_m2=params.hand_min_area_m2,
