@@ -466,6 +466,30 @@ def test_projector_shadows_lie_between_a_near_and_a_far_reading_in_their_row():
     assert not shadows[2].any() and not shadows[depth > 0].any()
 
 
+def _random_depth(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
+    """Depth (metres, float32) in steps of 5 mm over a few surfaces, with dropouts of any density."""
+    depth = np.round(rng.random(shape) * 40).astype(np.float32) * np.float32(0.005)
+    depth[rng.random(shape) < rng.random()] = 0
+    return depth
+
+
+def test_projector_shadows_match_a_numpy_scan_of_the_rows():
+    """The compiled row scan against the same rule written with numpy: each dropout's nearest reading
+    to the left and to the right (running maxima of column indices) more than step_m apart."""
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        depth = _random_depth(rng, tuple(rng.integers(1, 40, 2)))
+        gaps, w = depth == 0, depth.shape[1]
+        columns = np.arange(w)
+        left = np.maximum.accumulate(np.where(gaps, -1, columns), axis=1)
+        right = w - 1 - np.maximum.accumulate(np.where(gaps[:, ::-1], -1, columns), axis=1)[:, ::-1]
+        expected = np.zeros(depth.shape, bool)
+        v, u = np.nonzero(gaps & (left >= 0) & (right < w))
+        apart = np.abs(depth[v, left[v, u]] - depth[v, right[v, u]]) > 0.02
+        expected[v[apart], u[apart]] = True
+        assert np.array_equal(projector_shadows(depth, step_m=0.02), expected)
+
+
 def test_an_object_the_hand_passes_in_front_of_is_one_object_on_both_sides_of_it():
     """A box at 0.8 m with an arm 20 cm in front of it across its middle: its two sides are one
     instance. Held (the arm at the box's depth), or with the box's sides 30 px apart from the arm (a

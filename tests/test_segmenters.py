@@ -17,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from artclass_core import (
     Config,
@@ -29,10 +30,12 @@ from artclass_core import (
     load_registry,
     open_sequences,
 )
+from artclass_plugins.segmenters._compiled import distinct_kernel
 from artclass_plugins.segmenters.cache import PackedMask, params_hash
 from artclass_plugins.segmenters.depth_threshold import (
     DepthThresholdParams,
     DepthThresholdSegmenter,
+    _holes,
     colour_patches,
     components,
     fill_dropouts,
@@ -47,7 +50,13 @@ from artclass_plugins.segmenters.selection import (
     match_instances,
     steady_pixels,
 )
-from artclass_plugins.segmenters.support import BackgroundParams, above_planes, background_mask, fit_planes
+from artclass_plugins.segmenters.support import (
+    BackgroundParams,
+    above_planes,
+    background_mask,
+    fit_planes,
+    label_regions,
+)
 
 YCBV = (Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "ycbv").resolve()
 W, H = 160, 120
@@ -442,6 +451,50 @@ def test_a_hole_is_filled_where_its_rim_meets_the_object(rim_m, filled):
     depth[hole] -= 0.002
     out = fill_floors([ring], depth, INTR, gap_m=0.012)[0]
     assert np.array_equal(out, ring | hole if filled else ring)
+
+
+def test_enclosed_holes_match_scipy_fill_holes():
+    """The flood fill from the border gives the holes of scipy's binary_fill_holes (4-connected)."""
+    rng = np.random.default_rng(2)
+    for _ in range(100):
+        mask = rng.random(tuple(rng.integers(1, 40, 2))) < rng.random()
+        assert np.array_equal(_holes(mask), ndimage.binary_fill_holes(mask) & ~mask)
+
+
+def test_label_regions_match_opencv_components_with_stats():
+    """Labels and statistics (box, area) of every region, from the compiled statistics pass, equal
+    OpenCV's connectedComponentsWithStats on the mask's bounding box (where label_regions labels)."""
+    rng = np.random.default_rng(4)
+    for _ in range(100):
+        mask = np.zeros(tuple(rng.integers(1, 50, 2)), np.uint8)
+        y0, x0 = rng.integers(0, mask.shape[0]), rng.integers(0, mask.shape[1])
+        part = mask[y0 : y0 + rng.integers(1, 30), x0 : x0 + rng.integers(1, 30)]
+        part[...] = rng.random(part.shape) < rng.random()
+        n, labels, stats = label_regions(mask)
+        x, y, w, h = cv2.boundingRect(mask)
+        if not w:
+            assert n == 1 and not labels.any()
+            continue
+        count, crop, expected, _ = cv2.connectedComponentsWithStats(
+            mask[y : y + h, x : x + w], connectivity=8
+        )
+        assert n == count and np.array_equal(labels[y : y + h, x : x + w], crop)
+        assert np.array_equal(stats[1:, 2:], expected[1:, 2:])
+        assert np.array_equal(stats[1:, :2], expected[1:, :2] + (x, y))
+        assert stats[0, 4] == mask.size - mask.sum()
+
+
+def test_compiled_colour_difference_matches_numpy():
+    """The compiled squared colour distance, thresholded where asked, against numpy's (float32)."""
+    rng = np.random.default_rng(3)
+    colour, around = (rng.normal(50, 8, (30, 40, 3)).astype(np.float32) for _ in range(2))
+    where = rng.random((30, 40)) < 0.7
+    diff = colour - around
+    least_sq = np.float32(np.median(np.einsum("ijk,ijk->ij", diff, diff)))
+    out = np.zeros(where.shape, bool)
+    distinct_kernel(colour, around, where, least_sq, out)
+    assert np.array_equal(out, where & (np.einsum("ijk,ijk->ij", diff, diff) >= least_sq))
+    assert 0 < out.sum() < where.sum()
 
 
 # -- the depth_threshold segmenter on an in-memory sequence ----------------------------------------

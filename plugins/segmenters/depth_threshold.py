@@ -34,6 +34,7 @@ from scipy.spatial import cKDTree
 
 from artclass_core import Frame, Intrinsics, Sequence, param
 
+from ._compiled import distinct_kernel
 from .hands import HOLD_LINE_M, HandParams, find_hands, held, hidden, pixels_across, widen
 from .selection import InstanceSegmenter, SelectionParams
 from .support import (
@@ -213,7 +214,7 @@ def fill_floors(
         rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
         box = np.s_[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]
         m = mask[box]
-        holes = ndimage.binary_fill_holes(m) & ~m
+        holes = _holes(m)
         n, labels = cv2.connectedComponents(holes.astype(np.uint8), connectivity=8)
         if n < 2:
             out.append(mask)
@@ -235,6 +236,15 @@ def fill_floors(
         filled[box] |= np.isin(labels, good)
         out.append(filled)
     return out
+
+
+def _holes(mask: np.ndarray) -> np.ndarray:
+    """The pixels outside ``mask`` (bool (H, W)) that it encloses: not connected (4-connected) to the
+    image border through pixels outside it (:func:`scipy.ndimage.binary_fill_holes`, by a flood fill
+    from the border). bool (H, W)."""
+    outside = np.pad(mask.astype(np.uint8), 1)
+    cv2.floodFill(outside, None, (0, 0), 2, flags=4)
+    return outside[1:-1, 1:-1] == 0
 
 
 def _points(
@@ -324,15 +334,15 @@ def colour_patches(
     if not plane.any():
         return []
     surface = plane if surface is None else surface
-    lab = cv2.cvtColor(
-        np.ascontiguousarray(rgb, dtype=np.uint8).astype(np.float32) / 255.0, cv2.COLOR_RGB2Lab
-    )
+    # the colours are needed on the plane's bounding box and the half window around it only
+    box = _grown_box(plane, max(window_px, THIN_WINDOW_PX) // 2)
+    lab = cv2.cvtColor(cv2.LUT(np.ascontiguousarray(rgb[box], dtype=np.uint8), _UNIT), cv2.COLOR_RGB2Lab)
     around = cv2.blur(lab, (window_px, window_px))
     # each pixel's colour averaged over THIN_WINDOW_PX squared pixels: the camera's colour noise
     # divided by THIN_WINDOW_PX, so that it does not pass the contrast by itself
     lab = cv2.blur(lab, (THIN_WINDOW_PX, THIN_WINDOW_PX))
-    diff = lab - around
-    distinct = plane & (np.einsum("ijk,ijk->ij", diff, diff) >= contrast * contrast)
+    distinct = np.zeros(plane.shape, bool)
+    distinct_kernel(lab, around, plane[box], np.float32(contrast * contrast), distinct[box])
     out = []
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
     for m in components(distinct, open_px=0, min_area_fraction=min_area_fraction):
@@ -343,6 +353,22 @@ def colour_patches(
         if lies and mean > noise_m and mean > sigmas * noise_m / np.sqrt(len(h)):
             out.append(m)
     return out
+
+
+def _grown_box(mask: np.ndarray, margin_px: int) -> tuple[slice, slice]:
+    """The bounding box of ``mask``'s pixels (bool (H, W), not empty) grown by ``margin_px`` on each
+    side, within the image: (rows, columns) slices. A filter of half-width ``margin_px`` gives the
+    same values on the mask's pixels whether it runs on this crop or on the whole image."""
+    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+    rows, cols = mask.shape
+    return (
+        slice(max(y - margin_px, 0), min(y + h + margin_px, rows)),
+        slice(max(x - margin_px, 0), min(x + w + margin_px, cols)),
+    )
+
+
+# 8-bit colour values as floats in [0, 1] (a look-up table: one read per pixel, no division)
+_UNIT = np.arange(256, dtype=np.float32) / 255.0
 
 
 def _odd(px: float) -> int:

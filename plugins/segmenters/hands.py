@@ -59,6 +59,7 @@ import numpy as np
 
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, param
 
+from ._compiled import shadow_kernel
 from .support import DEPTH_STEP_M, Plane, clean_depth, label_regions, plane_height_m
 
 __all__ = [
@@ -346,9 +347,10 @@ def find_hands(
     near, far = _depth_range(d, np.ones(background.shape, bool), 1)
     step = far - near > touch  # no readings around: -inf, not a step
     shadow = projector_shadows(d, step_m=touch)
+    apart = candidates & ~step
     found = [
         hand_regions(
-            kind & candidates & ~step & ~(shadow if k else False),
+            kind & (apart & ~shadow if k else apart),
             d,
             intrinsics,
             min_area_m2=params.hand_min_area_m2,
@@ -378,10 +380,12 @@ def find_hands(
             if r[0].any() or r[-1].any() or r[:, 0].any() or r[:, -1].any():
                 hand |= r
         # an arm too near the sensor to be measured reaches the border through pixels without a reading
-        edge = _edge_gaps(d, shadow)
+        edge = None  # computed when first needed
         for r in held_out:
-            if not hand[r].any() and _touches(r, edge):
-                hand |= r
+            if not hand[r].any():
+                edge = _edge_gaps(d, shadow) if edge is None else edge
+                if _touches(r, edge):
+                    hand |= r
         arm = (
             arms(
                 ~background & ~candidates & ~step & (d > 0),
@@ -585,26 +589,20 @@ def projector_shadows(depth_m: np.ndarray, *, step_m: float) -> np.ndarray:
     differ by more than ``step_m``: the projector's shadow of a structured-light sensor (its projector
     sits beside the camera along x), which lies beside a depth edge on whatever is behind it and must
     not join the two sides. bool (H, W)."""
-    gaps = depth_m == 0
-    if not gaps.any():
-        return gaps
-    w = depth_m.shape[1]
-    columns, none = np.arange(w, dtype=np.int32), np.int32(-1)
-    left = np.maximum.accumulate(np.where(gaps, none, columns), axis=1)  # -1: none
-    right = w - 1 - np.maximum.accumulate(np.where(gaps[:, ::-1], none, columns), axis=1)[:, ::-1]  # w: none
-    v, u = np.nonzero(gaps & (left >= 0) & (right < w))
-    apart = np.abs(depth_m[v, left[v, u]] - depth_m[v, right[v, u]]) > step_m
     out = np.zeros(depth_m.shape, bool)
-    out[v[apart], u[apart]] = True
+    shadow_kernel(np.ascontiguousarray(depth_m, dtype=np.float32), np.float32(step_m), out)
     return out
 
 
 def _edge_gaps(depth_m: np.ndarray, shadow: np.ndarray) -> np.ndarray:
     """The pixels without a reading, other than ``shadow``, connected (8-connected) to the image
     border: where an arm nearer than the sensor's range leaves the picture. bool (H, W)."""
-    n, labels, stats = label_regions((depth_m == 0) & ~shadow)
-    reach = np.flatnonzero(_at_border(stats, depth_m.shape)) + 1
-    return np.isin(labels, reach) if len(reach) else np.zeros(depth_m.shape, bool)
+    n, labels = cv2.connectedComponents(((depth_m == 0) & ~shadow).view(np.uint8), connectivity=8)
+    reach = np.zeros(n, bool)
+    for side in (labels[0], labels[-1], labels[:, 0], labels[:, -1]):
+        reach[side] = True
+    reach[0] = False  # the pixels with a reading, or in a shadow
+    return reach[labels]
 
 
 def _touches(region: np.ndarray, other: np.ndarray | None) -> bool:

@@ -20,6 +20,8 @@ import numpy as np
 
 from artclass_core import Intrinsics, Params, param
 
+from ._compiled import region_stats
+
 __all__ = [
     "BackgroundParams",
     "Plane",
@@ -129,14 +131,17 @@ def clean_depth(depth_m: np.ndarray) -> np.ndarray:
 def label_regions(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     """``cv2.connectedComponentsWithStats(mask, connectivity=8)``, computed on the bounding box of
     the mask's pixels only: the same (count, labels (H, W) int32, stats (count, 5)) in a fraction
-    of the time when the mask covers part of the image (OpenCV's statistics pass reads every pixel).
+    of the time when the mask covers part of the image.
     """
     m = np.asarray(mask, dtype=np.uint8)
     x, y, w, h = cv2.boundingRect(m)
     labels = np.zeros(m.shape, np.int32)
     if not w:
         return 1, labels, np.array([[0, 0, m.shape[1], m.shape[0], m.size]], np.int32)
-    n, crop, stats, _ = cv2.connectedComponentsWithStats(m[y : y + h, x : x + w], connectivity=8)
+    # the labels without OpenCV's statistics pass, then the statistics in one compiled pass: the
+    # same numbers in less than half the time
+    n, crop = cv2.connectedComponents(m[y : y + h, x : x + w], connectivity=8)
+    stats = region_stats(crop, n)
     labels[y : y + h, x : x + w] = crop
     stats[1:, 0] += x
     stats[1:, 1] += y

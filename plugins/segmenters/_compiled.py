@@ -1,0 +1,69 @@
+"""The compiled (Numba) per-pixel loops of the segmenters, one pass over an image where numpy makes
+several full-image temporaries or OpenCV a slow generic pass: the projector's shadows (a scan of
+each row), the colour difference of the thin-object search and the statistics of labelled regions."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def shadow_kernel(depth, step, out):
+    """Mark in ``out`` (bool (H, W), all False) the pixels without a reading (``depth`` == 0, float32
+    (H, W)) whose nearest readings to the left and to the right in their row differ by more than
+    ``step`` (float32)."""
+    h, w = depth.shape
+    for v in range(h):
+        left = -1  # the last column with a reading
+        for u in range(w):
+            if depth[v, u] == 0:
+                continue
+            if left >= 0 and u > left + 1 and abs(depth[v, left] - depth[v, u]) > step:
+                out[v, left + 1 : u] = True
+            left = u
+
+
+@njit(cache=True, nogil=True)
+def distinct_kernel(colour, around, where, least_sq, out):
+    """Mark in ``out`` (bool (H, W)) the pixels of ``where`` (bool (H, W)) whose ``colour`` differs
+    from ``around`` (float32 (H, W, 3) each) by a squared distance of at least ``least_sq``
+    (float32)."""
+    h, w = where.shape
+    for v in range(h):
+        for u in range(w):
+            if where[v, u]:
+                d0 = colour[v, u, 0] - around[v, u, 0]
+                d1 = colour[v, u, 1] - around[v, u, 1]
+                d2 = colour[v, u, 2] - around[v, u, 2]
+                out[v, u] = d0 * d0 + d1 * d1 + d2 * d2 >= least_sq
+
+
+@njit(cache=True, nogil=True)
+def region_stats(labels, n):
+    """OpenCV's component statistics (left, top, width, height, area; int32 (n, 5)) of the labels
+    1 .. n - 1 of ``labels`` (int32 (H, W)), in one pass; row 0 (the background) is left zero."""
+    h, w = labels.shape
+    stats = np.zeros((n, 5), np.int32)
+    x0 = np.full(n, w, np.int32)
+    y0 = np.full(n, h, np.int32)
+    x1 = np.full(n, -1, np.int32)
+    y1 = np.full(n, -1, np.int32)
+    for v in range(h):
+        for u in range(w):
+            k = labels[v, u]
+            if k:
+                if u < x0[k]:
+                    x0[k] = u
+                if u > x1[k]:
+                    x1[k] = u
+                if y0[k] == h:
+                    y0[k] = v
+                y1[k] = v
+                stats[k, 4] += 1
+    for k in range(1, n):
+        stats[k, 0] = x0[k]
+        stats[k, 1] = y0[k]
+        stats[k, 2] = x1[k] - x0[k] + 1
+        stats[k, 3] = y1[k] - y0[k] + 1
+    return stats
