@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import functools
+import threading
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -75,6 +77,16 @@ class Frame:
     time_s: float | None = None
 
 
+_reading = threading.local()
+
+
+def reading_seconds() -> float:
+    """Seconds this thread has spent reading frames from disk (:meth:`Sequence.load`), so far: a
+    stage that reads frames (a segmenter comparing a frame with a later one) can tell reading apart
+    from its own work."""
+    return getattr(_reading, "seconds", 0.0)
+
+
 class Sequence:
     """A lazily read RGB-D sequence. Readers subclass it and implement :meth:`load`.
 
@@ -135,7 +147,9 @@ class Sequence:
     def _checked_load(self, i: int) -> Frame:
         if not 0 <= i < self.n_frames:
             raise IndexError(f"frame {i} out of range 0..{self.n_frames - 1}")
+        t0 = time.perf_counter()
         frame = self.load(i)
+        _reading.seconds = reading_seconds() + time.perf_counter() - t0
         shape = (self.intrinsics.height, self.intrinsics.width)
         for what, image in (("depth", frame.depth_m), ("colour", frame.rgb), ("mask", frame.mask)):
             if image is not None and image.shape[:2] != shape:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -559,6 +560,22 @@ class TestPipelineRun:
         seq = make_sequence("static", n_frames=3, empty_frames=(0, 1, 2))
         with pytest.raises(InputError, match="no object in any of the 3 frames"):
             run(registry, seq, k=1)
+
+    def test_frames_a_segmenter_reads_ahead_are_timed_as_reading(self, registry):
+        """``depth_threshold`` compares each frame with one 3 frames later, which it reads first: with
+        every read taking 0.2 s, the reads are in "read", and "segment" is what it is from memory."""
+
+        class SlowDisk(type(make_sequence())):
+            def load(self, i):
+                time.sleep(0.2)
+                return super().load(i)
+
+        frames = [make_sequence("static", n_frames=6, masks=False).load(i) for i in range(6)]
+        pipeline = Pipeline(registry, dataclasses.replace(Config(), segmenter="depth_threshold"))
+        fast = pipeline.run(type(make_sequence())(frames, name="memory")).timing_s
+        slow = pipeline.run(SlowDisk(frames, name="slow disk")).timing_s
+        assert slow["read"] >= 6 * 0.2  # every frame read once (the sequence keeps the last 8)
+        assert slow["segment"] < fast["segment"] + 0.3  # not the 3 frames read ahead (0.6 s)
 
     def test_result_records_params_plugins_timing_and_is_json(self, registry):
         result = run(registry, make_sequence("hinge", n_frames=5), k=2, w=1, max_points=500)
