@@ -4,7 +4,9 @@ Per frame: the u2netp foreground probability (class-agnostic; onnxruntime on the
 pixels that depth shows to be background (out of ``[near_m, far_m]``, on or behind a large plane: the
 support plane, the floor beyond it, a wall; see :mod:`.support`) and hands (:mod:`.hands`) are
 removed; the connected components of at least ``min_area_fraction`` of the image are the instances,
-and the shared selection (:mod:`.selection`) picks the one being manipulated. Pixels without a depth
+those a hand passing in front of an object cuts apart joined again
+(:func:`.depth_threshold.join_hidden`), and the shared selection (:mod:`.selection`) picks the one
+being manipulated. Pixels without a depth
 reading inside a salient region are kept: they carry no points, and dropping them would split
 objects along sensor shadows.
 
@@ -27,7 +29,7 @@ import numpy as np
 from artclass_core import Frame, Sequence, param
 
 from . import onnx_models
-from .depth_threshold import MaskFreeSegmenter, components
+from .depth_threshold import MaskFreeSegmenter, components, join_hidden
 from .hands import HandParams
 from .onnx_models import TensorSpec
 from .selection import SelectionParams
@@ -106,11 +108,15 @@ class U2netSegmenter(MaskFreeSegmenter):
     def instances(self, frame: Frame, *, sequence: Sequence) -> list[np.ndarray]:
         p = self.params
         prob = saliency(frame.rgb, session=load_u2net(p.model_path))
-        background = self.scene(frame, sequence=sequence).background
-        objects = (prob > p.threshold) & ~background
+        scene = self.scene(frame, sequence=sequence)
+        objects = (prob > p.threshold) & ~scene.background
         allowed = self.not_hand(frame, sequence=sequence)
-        return components(
+        found = components(
             objects if allowed is None else objects & allowed,
             open_px=0,
             min_area_fraction=p.min_area_fraction,
         )
+        if allowed is None:
+            return found
+        hand = self.hand_mask(frame, sequence=sequence)
+        return join_hidden(found, hand, scene.depth_m, sequence.intrinsics, touch_m=p.hand_touch_m)
