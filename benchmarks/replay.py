@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 from artclass_core import ArtclassError, Config, Pipeline, find_sequences, load_registry, open_sequences
-from artclass_core.evaluate import evaluation, markdown, outcome_of, score_labels
+from artclass_core.evaluate import evaluation, markdown, one_line, outcome_of, score_labels
 
 
 def _config(registry, segmenter: str | None, params: list[str]) -> Config:
@@ -52,7 +52,7 @@ def record(registry, root: str, runs: Path, segmenter: str | None, params: list[
         try:
             result = pipeline.run(seq, keep_clouds=True)
         except Exception as exc:  # recorded: the set's report counts the sequence as failed
-            run["error"] = f"{type(exc).__name__}: {exc}"
+            run["error"] = one_line(exc)
         else:
             frames = {f.index: f for f in result.frames}
             for p in result.pairs:  # both baselines of every pair, so that any rule can choose
@@ -89,7 +89,7 @@ def decide(registry, runs: Path, params: list[str]) -> str:
             score_labels(o, pipeline, seq, result)
         outcomes.append(o)
     if config is None:
-        raise SystemExit(f"{runs}: no recorded runs (record them first)")
+        raise ArtclassError(f"{runs}: no recorded runs (record them first)")
     return markdown([evaluation(config, outcomes)])
 
 
@@ -102,7 +102,8 @@ def main() -> None:
     rec.add_argument("root")
     rec.add_argument("runs", type=Path)
     rec.add_argument("--segmenter")
-    for p in (rec, dec := sub.add_parser("decide", help="decide the stored runs again and report")):
+    dec = sub.add_parser("decide", help="decide the stored runs again and report")
+    for p in (rec, dec):
         p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE")
     dec.add_argument("runs", type=Path)
     args = parser.parse_args()
