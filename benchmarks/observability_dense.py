@@ -34,7 +34,7 @@ from artclass_plugins.dense.projective import Target, look_all
 def true_evidence(pipeline: Pipeline, ev: MotionEvidence, a, b, motions: np.ndarray) -> MotionEvidence:
     """``ev`` (the registered pair of clouds ``a`` and ``b``) with ``motions`` as its only hypotheses,
     judged on depth both ways as the registrar judges its own, and no optical flow."""
-    reach = pipeline.registrar._reach
+    reach = pipeline.registrar.reach
     target, source = Target.of(b), Target.of(a)
     fwd = look_all(motions, a.points, target, reach_m=reach(a, target.intrinsics.fx), off_object_px=2.0)
     back = look_all(

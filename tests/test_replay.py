@@ -29,9 +29,14 @@ def _labels_only(report: str) -> str:
     return "\n## ".join(s for s in sections if not s.startswith("Parts and joints"))
 
 
-def test_decided_again_under_a_new_setting_equals_a_fresh_evaluation(replay, registry, data_root, tmp_path):
-    runs = tmp_path / "runs"
+@pytest.fixture(scope="module")
+def runs(replay, registry, data_root, tmp_path_factory) -> Path:
+    runs = tmp_path_factory.mktemp("replay") / "runs"
     replay.record(registry, str(data_root), runs, None, [])
+    return runs
+
+
+def test_decided_again_under_a_new_setting_equals_a_fresh_evaluation(replay, registry, data_root, runs):
     assert len(list(runs.glob("*.pkl"))) == len(find_sequences(registry, data_root)[0])
     reports = []
     for params in ([], ["noise_factor=8"], ["w=1", "min_part_share=0.3"]):
@@ -42,8 +47,6 @@ def test_decided_again_under_a_new_setting_equals_a_fresh_evaluation(replay, reg
     assert len(set(reports)) == 3  # each setting changes some decision
 
 
-def test_a_registration_setting_cannot_change(replay, registry, data_root, tmp_path):
-    runs = tmp_path / "runs"
-    replay.record(registry, str(data_root), runs, None, [])
+def test_a_registration_setting_cannot_change(replay, registry, runs):
     with pytest.raises(ArtclassError, match="k 5 -> 4"):
         replay.decide(registry, runs, ["k=4"])

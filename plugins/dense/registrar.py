@@ -93,7 +93,7 @@ class DenseRegistrar(PairRegistrar):
         depth = float(np.median(points[:, 2]))
         pixel_m = depth / tgt.intrinsics.fx
         sigma0 = float(noise_m(depth, _sensor_noise(source)))
-        reach = self._reach(source, tgt.intrinsics.fx)
+        reach = self.reach(source, tgt.intrinsics.fx)
         fine = 4 * sigma0 + 2 * pixel_m
         size = float(np.linalg.norm(np.ptp(points, axis=0)))
         coarse = [max(size / d, fine) for d in (4, 4, 8, 8, 16, 16, 32)] + [fine] * 3
@@ -177,7 +177,7 @@ class DenseRegistrar(PairRegistrar):
         back = Target.of(source)
         inverse = np.linalg.inv(np.stack(hyps))
         status_back, residual_back = _look_all(
-            inverse, target.points, back, self._reach(target, back.intrinsics.fx)
+            inverse, target.points, back, self.reach(target, back.intrinsics.fx)
         )
         info = dict(
             stride_px=int(source.info.get("stride_px", 1)),
@@ -199,7 +199,7 @@ class DenseRegistrar(PairRegistrar):
             n_source=len(points),
         )
 
-    def _reach(self, cloud: Cloud, fx: float) -> np.ndarray:
+    def reach(self, cloud: Cloud, fx: float) -> np.ndarray:
         """How far from the observed depth each moved point of ``cloud`` still counts as on that surface
         (metres): ``reach_sigmas`` sensor noise sigmas at its depth, plus two pixels."""
         z = cloud.points[:, 2]
