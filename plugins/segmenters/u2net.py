@@ -3,12 +3,11 @@
 Per frame: the u2netp foreground probability (class-agnostic; onnxruntime on the CPU), thresholded;
 pixels that depth shows to be background (out of ``[near_m, far_m]``, on or behind a large plane: the
 support plane, the floor beyond it, a wall; see :mod:`.support`) and hands (:mod:`.hands`) are
-removed; the connected components of at least ``min_area_fraction`` of the image are the instances,
-those a hand passing in front of an object cuts apart joined again
-(:func:`.depth_threshold.join_hidden`), and the shared selection (:mod:`.selection`) picks the one
-being manipulated. Pixels without a depth
-reading inside a salient region are kept: they carry no points, and dropping them would split
-objects along sensor shadows.
+removed; the connected components of at least ``min_area_fraction`` of the image are the instances
+(those that a hand passing in front of an object cuts apart joined again:
+:func:`.depth_threshold.join_hidden`), and the shared selection (:mod:`.selection`) picks the one
+being manipulated. Pixels without a depth reading inside a salient region are kept: they carry no
+points, and dropping them would split objects along sensor shadows.
 
 Pre/post-processing (the model's own): RGB resized to 320 x 320, / 255, ImageNet mean
 (0.485, 0.456, 0.406) and std (0.229, 0.224, 0.225), NCHW float32 into ``input.1``; the output
