@@ -27,7 +27,7 @@ from collections import Counter
 
 import numpy as np
 
-from artclass_core import Config, MotionEvidence, Pipeline, find_sequences, load_registry
+from artclass_core import Config, MotionEvidence, Pipeline, StageCache, find_sequences, load_registry
 from artclass_plugins.dense.projective import Target, look_all
 
 
@@ -69,11 +69,12 @@ def main() -> None:
         if seq.label != "articulated" or args.only not in seq.name:
             continue
         poses = json.loads((seq.path / "truth.json").read_text())["part_poses"]
+        cache = StageCache()  # a frame is the first of one pair and the last of another: prepared once
         row = Counter()
         for i in range(len(seq) - k):
             if seq.pair_truth(i, i + k) != "AM":
                 continue
-            a, b = pipeline.frame(seq, i).cloud, pipeline.frame(seq, i + k).cloud
+            a, b = (pipeline.frame(seq, m, cache=cache).cloud for m in (i, i + k))
             if a is None or b is None:
                 continue
             ev, _ = pipeline.register(a, b)
