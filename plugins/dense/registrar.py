@@ -122,9 +122,13 @@ class DenseRegistrar(PairRegistrar):
             inits.append(robust_kabsch(points[matched], matches[matched], inlier_m=fine))
         fit = _Fit(tgt, flow_px, across, noise / rule.flow_sigma_px)
         whole = fit.each(points, np.stack(inits), coarse)
+        # The object's motion from depth alone too: flow on stripes can mislead the fit as a whole (a
+        # helical stripe on a turning can seems to travel along its axis).
+        depth_only = _Fit(tgt, no_flow, no_flow, 0.0).each(points, np.stack(inits[:2]), coarse)
         hyps, names = (
-            [np.eye(4), *whole],
-            ["identity", "object", "object (shift)", "object (flow)"][: 1 + len(whole)],
+            [np.eye(4), *whole, *depth_only],
+            ["identity", "object", "object (shift)", "object (flow)"][: 1 + len(whole)]
+            + ["object (depth)", "object (depth, shift)"],
         )
 
         cells = _cells(points, size / p.cells_per_diameter, p.min_seed_points)
