@@ -3,7 +3,8 @@
 1. Optical flow gives, on texture, where each source point went (3D correspondences through the
    target's depth).
 2. The object's motion: projective point-to-plane ICP of all points, coarse to fine, from the
-   identity, from the shift of the median point and from the flow's motion.
+   identity, from the shift of the median point and from the flow's motion; and from the first two
+   again on depth alone, in case the flow misleads everywhere (stripes).
 3. Local motions, seeded from the paper's grid cells (edge x = diameter / ``cells_per_diameter``):
    each cell's flow motion (or the object's), refined by ICP on the cell's points; all cells at once.
 4. Every hypothesis is scored on every point (:func:`~.projective.look_all`, and the flow), and the
