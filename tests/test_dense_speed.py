@@ -18,7 +18,7 @@ from artclass_core.geometry import transform
 from artclass_core.scheduler import worker_pool
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
 from artclass_plugins.dense.flow import flow_targets
-from artclass_plugins.dense.image import ImagePreprocessor, normal_map, vertex_map
+from artclass_plugins.dense.image import ImagePreprocessor, finite_depth, normal_map, vertex_map
 from artclass_plugins.dense.projective import (
     NEAR_MASK_PX,
     Target,
@@ -276,6 +276,18 @@ def test_compiled_normals_equal_the_numpy_reference_to_the_bit():
     has = ref.any(axis=2)
     # the sparse surface keeps normals, the hole's edge does not
     assert 0.2 < has.sum() / (depth > 0).sum() < 1
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_finite_depth_equals_the_numpy_expression_to_the_bit(dtype):
+    """NaN, infinities, negative zero and values that round to float32 on the way."""
+    depth = np.random.default_rng(2).uniform(0.2, 3.0, (7, 9)).astype(dtype)
+    depth[0, :4] = [np.nan, np.inf, -np.inf, -0.0]
+    ref = np.where(np.isfinite(depth), depth, 0).astype(np.float32)
+    got = finite_depth(depth)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32))
+    assert np.isfinite(depth[1:]).all() and not got[0, :3].any()
 
 
 @pytest.mark.parametrize("use_flow", [False, True])

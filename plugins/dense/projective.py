@@ -16,7 +16,7 @@ import numpy as np
 
 from artclass_core import ArtclassError, Cloud, Intrinsics
 
-from .image import bounding_box, normal_map, valid_median, vertex_map
+from .image import bounding_box, finite_depth, normal_map, valid_median, vertex_map
 
 # Gauss-Newton damping, relative to the trace of the normal equations: keeps the step of a group whose
 # points cannot fix all six degrees of freedom (a flat patch slides in its plane) small and unique.
@@ -284,7 +284,7 @@ def warm_up() -> None:
         np.eye(3) + [0, 0, 0.5], np.eye(3) + [0, 0, 0.5], inlier_m=0.01, groups=np.zeros(3, np.int64)
     )
     kernels().distinct_kernel(motions[:, :3].copy(), np.eye(4), 0.001, np.empty(1, np.bool_))
-    valid_median(depth, depth > 0)
+    valid_median(finite_depth(depth), depth > 0)
     normal_map(vertex_map(depth, target.intrinsics))
 
 
