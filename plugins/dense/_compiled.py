@@ -47,7 +47,19 @@ def _moved(T, p0, p1, p2):
 
 
 @njit(cache=True, nogil=True)
-def look_kernel(motions, points, scene, depth, normals, outside, camera, reach, off_px, status, residual):
+def _outside_at(outside, v0, u0, v, u):
+    """The distance to the mask at pixel (u, v), from its values in a box whose top-left pixel is
+    (u0, v0): inf beyond the box."""
+    i, j = v - v0, u - u0
+    if i >= 0 and i < outside.shape[0] and j >= 0 and j < outside.shape[1]:
+        return outside[i, j]
+    return np.inf
+
+
+@njit(cache=True, nogil=True)
+def look_kernel(
+    motions, points, scene, depth, normals, outside, v0, u0, camera, reach, off_px, status, residual
+):
     h, w = scene.shape
     for k in range(motions.shape[0]):
         for i in range(points.shape[0]):
@@ -62,7 +74,7 @@ def look_kernel(motions, points, scene, depth, normals, outside, camera, reach, 
                 status[k, i] = OCCLUDED
             elif gap > reach[i]:
                 status[k, i] = FREE_SPACE
-            elif outside[v, u] > off_px:
+            elif _outside_at(outside, v0, u0, v, u) > off_px:
                 status[k, i] = OFF_OBJECT
             else:
                 status[k, i] = SURFACE
