@@ -19,8 +19,8 @@ are mixed with another's (two fits that each explain half of a rigid object) is 
 Decision: two or more motions that really differ (their relative motion moves the median point of
 each side by more than ``noise_factor`` sigma plus one pixel, and each fails in depth points that the
 other explains: optical flow helps choose the motions, but texture alone makes no part) are AM; one
-motion is RM when it moves the median point by as much, else NM. Too few points seen in both frames:
-skipped.
+motion is RM when it moves the median point by as much and explains in depth points that staying
+still fails, else NM. Too few points seen in both frames: skipped.
 """
 
 from __future__ import annotations
@@ -318,7 +318,13 @@ class DenseRule(DecisionRule):
         layout, stride = _layout(ev), int(ev.info.get("stride_px", 1))
         coherence = label_coherence(decisive, layout, stride)
         misfit, enough = p.noise_factor**2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
-        depth = self.costs(ev, noise, np.inf) if len(chosen) > 1 else None  # only a part needs them
+        depth: list[np.ndarray] = []  # the costs without flow, worked out when first needed
+
+        def needed(a: int, b: int) -> bool:
+            """Whether motion ``a`` explains enough points that ``b`` fails in depth."""
+            depth[:] = depth or [self.costs(ev, noise, np.inf)]
+            return int((seen & (costs[a] < misfit / 2) & (depth[0][b] >= misfit)).sum()) >= enough
+
         for h in chosen[1:]:
             own, rest = ev.points[forward & (labels == h)], ev.points[forward & (labels >= 0) & (labels != h)]
             apart = min(
@@ -328,15 +334,12 @@ class DenseRule(DecisionRule):
             # Each motion must fail points the other explains: two fits of one rigid body explain
             # nearly the same points, a part and its base do not; and fail them in depth, since
             # texture alone misleads (stripes that repeat, shading that moves over a turning surface).
-            needed = all(
-                int((seen & (costs[a] < misfit / 2) & (depth[b] >= misfit)).sum()) >= enough
-                for a, b in ((h, base), (base, h))
-            )
+            both_needed = needed(h, base) and needed(base, h)
             # ... and a part is one region of the image where its motion is clearly the better one.
             region = regions(decisive == h, layout, stride, min_points=enough // 2, most=1)
             if (
                 apart > threshold
-                and needed
+                and both_needed
                 and region
                 and np.nanmean(coherence[decisive == h]) >= p.min_coherence
             ):
@@ -376,12 +379,18 @@ class DenseRule(DecisionRule):
                 labels=labels,
             )
         moved = motions[0].displacement_m
+        reason = f"one motion, moving points by {moved * 1000:.1f} mm (threshold {threshold * 1000:.1f} mm)"
+        # ... and, as a part must, it must be needed in depth: staying still (the registrar's identity
+        # hypothesis) fails points it explains. A fit that slides along a surface depth cannot fix (a
+        # sliver of a still mug beside a moving hand) moves points, but shows no motion.
+        still = next((h for h, T in enumerate(ev.motions) if np.allclose(T, np.eye(4))), None)
+        if moved > threshold and still is not None and still != base and not needed(base, still):
+            moved, reason = 0.0, reason + ", but staying still explains the depth as well"
         decision = "RM" if moved > threshold else "NM"
         return RuleDecision(
             decision,
             [],
-            reason=f"one motion, moving points by {moved * 1000:.1f} mm "
-            f"(threshold {threshold * 1000:.1f} mm)",
+            reason=reason,
             info=info,
             motions=motions,
             labels=labels,
