@@ -510,10 +510,10 @@ def fit_joint(
     turns less than the orientation noise is a slide, a screw that slides less than the position
     noise along its axis is a hinge. The screw, which they do not have, is a fallback: chosen only
     when the best of the others leaves residuals beyond the noise (chi-square test at
-    ``outlier_level``) and the screw's BIC is lower. Three choices differ from theirs: (1) the per-frame states count
-    in k, so a one-degree-of-freedom model that only absorbs noise (one residual component per pose)
-    does not beat ``fixed``;
-    (2) instead of a per-model inlier/outlier mixture, the poses the general screw model cannot
+    ``outlier_level``) and the screw's BIC is lower. Three choices differ from theirs: (1) the
+    per-frame states count in k, so a one-degree-of-freedom model that only absorbs noise (one
+    residual component per pose) does not beat ``fixed``; (2) instead of a per-model inlier/outlier
+    mixture, the poses the general screw model cannot
     explain (beyond the ``outlier_level`` quantile of chi-square with 6 degrees of freedom) are left
     out of every model's score, so all models are compared on the same poses; (3) a revolute joint,
     which holds the prismatic as its limit (the axis at infinity), is chosen over it only when the
