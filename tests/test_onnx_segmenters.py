@@ -36,6 +36,7 @@ from artclass_plugins.segmenters.u2net import (
     load_u2net,
     lying_flat,
     saliency,
+    split_bridges,
 )
 
 pytestmark = pytest.mark.slow  # U²-Net on the CPU, frame after frame
@@ -196,6 +197,35 @@ def test_join_salient_takes_the_depth_objects_a_salient_region_overlaps():
     assert join_salient([], np.zeros(shape, bool), min_area_fraction=0.0) == []
 
 
+def test_split_bridges_parts_two_salient_objects_that_depth_joins():
+    """A box in front of a keyboard, and a mug beside it, all one depth instance: the box and the mug
+    (each salient, each at its own depth) are split apart, the keyboard (not salient) is left on
+    its own; an instance that one salient region claims, or with only one region in the frame,
+    stays whole, edges and all."""
+    shape = (60, 90)
+    depth = np.full(shape, 1.0, np.float32)
+    keyboard, box, mug = (np.zeros(shape, bool) for _ in range(3))
+    keyboard[5:25, 5:85] = True
+    box[20:50, 10:30] = True
+    mug[20:50, 50:75] = True
+    depth[box] = 0.8  # in front of the keyboard
+    depth[mug] = 0.9
+    keyboard &= ~box & ~mug
+    salient = box | mug
+    salient[18:20, 10:30] = True  # a blurred boundary on the keyboard
+    out = split_bridges([keyboard | box | mug], salient, depth, step_m=0.01, min_area_fraction=0.01)
+    assert len(out) == 3
+    assert np.array_equal(out[0], keyboard & ~salient)
+    assert np.array_equal(out[1], mug) and np.array_equal(out[2], salient & ~mug)  # the box, its rim
+    whole = keyboard | box | mug
+    elsewhere = np.zeros(shape, bool)
+    elsewhere[55:58, 80:88] = True  # a second salient region, outside the instance
+    for alone in (box, box | elsewhere):
+        assert np.array_equal(
+            split_bridges([whole], alone, depth, step_m=0.01, min_area_fraction=0.01)[0], whole
+        )
+
+
 def test_lying_flat_keeps_a_region_that_stands_out_of_the_table_around_it():
     """On a table 2 mm above the fitted plane with 1 mm of noise: a 3 mm thick object (salient) is
     kept; a salient patch of the table, though on average 2 mm above the plane, is not; neither is
@@ -213,11 +243,12 @@ def test_lying_flat_keeps_a_region_that_stands_out_of_the_table_around_it():
 
 
 def test_u2net_on_ycbv_overlaps_the_labelled_objects(u2netp_path):
-    """Measured: mean IoU with the union of the labelled objects 0.60 (0000) and 0.63 (0001), every
-    frame >= 0.57; precision 0.95-0.99, except one frame of 0000 (0.61) where depth joins the objects
-    with the far part of the desk behind them (``depth_threshold`` does the same). The scenes are static, so the fallback takes the largest
-    central segment: in 0000 the mug with the foam brick (touching), in 0001 the cracker box with
-    the coffee can in front of it. Bounds: about 0.1 below the measured values."""
+    """Measured: mean IoU with the union of the labelled objects 0.61 (0000) and 0.63 (0001), every
+    frame >= 0.59; precision 0.95-0.99 in every frame (depth joins the box, the keyboard behind it
+    and the mug in one frame of 0000; saliency splits them again). The scenes are static, so the
+    fallback takes the largest central segment: in 0000 the mug with the foam brick (touching), in
+    0001 the cracker box with the coffee can in front of it. Bounds: about 0.1 below the measured
+    values."""
     if not YCBV.is_dir():
         pytest.skip(f"real data folder {YCBV} is absent")
     registry = load_registry()
@@ -231,8 +262,8 @@ def test_u2net_on_ycbv_overlaps_the_labelled_objects(u2netp_path):
             union = np.any([s[i].mask for s in seqs], axis=0)
             ious.append(mask_iou(mask, union))
             precisions.append(np.count_nonzero(mask & union) / np.count_nonzero(mask))
-        assert np.mean(ious) > 0.5 and min(ious) > 0.47, (scene, ious)
-        assert np.median(precisions) > 0.85 and min(precisions) > 0.5, (scene, precisions)
+        assert np.mean(ious) > 0.54 and min(ious) > 0.5, (scene, ious)
+        assert min(precisions) > 0.85, (scene, precisions)
 
 
 def synthetic_sequences():

@@ -36,7 +36,8 @@ from artclass_core import Frame, Sequence, param
 from . import onnx_models
 from .depth_threshold import THIN_WINDOW_PX, DepthThresholdParams, DepthThresholdSegmenter
 from .onnx_models import TensorSpec
-from .support import DEPTH_STEP_M, above_planes
+from .selection import depth_edges
+from .support import DEPTH_STEP_M, above_planes, label_regions
 
 __all__ = [
     "U2netParams",
@@ -44,6 +45,7 @@ __all__ = [
     "saliency",
     "load_u2net",
     "join_salient",
+    "split_bridges",
     "lying_flat",
     "INPUT_SIZE",
 ]
@@ -149,6 +151,61 @@ def lying_flat(
     return out
 
 
+def split_bridges(
+    instances: list[np.ndarray],
+    salient: np.ndarray,
+    depth_m: np.ndarray,
+    *,
+    step_m: float,
+    min_area_fraction: float,
+) -> list[np.ndarray]:
+    """The depth instances that join two salient objects, split between them.
+
+    Depth alone joins objects whose pixels meet in the image though their surfaces do not (a box
+    in front of a keyboard, the keyboard behind a mug). An instance is cut into pieces at its depth
+    edges (neighbouring readings more than ``step_m`` apart) and each piece is claimed by the
+    connected salient region (8-connected) that covers most of it. An instance whose pieces two or
+    more salient regions claim is split: each such region gets its pixels of the instance and the
+    pieces it claims (without the pixels of the other regions), and what is left that no region covers (a keyboard) is an instance of its
+    own where it is at least ``min_area_fraction`` of the image. Other instances are unchanged.
+    Largest first.
+
+    Parameters
+    ----------
+    instances : list of ndarray of bool, shape (H, W) -- the objects that depth finds
+    salient : ndarray of bool, shape (H, W) -- the salient pixels that may belong to an object
+    depth_m : ndarray, shape (H, W), metres, 0 = no reading
+    step_m : metres -- neighbouring readings further apart than this are on surfaces that do not touch
+
+    Returns
+    -------
+    list of ndarray of bool, shape (H, W)
+    """
+    n, labels = cv2.connectedComponents(salient.astype(np.uint8), connectivity=8)
+    if n < 3:  # fewer than two salient regions: nothing to split between
+        return instances
+    edges = depth_edges(depth_m, step_m)
+    least = max(1, int(np.ceil(min_area_fraction * salient.size)))
+    out = []
+    for mask in instances:
+        count, pieces, stats = label_regions(mask & ~edges)
+        # each piece's pixels per salient region (0 = not salient)
+        overlap = np.bincount(pieces[mask] * n + labels[mask], minlength=count * n).reshape(count, n)
+        owner = overlap[:, 1:].argmax(axis=1) + 1
+        claimed = (2 * overlap[np.arange(count), owner] > stats[:, cv2.CC_STAT_AREA]) & (np.arange(count) > 0)
+        regions = np.unique(owner[claimed])
+        if len(regions) < 2:
+            out.append(mask)
+            continue
+        for r in regions:
+            own = np.isin(pieces, np.flatnonzero(claimed & (owner == r)))
+            out.append(mask & (labels == r) | own & (labels == 0))
+        rest = mask & ~np.isin(pieces, np.flatnonzero(claimed)) & (labels == 0)
+        m, parts, part_stats = label_regions(rest)
+        out += [parts == k for k in range(1, m) if part_stats[k, cv2.CC_STAT_AREA] >= least]
+    return sorted(out, key=lambda x: -int(np.count_nonzero(x)))
+
+
 def join_salient(
     instances: list[np.ndarray],
     salient: np.ndarray,
@@ -245,6 +302,9 @@ class U2netSegmenter(DepthThresholdSegmenter):
         else:
             flat = False
         salient &= ~scene.background | flat
+        found = split_bridges(
+            found, salient, scene.depth_m, step_m=p.join_m, min_area_fraction=p.min_area_fraction
+        )
         return join_salient(
             found,
             salient,
