@@ -201,7 +201,8 @@ def test_split_bridges_parts_two_salient_objects_that_depth_joins():
     """A box in front of a keyboard, and a mug beside it, all one depth instance: the box and the mug
     (each salient, each at its own depth) are split apart, the keyboard (not salient) is left on
     its own; an instance that one salient region claims, or with only one region in the frame,
-    stays whole, edges and all."""
+    stays whole, edges and all, and so does one whose parts depth joined across a gap, or whose
+    second claimant is smaller than an instance (a fingertip)."""
     shape = (60, 90)
     depth = np.full(shape, 1.0, np.float32)
     keyboard, box, mug = (np.zeros(shape, bool) for _ in range(3))
@@ -224,20 +225,34 @@ def test_split_bridges_parts_two_salient_objects_that_depth_joins():
         assert np.array_equal(
             split_bridges([whole], alone, depth, step_m=0.01, min_area_fraction=0.01)[0], whole
         )
+    cut = box.copy()
+    cut[30:35] = False  # a box that an arm in front of it cuts in two, joined by depth across the arm
+    kept = split_bridges([cut], cut, depth, step_m=0.01, min_area_fraction=0.01)
+    assert len(kept) == 1 and np.array_equal(kept[0], cut)
+    tip = np.zeros(shape, bool)
+    tip[50:53, 12:16] = True  # a fingertip under the box, salient apart from it, 12 px
+    depth[tip] = 0.7
+    salient = box.copy()
+    salient[47:50] = False
+    kept = split_bridges([box | tip], salient | tip, depth, step_m=0.01, min_area_fraction=0.01)
+    assert len(kept) == 1 and np.array_equal(kept[0], box | tip)
 
 
 def test_lying_flat_keeps_a_region_that_stands_out_of_the_table_around_it():
     """On a table 2 mm above the fitted plane with 1 mm of noise: a 3 mm thick object (salient) is
-    kept; a salient patch of the table, though on average 2 mm above the plane, is not; neither is
-    a salient region whose ring is not on the table."""
+    kept; a salient patch of the table, though on average 2 mm above the plane, is not; neither are
+    two readings a depth step above the table, nor a salient region whose ring is not on the table."""
     rng = np.random.default_rng(0)
     height = 0.002 + rng.normal(0.0, 0.001, (80, 100)).astype(np.float32)
     thin, patch = np.zeros((80, 100), bool), np.zeros((80, 100), bool)
     thin[10:14, 10:60] = True
     patch[40:60, 20:50] = True
     height[thin] += 0.003
+    speck = np.zeros((80, 100), bool)
+    speck[70, 80:82] = True  # two readings a depth step (8 mm) above the table
+    height[speck] += 0.008
     table = np.ones((80, 100), bool)
-    flat = lying_flat(thin | patch, height, table, noise_m=0.001, sigmas=4.0)
+    flat = lying_flat(thin | patch | speck, height, table, noise_m=0.001, sigmas=4.0)
     assert np.array_equal(flat, thin)
     assert not lying_flat(thin, height, thin, noise_m=0.001, sigmas=4.0).any()
 

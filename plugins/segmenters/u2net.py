@@ -9,9 +9,14 @@ Saliency says *which* object a region belongs to, depth says *where* its pixels 
    plane that stand a little above it (their height averaged over ``THIN_WINDOW_PX`` squared pixels
    more than ``grow_sigmas`` times the noise of that mean) and, as a region, above the table around
    them (:func:`lying_flat`) are kept: a thin object lying flat, not a salient patch of the table;
-3. each connected salient region joins the depth objects it overlaps into one instance and adds its
-   pixels with a depth reading (:func:`join_salient`): a lid or lever that depth cut off is joined
-   to its object, and a region saliency alone finds is an instance of its own.
+3. a depth object that two salient regions claim, through pixels that meet in the image though
+   their surfaces do not, is split between them (:func:`split_bridges`): a box, the keyboard
+   behind it and a mug beside it are three objects, not one;
+4. each connected salient region joins the depth objects it overlaps into one instance and adds its
+   pixels that lie flat or belong to a depth object (:func:`join_salient`): a lid or lever that
+   depth cut off is joined to its object, and an object lying flat that saliency alone finds is an
+   instance of its own. Other salient pixels (what depth left out as too small: the rim of a hand,
+   speckle) only connect.
 
 The shared selection (:mod:`.selection`) picks the instance being manipulated.
 
@@ -112,7 +117,9 @@ def lying_flat(
 ) -> np.ndarray:
     """The salient regions on a plane that stand out of the plane around them: objects lying flat.
 
-    A connected region (8-connected) of ``salient`` is kept when its mean height above the plane
+    A connected region (8-connected) of ``salient`` is kept when it has at least ``THIN_WINDOW_PX``
+    squared pixels (the area over which a thin object is told from the table; a single reading one
+    depth step above the table is noise) and its mean height above the plane
     exceeds that of the ``table`` pixels in a ring ``RING_PX`` wide around it by more than the
     plane's noise and by more than ``sigmas`` times the noise of that difference
     (``noise_m * sqrt(1/n + 1/m)`` over n pixels in the region and m in the ring). An object a few
@@ -136,6 +143,8 @@ def lying_flat(
     rows, cols = salient.shape
     out = np.zeros(salient.shape, bool)
     for k in range(1, n):
+        if stats[k, cv2.CC_STAT_AREA] < THIN_WINDOW_PX**2:
+            continue
         x, y, w, h = stats[k, :4]
         box = np.s_[
             max(y - RING_PX, 0) : min(y + h + RING_PX, rows), max(x - RING_PX, 0) : min(x + w + RING_PX, cols)
@@ -164,11 +173,14 @@ def split_bridges(
     Depth alone joins objects whose pixels meet in the image though their surfaces do not (a box
     in front of a keyboard, the keyboard behind a mug). An instance is cut into pieces at its depth
     edges (neighbouring readings more than ``step_m`` apart) and each piece is claimed by the
-    connected salient region (8-connected) that covers most of it. An instance whose pieces two or
-    more salient regions claim is split: each such region gets its pixels of the instance and the
-    pieces it claims (without the pixels of the other regions), and what is left that no region covers (a keyboard) is an instance of its
-    own where it is at least ``min_area_fraction`` of the image. Other instances are unchanged.
-    Largest first.
+    connected salient region (8-connected) that covers most of it; a region whose pieces are
+    smaller than ``min_area_fraction`` of the image together claims none. An instance is split when
+    two or more salient regions claim pieces of one of its connected parts (8-connected): each such
+    region gets its pixels of the instance and the pieces it claims (without the pixels of the
+    other regions), and what is left that no region covers (a keyboard) is an instance of its own
+    where it is at least ``min_area_fraction`` of the image. Other instances are unchanged, among
+    them those whose parts depth joined across a gap (an object that a hand in front of it cuts in
+    two, which a salient region cut by the same hand does not tell apart). Largest first.
 
     Parameters
     ----------
@@ -193,10 +205,18 @@ def split_bridges(
         overlap = np.bincount(pieces[mask] * n + labels[mask], minlength=count * n).reshape(count, n)
         owner = overlap[:, 1:].argmax(axis=1) + 1
         claimed = (2 * overlap[np.arange(count), owner] > stats[:, cv2.CC_STAT_AREA]) & (np.arange(count) > 0)
-        regions = np.unique(owner[claimed])
-        if len(regions) < 2:
+        # a region claims an object only with at least an instance's least area (not a fingertip
+        # that the hand mask left out)
+        area = np.bincount(owner[claimed], weights=stats[claimed, cv2.CC_STAT_AREA], minlength=n)
+        claimed &= area[owner] >= least
+        _, parts, _ = label_regions(mask)
+        part_of = np.zeros(count, np.int32)
+        part_of[pieces[mask]] = parts[mask]
+        claims = np.unique(np.stack([part_of[claimed], owner[claimed]]), axis=1)
+        if len(np.unique(claims[0])) == claims.shape[1]:  # one region or none per connected part
             out.append(mask)
             continue
+        regions = np.unique(owner[claimed])
         for r in regions:
             own = np.isin(pieces, np.flatnonzero(claimed & (owner == r)))
             out.append(mask & (labels == r) | own & (labels == 0))
@@ -292,22 +312,20 @@ class U2netSegmenter(DepthThresholdSegmenter):
                 window_px=THIN_WINDOW_PX,
                 heights=scene.heights_m,
             )
+            noise_m = max(scene.planes[0].noise_m, DEPTH_STEP_M)
             flat = lying_flat(
-                salient & table & raised,
-                scene.heights_m[0],
-                table,
-                noise_m=max(scene.planes[0].noise_m, DEPTH_STEP_M),
-                sigmas=p.grow_sigmas,
+                salient & table & raised, scene.heights_m[0], table, noise_m=noise_m, sigmas=p.grow_sigmas
             )
         else:
-            flat = False
+            flat = np.zeros(prob.shape, bool)
         salient &= ~scene.background | flat
+        # the salient pixels added to objects: those lying flat and those of depth's objects; the
+        # other foreground pixels (what depth left out as too small: speckle, the rim of a hand)
+        # only connect
+        usable = flat | np.logical_or.reduce(found, initial=False)
         found = split_bridges(
             found, salient, scene.depth_m, step_m=p.join_m, min_area_fraction=p.min_area_fraction
         )
         return join_salient(
-            found,
-            salient,
-            min_area_fraction=p.min_area_fraction,
-            usable=scene.valid,
+            found, salient, min_area_fraction=p.min_area_fraction, usable=usable & scene.valid
         )
