@@ -17,10 +17,11 @@ motion that explains it best: that labelling is the pair's part segmentation, an
 are mixed with another's (two fits that each explain half of a rigid object) is not a part.
 
 Decision: two or more motions that really differ (their relative motion moves the median point of
-each side by more than ``noise_factor`` sigma plus one pixel, and each fails in depth points that the
-other explains: optical flow helps choose the motions, but texture alone makes no part) are AM; one
-motion is RM when it moves the median point by as much and explains in depth points that staying
-still fails, else NM. Too few points seen in both frames: skipped.
+each side by more than ``noise_factor`` sigma plus one pixel, the part fails in depth points that the
+base explains, and the base fails points the part explains, in depth or, unless the part's motion is
+a fit of the whole object, in optical flow) are AM; one motion is RM when it moves the median point
+by as much and explains in depth points that staying still fails, else NM. Too few points seen in
+both frames: skipped.
 """
 
 from __future__ import annotations
@@ -35,6 +36,9 @@ from artclass_core.geometry import transform
 from artclass_core.types import SURFACE
 
 from .projective import hypothesis_costs
+
+# The registrar's hypotheses fitted to all of the object's points are named with this first.
+WHOLE_OBJECT = "object"
 
 
 @dataclass(frozen=True)
@@ -320,10 +324,12 @@ class DenseRule(DecisionRule):
         misfit, enough = p.noise_factor**2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
         depth: list[np.ndarray] = []  # the costs without flow, worked out when first needed
 
-        def needed(a: int, b: int) -> bool:
-            """Whether motion ``a`` explains enough points that ``b`` fails in depth."""
+        def needed(a: int, b: int, *, texture: bool = False) -> bool:
+            """Whether motion ``a`` explains enough points that ``b`` fails in depth (or, with
+            ``texture``, in depth or optical flow)."""
             depth[:] = depth or [self.costs(ev, noise, np.inf)]
-            return int((seen & (costs[a] < misfit / 2) & (depth[0][b] >= misfit)).sum()) >= enough
+            failed = costs[b] if texture else depth[0][b]
+            return int((seen & (costs[a] < misfit / 2) & (failed >= misfit)).sum()) >= enough
 
         for h in chosen[1:]:
             own, rest = ev.points[forward & (labels == h)], ev.points[forward & (labels >= 0) & (labels != h)]
@@ -332,9 +338,13 @@ class DenseRule(DecisionRule):
                 _displacement(rest, ev.motions[h], ev.motions[base]),
             )
             # Each motion must fail points the other explains: two fits of one rigid body explain
-            # nearly the same points, a part and its base do not; and fail them in depth, since
-            # texture alone misleads (stripes that repeat, shading that moves over a turning surface).
-            both_needed = needed(h, base) and needed(base, h)
+            # nearly the same points, a part and its base do not. The part must fail the base's
+            # points in depth, since texture alone misleads (stripes that repeat, shading that moves
+            # over a turning surface); the base may fail the part's in texture (a drawer sliding
+            # along its own surface), unless the part's motion is a fit of the whole object, which
+            # flow on stripes can pull off the object's motion everywhere (a turning striped can).
+            texture = not ev.names[h].startswith(WHOLE_OBJECT)
+            both_needed = needed(h, base, texture=texture) and needed(base, h)
             # ... and a part is one region of the image where its motion is clearly the better one.
             region = regions(decisive == h, layout, stride, min_points=enough // 2, most=1)
             if (
