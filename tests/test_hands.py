@@ -237,8 +237,7 @@ def test_held_needs_a_line_of_contact_not_a_couple_of_pixels():
 def test_arms_reach_the_border_stand_off_the_table_and_touch_the_hand():
     """A region reaching the right border at the hand's height (10 cm over the table), joined to it,
     is an arm; the same region with a front face down to the table (a box resting on it, touched by
-    fingers lying on its top), one that the hand does not reach, and one short of the border are not,
-    unless the rest of it, to the border, has no depth reading (a sleeve too near the sensor)."""
+    fingers lying on its top), one that the hand does not reach, and one short of the border are not."""
     table = Plane(normal=tuple(float(v) for v in UP), offset_m=0.5, inlier_fraction=0.6, noise_m=0.001)
     rows = np.s_[100:130]
     hand = np.zeros((H, W), bool)
