@@ -127,11 +127,8 @@ class DenseRegistrar(PairRegistrar):
         # The object's motion from depth alone too: flow on stripes can mislead the fit as a whole (a
         # helical stripe on a turning can seems to travel along its axis).
         depth_only = _Fit(tgt, no_flow, no_flow, 0.0).each(points, starts[:2], coarse)
-        hyps, names = (
-            [np.eye(4), *whole, *depth_only],
-            ["identity", *(f"{WHOLE_OBJECT}{how}" for how in ("", " (shift)", " (flow)")[: len(whole)])]
-            + [f"{WHOLE_OBJECT} (depth)", f"{WHOLE_OBJECT} (depth, shift)"],
-        )
+        kinds = ["", " (shift)", " (flow)"][: len(whole)] + [" (depth)", " (depth, shift)"]
+        hyps, names = [np.eye(4), *whole, *depth_only], ["identity"] + [f"{WHOLE_OBJECT}{k}" for k in kinds]
 
         cells = _cells(points, size / p.cells_per_diameter, p.min_seed_points)
         if cells.max() >= 0:

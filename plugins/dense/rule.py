@@ -322,13 +322,15 @@ class DenseRule(DecisionRule):
         layout, stride = _layout(ev), int(ev.info.get("stride_px", 1))
         coherence = label_coherence(decisive, layout, stride)
         misfit, enough = p.noise_factor**2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
-        depth: list[np.ndarray] = []  # the costs without flow, worked out when first needed
+        depth = None  # the costs without flow, worked out when first needed
 
         def needed(a: int, b: int, *, texture: bool = False) -> bool:
             """Whether motion ``a`` explains enough points that ``b`` fails in depth (or, with
             ``texture``, in depth or optical flow)."""
-            depth[:] = depth or [self.costs(ev, noise, np.inf)]
-            failed = costs[b] if texture else depth[0][b]
+            nonlocal depth
+            if depth is None:
+                depth = self.costs(ev, noise, np.inf)
+            failed = costs[b] if texture else depth[b]
             return int((seen & (costs[a] < misfit / 2) & (failed >= misfit)).sum()) >= enough
 
         for h in chosen[1:]:
@@ -390,11 +392,10 @@ class DenseRule(DecisionRule):
             )
         moved = motions[0].displacement_m
         reason = f"one motion, moving points by {moved * 1000:.1f} mm (threshold {threshold * 1000:.1f} mm)"
-        # ... and, as a part must, it must be needed in depth: staying still (the registrar's identity
-        # hypothesis) fails points it explains. A fit that slides along a surface depth cannot fix (a
-        # sliver of a still mug beside a moving hand) moves points, but shows no motion.
-        still = next((h for h, T in enumerate(ev.motions) if np.allclose(T, np.eye(4))), None)
-        if moved > threshold and still is not None and still != base and not needed(base, still):
+        # ... and, as a part must, it must be needed in depth: staying still (the evidence's first
+        # hypothesis, the identity) fails points it explains. A fit that slides along a surface depth
+        # cannot fix (a sliver of a still mug beside a moving hand) moves points, but shows no motion.
+        if moved > threshold and not needed(base, 0):
             moved, reason = 0.0, reason + ", but staying still explains the depth as well"
         decision = "RM" if moved > threshold else "NM"
         return RuleDecision(
