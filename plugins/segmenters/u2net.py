@@ -35,6 +35,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from artclass_core import Frame, Sequence, param
 
@@ -253,33 +255,24 @@ def join_salient(
     list of ndarray of bool, shape (H, W)
     """
     n, labels = cv2.connectedComponents(salient.astype(np.uint8), connectivity=8)
-    # union-find over the depth instances (0 .. m - 1) and the salient regions (m + 1 .. m + n - 1)
+    # a graph of the depth instances (nodes 0 .. m - 1) and the salient regions 1 .. n - 1 (nodes
+    # m .. m + n - 2), an edge where a region overlaps an instance; each connected part is one object
     m = len(instances)
-    parent = list(range(m + n))
-
-    def root(k: int) -> int:
-        while parent[k] != k:
-            parent[k] = parent[parent[k]]
-            k = parent[k]
-        return k
-
-    for j, mask in enumerate(instances):
-        for region in np.unique(labels[mask]):
-            if region:
-                parent[root(m + int(region))] = root(j)
-    groups: dict[int, list[int]] = {}
-    for k in list(range(m)) + list(range(m + 1, m + n)):
-        groups.setdefault(root(k), []).append(k)
+    edges = np.array(
+        [(j, m + r - 1) for j, mask in enumerate(instances) for r in np.unique(labels[mask]) if r], np.int64
+    ).reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(m + n - 1, m + n - 1))
+    count, group = connected_components(graph, directed=False)
     least = max(1, int(np.ceil(min_area_fraction * salient.size)))
     out = []
-    for members in groups.values():
-        regions = [k - m for k in members if k >= m]
-        mask = np.isin(labels, regions) if regions else np.zeros(salient.shape, bool)
+    for g in range(count):
+        members = np.flatnonzero(group == g)
+        mask = np.isin(labels, members[members >= m] - m + 1)
         if usable is not None:
             mask &= usable
-        for j in (k for k in members if k < m):
+        for j in members[members < m]:
             mask |= instances[j]
-        if any(k < m for k in members) or np.count_nonzero(mask) >= least:
+        if members[0] < m or np.count_nonzero(mask) >= least:
             out.append(mask)
     return sorted(out, key=lambda x: -int(np.count_nonzero(x)))
 
