@@ -354,6 +354,29 @@ def test_a_fit_that_slides_along_a_still_surface_is_no_motion():
     assert DenseRule().decide(evidence).decision == "RM"  # where staying still fails, the slide is motion
 
 
+def test_misses_within_noise_and_half_a_pixel_make_no_part():
+    """A still object on a camera that shakes by a millimetre, half of it behind a moving hand: its
+    other half fits a slide along its surface a little better than staying still. Each misses the
+    other's points by 1.8 mm: more than 3 sigma of the smoothed depth (0.5 mm), but within 3 sigma
+    plus half a pixel (0.9 mm), what the look-up's rounding to a pixel can give. No part; the same
+    misses at 5 mm are."""
+    region = GRID[1].ravel() >= 20
+    evidence = drawn_evidence(region)
+    rng = np.random.default_rng(3)
+    small = rng.uniform(-0.0004, 0.0004, len(region))
+
+    def missed_by(miss_m: float) -> MotionEvidence:
+        residual = np.stack(
+            [np.where(region, miss_m, small), np.where(region, small, miss_m), np.full(len(region), 0.03)]
+        ).astype(np.float32)
+        return dataclasses.replace(
+            evidence, residual_m=residual, status=np.full((3, len(region)), SURFACE, np.int8), noise_m=0.0005
+        )
+
+    assert DenseRule().decide(missed_by(0.0018)).decision != "AM"
+    assert DenseRule().decide(missed_by(0.005)).decision == "AM"
+
+
 def test_a_part_that_slides_along_its_base_shows_by_texture_unless_it_is_a_fit_of_the_whole():
     """A drawer slides along its carcass: the carcass's motion fits the drawer in depth, and only
     the flow on the drawer's texture says it moved; the drawer's motion fails the carcass in depth. A

@@ -20,8 +20,11 @@ Decision: two or more motions that really differ (their relative motion moves th
 each side by more than ``noise_factor`` sigma plus one pixel, the part fails in depth points that the
 base explains, and the base fails points the part explains, in depth or, unless the part's motion is
 a fit of the whole object, in optical flow) are AM; one motion is RM when it moves the median point
-by as much and explains in depth points that staying still fails, else NM. Too few points seen in
-both frames: skipped.
+by as much and explains in depth points that staying still fails, else NM. A motion fails a point in
+depth when it misses it by more than ``noise_factor`` sigma plus half a pixel (the look-up rounds to
+the nearest pixel, up to half a pixel off the surface where the surface is steep): a still object on
+a shaking camera, half hidden by a moving hand, misses a slide along itself by less. Too few points
+seen in both frames: skipped.
 """
 
 from __future__ import annotations
@@ -328,8 +331,8 @@ class DenseRule(DecisionRule):
             """Whether motion ``a`` explains enough points that ``b`` fails in depth (or, with
             ``texture``, in depth or optical flow)."""
             nonlocal depth
-            if depth is None:
-                depth = self.costs(ev, noise, np.inf)
+            if depth is None:  # a miss counts beyond noise_factor sigma plus the look-up's half pixel
+                depth = self.costs(ev, noise + ev.pixel_m / 2 / p.noise_factor, np.inf)
             failed = costs[b] if texture else depth[b]
             return int((seen & (costs[a] < misfit / 2) & (failed >= misfit)).sum()) >= enough
 
