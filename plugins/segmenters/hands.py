@@ -11,7 +11,10 @@ union of:
   scene seldom reaches it) and its surface, measured with depth, is at least ``hand_min_area_m2``
   (two fingers: specks and patches of skin colour on objects are smaller). A region held above the
   table also reaches the border through pixels without a reading that do, other than projector
-  shadows (an arm nearer than the sensor's range);
+  shadows (an arm nearer than the sensor's range). A hand ends where its colour does: the parts
+  of its region whose chromaticity (normalised rgb) differs by more than ``hand_chroma`` from the
+  skin where the arm holds it, and that rest on the support plane, are an object held there
+  (a wooden box, a cardboard case touched at the hand's own depth), not the hand (:func:`own_colour`);
 * **arms and sleeves, whatever their colour**: a region standing out of the background that reaches
   the image border, is not resting on the support plane (none of its pixels away from depth steps
   comes down to it: its lowest points stand off the plane by more than ``plane_distance_m`` plus the
@@ -45,6 +48,9 @@ The skin model is a fixed published rule, not fitted to any data here: D. Chai a
 Systems for Video Technology 9(4), 551-564, 1999. It ignores luminance, so it holds under most
 lighting, and it is known to accept wood, cardboard and some orange and pink surfaces: that is why
 only regions that reach the image border and stand out of the background planes count.
+Normalised rgb does not change with shading on a matte surface, so the faces of a hand turned
+towards or away from the light keep one chromaticity while another material changes it: T. Gevers
+and A. W. M. Smeulders, "Color-based object recognition", Pattern Recognition 32(3), 453-464, 1999.
 """
 
 from __future__ import annotations
@@ -83,6 +89,8 @@ __all__ = [
     "fingers",
     "pixels_across",
     "projector_shadows",
+    "chromaticity",
+    "own_colour",
     "surface_m2",
 ]
 
@@ -166,6 +174,15 @@ class HandParams(Params):
         help="An object whose pixels next to the hand lie within this depth of the hand's "
         "is held (about a finger's thickness); held objects are chosen first. An "
         "arm joins a hand it comes this close to in 3-D.",
+    )
+    hand_chroma: float = param(
+        0.02,
+        unit="rgb/(r+g+b)",
+        bounds=(0.0, 1.0),
+        help="A hand's skin keeps the chromaticity (normalised rgb) of where its arm "
+        "holds it within this distance: a held object of another shade of skin "
+        "colour (wood, cardboard) that touches it at its depth keeps its pixels; "
+        "shading does not change chromaticity. 0 = off.",
     )
     gripper_hsv: str = param(
         "",
@@ -413,6 +430,12 @@ def find_hands(
                 touch_m=touch,
                 max_area_m2=params.hand_min_area_m2,
             )
+        skin = hand & kinds[0]
+        if params.hand_chroma > 0 and skin.any():
+            carriers = (hand & ~kinds[0]) | (_edge_gaps(d, shadow) if edge is None else edge)
+            hand = (hand & ~skin) | own_colour(
+                skin, carriers, frame.rgb, tolerance=params.hand_chroma, contact=contact
+            )
     if hand.any():
         near, far = _depth_range(d, hand, 1)
         hand |= ~background & step & (far > 0) & ((d == 0) | ((d >= near - touch) & (d <= far + touch)))
@@ -591,6 +614,79 @@ def projector_shadows(depth_m: np.ndarray, *, step_m: float) -> np.ndarray:
     not join the two sides. bool (H, W)."""
     out = np.zeros(depth_m.shape, bool)
     shadow_kernel(np.ascontiguousarray(depth_m, dtype=np.float32), np.float32(step_m), out)
+    return out
+
+
+def chromaticity(rgb: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """Normalised rgb, (r, g, b) / (r + g + b), of the pixels ``where`` (bool (H, W)) of an 8-bit RGB
+    image (H, W, 3), each averaged over its 3x3 neighbourhood first (the camera's noise divided by
+    3): float32 (N, 3), in row-major order. Shading scales r, g and b alike and leaves it unchanged;
+    a change of material does not."""
+    c = cv2.blur(np.ascontiguousarray(rgb, dtype=np.uint8), (3, 3))[where].astype(np.float32)
+    return c / np.maximum(c.sum(axis=1, keepdims=True), np.float32(1.0))
+
+
+# A hand's own colour is read from its pixels within SEED_PX of where its arm holds it, past the
+# MIXED_PX of its outline whose colour is mixed with the arm's (the camera's blur and the 3x3 average).
+SEED_PX = 8
+MIXED_PX = 3
+
+
+def own_colour(
+    skin: np.ndarray,
+    carriers: np.ndarray,
+    rgb: np.ndarray,
+    *,
+    tolerance: float,
+    contact: np.ndarray,
+) -> np.ndarray:
+    """``skin`` without what a hand holds on the table: in each connected region (8-connected) of
+    ``skin``, the pixels whose :func:`chromaticity` lies farther than ``tolerance`` from the median of
+    its *seeds* (its pixels near the image border or near ``carriers``: where the arm holds it) or
+    that connect to the seeds only through those, form pieces; a piece that rests on the support
+    plane (:func:`rests`) is an object the hand holds there, not the hand, and is removed. A piece
+    that does not is kept (the hand, when the sleeve is skin-coloured too); so is a region without
+    seeds.
+
+    Parameters
+    ----------
+    skin : ndarray of bool, shape (H, W) -- the skin-coloured pixels of the hand mask
+    carriers : ndarray of bool, shape (H, W) -- what holds the hand out: its arm, sleeve, and the
+        pixels without a reading where the arm is too near the sensor
+    rgb : ndarray, shape (H, W, 3), uint8, RGB order
+    tolerance : distance in normalised rgb; 0 = ``skin`` unchanged
+    contact : ndarray of bool, shape (H, W) -- the pixels on the support plane (:func:`on_plane`)
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+    """
+    if tolerance <= 0 or not skin.any():
+        return skin
+    # the work is done on the skin's bounding box grown by SEED_PX
+    x, y, bw, bh = cv2.boundingRect(skin.view(np.uint8))
+    h, w = skin.shape
+    box = np.s_[max(y - SEED_PX, 0) : y + bh + SEED_PX, max(x - SEED_PX, 0) : x + bw + SEED_PX]
+    sk, held_by = skin[box], carriers[box]
+    border = np.zeros(sk.shape, bool)
+    border[0], border[-1] = y <= SEED_PX, y + bh + SEED_PX >= h  # the box's sides on the image's
+    border[:, 0] |= x <= SEED_PX
+    border[:, -1] |= x + bw + SEED_PX >= w
+    seeds = sk & widen(held_by | border, SEED_PX) & ~widen(held_by, MIXED_PX)
+    n, labels = cv2.connectedComponents(sk.view(np.uint8), connectivity=8)
+    chroma = np.zeros((*sk.shape, 3), np.float32)
+    chroma[sk] = chromaticity(rgb[box], sk)
+    out = skin.copy()
+    for k in np.unique(labels[seeds]):
+        region = labels == k
+        ref = np.median(chroma[region & seeds], axis=0)
+        own = region & (np.sum((chroma - ref) ** 2, axis=2) <= tolerance * tolerance)
+        _, parts = cv2.connectedComponents(own.view(np.uint8), connectivity=8)
+        other = region & ~np.isin(parts, np.unique(parts[own & seeds]))
+        m, pieces = cv2.connectedComponents(other.view(np.uint8), connectivity=8)
+        on_table = np.bincount(pieces[other & contact[box]], minlength=m) >= CONTACT_PX  # as rests()
+        on_table[0] = False
+        out[box] &= ~on_table[pieces]
     return out
 
 
