@@ -86,6 +86,7 @@ __all__ = [
     "arms",
     "on_plane",
     "rests",
+    "stands_on",
     "fingers",
     "pixels_across",
     "projector_shadows",
@@ -378,7 +379,7 @@ def find_hands(
     if support is None:
         hand = np.logical_or.reduce(found)
     else:
-        regions = [r for kind in found for r in _regions(kind)]
+        regions = [(k, r) for k, kind in enumerate(found) for r in _regions(kind)]  # k: 0 skin, 1 gripper
         contact = (
             on_plane(
                 d,
@@ -392,8 +393,11 @@ def find_hands(
             else None
         )
         hand = np.zeros(d.shape, bool)
-        held_out = [r for r in regions if not rests(r, contact)]  # a skin-coloured object lies on the table
-        for r in regions:
+        # a skin-coloured object stands on the table; a hand that grasps something there only touches
+        # it with its fingertips. A gripper is held out from above: a gripper-coloured region that
+        # touches the table at all is an object lying there
+        held_out = [r for k, r in regions if not (stands_on(r, contact, d) if k == 0 else rests(r, contact))]
+        for _, r in regions:
             if r[0].any() or r[-1].any() or r[:, 0].any() or r[:, -1].any():
                 hand |= r
         # an arm too near the sensor to be measured reaches the border through pixels without a reading
@@ -499,6 +503,23 @@ def rests(region: np.ndarray, contact: np.ndarray) -> bool:
     (``contact``, from :func:`on_plane`): an object lying on the table shows its lower rows just above
     the background cut; an arm held over it does not."""
     return np.count_nonzero(region & contact) >= CONTACT_PX
+
+
+# A region stands on the support plane when at least this share of its lower outline comes down to it.
+STANDING_SHARE = 0.5
+
+
+def stands_on(region: np.ndarray, contact: np.ndarray, depth_m: np.ndarray) -> bool:
+    """Whether ``region`` (bool (H, W)) stands on the support plane: it :func:`rests` on it, and in at
+    least STANDING_SHARE of its columns its lowest pixel with a reading (``depth_m`` > 0) is on it
+    (``contact``). An object standing on a table meets it along the bottom of its outline; a hand
+    held over the table that grasps something lying there touches it with its fingertips only."""
+    seen = region & (depth_m > 0)
+    columns = np.flatnonzero(seen.any(axis=0))
+    if not rests(region, contact) or not len(columns):
+        return False
+    bottom = seen.shape[0] - 1 - np.argmax(seen[::-1, columns], axis=0)
+    return float(np.mean(contact[bottom, columns])) >= STANDING_SHARE
 
 
 def arms(
