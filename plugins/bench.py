@@ -416,7 +416,8 @@ def format_run(m: dict) -> str:
     lines = [
         f"{head}: {m['n_frames']} frames, {m['n_pairs']} pairs ({m['n_decided']} decided), "
         f"label {m['label']}; wall {m['wall_s']:.2f} s, CPU {m['cpu_s']:.2f} s "
-        f"({m['n_pairs'] / m['cpu_s']:.1f} pairs per CPU-second), "
+        f"({m['n_pairs'] / m['cpu_s']:.1f} pairs per CPU-second, {1e3 * m['cpu_s'] / max(m['n_pairs'], 1):.1f} ms "
+        f"of CPU per pair, {m['cpu_s'] / m['wall_s']:.2f} cores busy), "
         f"peak RSS {m['peak_rss_mb']:.0f} MB (after imports {m['rss_base_mb']:.0f} MB), load {m['load']:.1f}; "
         f"before the run, start-up {m.get('start_up_s', 0.0):.2f} s (loading compiled code)",
         f"  {'stage':<11}{'seconds':>9}{'frames/s':>10}{'pairs/s':>10}{'ms/frame':>10}{'ms/pair':>10}",

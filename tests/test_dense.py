@@ -205,6 +205,27 @@ def test_carried_plate_with_a_fixed_lever_is_one_motion():
     assert len(out.motions) == 1
 
 
+@pytest.mark.parametrize("error_px", [12.0, 25.0])
+def test_optical_flow_that_misleads_everywhere_makes_no_part(monkeypatch, error_px):
+    """Stripes can mislead optical flow over a whole object (a helical stripe on a turning can seems
+    to travel along it): every point's flow lands ``error_px`` off where the carry took it. The fits
+    that use the flow are pulled off with it, but the object's motion fitted to depth alone is still
+    a hypothesis: one motion, not a part."""
+    import artclass_plugins.dense.registrar as registrar
+
+    carry = pose(cv2.Rodrigues(np.array([0.02, 0.03, 0.03]))[0], t=(0.01, -0.005, 0.005))
+
+    def misled(source, target, **_):
+        moved = source.points @ carry[:3, :3].T + carry[:3, 3]
+        u = K.fx * moved[:, 0] / moved[:, 2] + K.cx + error_px
+        v = K.fy * moved[:, 1] / moved[:, 2] + K.cy
+        return np.column_stack([u, v]), np.full((len(u), 2), np.nan)
+
+    monkeypatch.setattr(registrar, "flow_targets", misled)
+    _, out, _ = decide(plate_with_lever(20.0), plate_with_lever(20.0, carry, index=1))
+    assert out.decision == "RM", out.reason
+
+
 def test_flat_plate_sliding_in_its_own_plane_is_one_motion_not_a_static_scene():
     """A texture-rich flat plate slides 1 cm along itself: depth alone cannot see it, flow does."""
     slide = pose(t=(0.01, 0.0, 0.0))

@@ -18,7 +18,7 @@ from artclass_core.geometry import transform
 from artclass_core.scheduler import worker_pool
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
 from artclass_plugins.dense.flow import flow_targets
-from artclass_plugins.dense.image import ImagePreprocessor, normal_map, vertex_map
+from artclass_plugins.dense.image import ImagePreprocessor, finite_depth, normal_map, vertex_map
 from artclass_plugins.dense.projective import (
     NEAR_MASK_PX,
     Target,
@@ -112,6 +112,13 @@ def _ref_plane(moved, target, u, v):
     return np.einsum("ij,ij->i", moved - y, n), (z > 0) & n.any(axis=1)
 
 
+def _whole_image(box, origin, shape):
+    """A distance to the mask kept in a box (top-left pixel ``origin``) as a whole image: inf beyond."""
+    full = np.full(shape, np.inf, np.float32)
+    full[origin[0] : origin[0] + box.shape[0], origin[1] : origin[1] + box.shape[1]] = box
+    return full
+
+
 def _ref_look(moved, target, reach, off_px):
     u, v, inside = _ref_project(moved, target.scene_m.shape)
     scene = np.where(inside, target.scene_m[v, u], 0)
@@ -121,7 +128,7 @@ def _ref_look(moved, target, reach, off_px):
     status[seen & (gap < -reach)] = OCCLUDED
     status[seen & (gap > reach)] = FREE_SPACE
     near = seen & (np.abs(gap) <= reach)
-    off = near & (target.outside_px[v, u] > off_px)
+    off = near & (_whole_image(target.outside_px, target.outside_origin, target.scene_m.shape)[v, u] > off_px)
     status[off] = OFF_OBJECT
     status[near & ~off] = SURFACE
     plane, has = _ref_plane(moved, target, u, v)
@@ -278,6 +285,18 @@ def test_compiled_normals_equal_the_numpy_reference_to_the_bit():
     assert 0.2 < has.sum() / (depth > 0).sum() < 1
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_finite_depth_equals_the_numpy_expression_to_the_bit(dtype):
+    """NaN, infinities, negative zero and values that round to float32 on the way."""
+    depth = np.random.default_rng(2).uniform(0.2, 3.0, (7, 9)).astype(dtype)
+    depth[0, :4] = [np.nan, np.inf, -np.inf, -0.0]
+    ref = np.where(np.isfinite(depth), depth, 0).astype(np.float32)
+    got = finite_depth(depth)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32))
+    assert np.isfinite(depth[1:]).all() and not got[0, :3].any()
+
+
 @pytest.mark.parametrize("use_flow", [False, True])
 def test_icp_recovers_a_known_motion(pair, use_flow):
     """3 degrees and 1 cm, from the identity: within 0.5 mm at the surface."""
@@ -355,9 +374,13 @@ def test_distance_to_the_mask_is_exact_near_it():
     mask[0:5, 150:160] = True  # touching the image border
     full = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 3)
     near = full <= NEAR_MASK_PX
-    np.testing.assert_allclose(_outside(mask)[near], full[near], atol=1e-5)
-    assert (_outside(mask)[~near] > NEAR_MASK_PX).all()
-    assert np.isinf(_outside(np.zeros((10, 10), bool))).all()
+
+    def kept(mask):
+        return _whole_image(*_outside(mask), mask.shape)
+
+    np.testing.assert_allclose(kept(mask)[near], full[near], atol=1e-5)
+    assert (kept(mask)[~near] > NEAR_MASK_PX).all()
+    assert np.isinf(kept(np.zeros((10, 10), bool))).all()
 
 
 def test_near_copies_are_dropped_as_by_their_point_distances():

@@ -1,6 +1,7 @@
 """The compiled (Numba) per-point loops of :mod:`.projective`: projection, look-up and the normal
 equations of projective ICP, one pass over the points where numpy makes a dozen temporary arrays;
-and the image preprocessor's median of the valid neighbours and normals."""
+and the image preprocessor's passes over the depth image (finite depths, the median of the valid
+neighbours, normals). All release the GIL, so that worker threads run them at the same time."""
 
 from __future__ import annotations
 
@@ -46,7 +47,19 @@ def _moved(T, p0, p1, p2):
 
 
 @njit(cache=True, nogil=True)
-def look_kernel(motions, points, scene, depth, normals, outside, camera, reach, off_px, status, residual):
+def _outside_at(outside, v0, u0, v, u):
+    """The distance to the mask at pixel (u, v), from its values in a box whose top-left pixel is
+    (u0, v0): inf beyond the box."""
+    i, j = v - v0, u - u0
+    if i >= 0 and i < outside.shape[0] and j >= 0 and j < outside.shape[1]:
+        return outside[i, j]
+    return np.inf
+
+
+@njit(cache=True, nogil=True)
+def look_kernel(
+    motions, points, scene, depth, normals, outside, v0, u0, camera, reach, off_px, status, residual
+):
     h, w = scene.shape
     for k in range(motions.shape[0]):
         for i in range(points.shape[0]):
@@ -61,7 +74,7 @@ def look_kernel(motions, points, scene, depth, normals, outside, camera, reach, 
                 status[k, i] = OCCLUDED
             elif gap > reach[i]:
                 status[k, i] = FREE_SPACE
-            elif outside[v, u] > off_px:
+            elif _outside_at(outside, v0, u0, v, u) > off_px:
                 status[k, i] = OFF_OBJECT
             else:
                 status[k, i] = SURFACE
@@ -172,13 +185,18 @@ def _normal_equations(
     b[:] = 0
     rows[:] = 0
     inliers[:] = 0
+    moved_centre = np.empty((T.shape[0], 3))
+    for g in range(T.shape[0]):
+        moved_centre[g, 0], moved_centre[g, 1], moved_centre[g, 2] = _moved(
+            T[g], centre[g, 0], centre[g, 1], centre[g, 2]
+        )
     for i in range(points.shape[0]):
         if not use[i]:
             continue
         g = groups[i]
         q0, q1, q2 = _moved(T[g], points[i, 0], points[i, 1], points[i, 2])
-        m0, m1, m2 = _moved(T[g], centre[g, 0], centre[g, 1], centre[g, 2])
-        a0, a1, a2 = q0 - m0, q1 - m1, q2 - m2  # lever arm about the moved centroid
+        # lever arm about the moved centroid
+        a0, a1, a2 = q0 - moved_centre[g, 0], q1 - moved_centre[g, 1], q2 - moved_centre[g, 2]
         u, v = _pixel(q0, q1, q2, camera, h, w)
         if u >= 0:
             r = _plane_residual(q0, q1, q2, u, v, depth, normals, camera)
@@ -313,6 +331,16 @@ def icp_kernel(
 
 
 @njit(cache=True, nogil=True)
+def finite_or_zero(depth, out):
+    """``out`` (H, W) float32 := ``depth`` (H, W) where it is finite, else 0: numpy's
+    ``np.where(np.isfinite(depth), depth, 0).astype(np.float32)`` in one pass."""
+    for v in range(depth.shape[0]):
+        for u in range(depth.shape[1]):
+            x = depth[v, u]
+            out[v, u] = x if np.isfinite(x) else 0
+
+
+@njit(cache=True, nogil=True)
 def valid_median_kernel(
     depth: np.ndarray, valid: np.ndarray, todo: np.ndarray, out: np.ndarray, radius: int, min_count: int
 ) -> None:
@@ -344,19 +372,27 @@ def valid_median_kernel(
 
 
 @njit(cache=True, nogil=True)
+def _mean(total, support, v, u, c):
+    """The window mean of a vertex coordinate: its window's blur over its window's support, as numpy
+    divides by ``np.maximum(support, 1e-6)`` in float32."""
+    return total[v, u, c] / max(support[v, u], np.float32(1e-6))
+
+
+@njit(cache=True, nogil=True)
 def normals_kernel(
     vertices: np.ndarray,
-    mean: np.ndarray,
+    total: np.ndarray,
     support: np.ndarray,
     h: int,
     min_support: np.float32,
     out: np.ndarray,
 ) -> None:
     """``out`` (H, W, 3) of :func:`.image.normal_map` at the pixels ``h`` or more inside the border:
-    the cross product of the central differences of ``mean`` across 2 h pixels, made unit and turned
-    to face the camera; left as it is (0) where the vertex is missing, the product is 0 or one of the
-    five windows has less than ``min_support`` valid. All in float32, in numpy's order of operations,
-    so the normals are numpy's to the bit."""
+    the cross product of the central differences across 2 h pixels of the window means (``total``,
+    the windows' blur of the vertices, over ``support``, the windows' share of valid pixels), made
+    unit and turned to face the camera; left as it is (0) where the vertex is missing, the product is
+    0 or one of the five windows has less than ``min_support`` valid. All in float32, in numpy's order
+    of operations, so the normals are numpy's to the bit."""
     rows, cols = support.shape
     tiny = np.float32(1e-12)
     for v in range(h, rows - h):
@@ -370,12 +406,12 @@ def normals_kernel(
                 and support[v - h, u] >= min_support
             ):
                 continue
-            dx0 = mean[v, u + h, 0] - mean[v, u - h, 0]
-            dx1 = mean[v, u + h, 1] - mean[v, u - h, 1]
-            dx2 = mean[v, u + h, 2] - mean[v, u - h, 2]
-            dy0 = mean[v + h, u, 0] - mean[v - h, u, 0]
-            dy1 = mean[v + h, u, 1] - mean[v - h, u, 1]
-            dy2 = mean[v + h, u, 2] - mean[v - h, u, 2]
+            dx0 = _mean(total, support, v, u + h, 0) - _mean(total, support, v, u - h, 0)
+            dx1 = _mean(total, support, v, u + h, 1) - _mean(total, support, v, u - h, 1)
+            dx2 = _mean(total, support, v, u + h, 2) - _mean(total, support, v, u - h, 2)
+            dy0 = _mean(total, support, v + h, u, 0) - _mean(total, support, v - h, u, 0)
+            dy1 = _mean(total, support, v + h, u, 1) - _mean(total, support, v - h, u, 1)
+            dy2 = _mean(total, support, v + h, u, 2) - _mean(total, support, v - h, u, 2)
             n0 = dx1 * dy2 - dx2 * dy1
             n1 = dx2 * dy0 - dx0 * dy2
             n2 = dx0 * dy1 - dx1 * dy0

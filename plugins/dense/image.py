@@ -81,6 +81,15 @@ def noise_m(depth_m: np.ndarray | float, at_1m: float) -> np.ndarray | float:
     return at_1m * np.square(depth_m)
 
 
+def finite_depth(depth_m: np.ndarray) -> np.ndarray:
+    """A copy (H, W) float32 of a depth image (metres) with its non-finite pixels set to 0."""
+    from .projective import kernels  # Numba, on first use
+
+    out = np.empty(depth_m.shape, np.float32)
+    kernels().finite_or_zero(depth_m, out)
+    return out
+
+
 def bounding_box(mask: np.ndarray, *, margin_px: int = 0) -> tuple[tuple[int, int], tuple[int, int]] | None:
     """Rows (first, last + 1) and columns (first, last + 1) of a mask's pixels, widened by
     ``margin_px`` on every side within the image; None for an empty mask."""
@@ -112,14 +121,15 @@ def normal_map(vertices: np.ndarray, *, window_px: int = 5, min_support: float =
     its pixels are lost) still has normals; then central differences across the window. Zero where
     fewer than ``min_support`` of a window's pixels are valid.
     """
-    valid = (vertices[..., 2] > 0).astype(np.float32)
     k = (window_px, window_px)
-    support = cv2.blur(valid, k)
-    mean = cv2.blur(vertices * valid[..., None], k) / np.maximum(support, 1e-6)[..., None]
+    support = cv2.blur((vertices[..., 2] > 0).astype(np.float32), k)
+    # Missing pixels are zero, so the blur of the vertices is already the sum over the valid ones;
+    # the kernel divides it by the support only at the pixels it differentiates.
+    total = cv2.blur(vertices, k)
     normals = np.zeros_like(vertices)
     from .projective import kernels  # Numba, on first use
 
-    kernels().normals_kernel(vertices, mean, support, window_px // 2, np.float32(min_support), normals)
+    kernels().normals_kernel(vertices, total, support, window_px // 2, np.float32(min_support), normals)
     return normals
 
 
@@ -214,7 +224,7 @@ class ImagePreprocessor(Preprocessor):
 
     def process(self, frame: Frame, mask: np.ndarray, *, intrinsics: Intrinsics) -> Cloud:
         p = self.params
-        raw = np.where(np.isfinite(frame.depth_m), frame.depth_m, 0).astype(np.float32)
+        raw = finite_depth(frame.depth_m)
         mask = mask.astype(bool)
         px = p.edge_px if p.edge_px is not None else max(1, round(intrinsics.width / 160))
         # Everything below works on the mask's bounding box, with a margin wider than the filters reach.

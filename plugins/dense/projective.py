@@ -16,7 +16,7 @@ import numpy as np
 
 from artclass_core import ArtclassError, Cloud, Intrinsics
 
-from .image import bounding_box, normal_map, valid_median, vertex_map
+from .image import bounding_box, finite_depth, normal_map, valid_median, vertex_map
 
 # Gauss-Newton damping, relative to the trace of the normal equations: keeps the step of a group whose
 # points cannot fix all six degrees of freedom (a flat patch slides in its plane) small and unique.
@@ -36,7 +36,10 @@ class Target:
     scene_m: np.ndarray  # (H, W) the whole frame's depth, 0 = none
     object_m: np.ndarray  # (H, W) the object's filtered depth, 0 outside it
     normals: np.ndarray  # (H, W, 3) normals of object_m's pixels, 0 = none
-    outside_px: np.ndarray  # (H, W) distance to the object's mask, 0 inside, inf far from it
+    # distance to the object's mask (0 inside) in the mask's box widened by NEAR_MASK_PX, whose
+    # top-left pixel is outside_origin (row, column); inf beyond the box
+    outside_px: np.ndarray
+    outside_origin: tuple[int, int]
 
     @classmethod
     def of(cls, cloud: Cloud) -> Target:
@@ -46,17 +49,18 @@ class Target:
                 "the dense registrar needs clouds that keep their image (pixels, normals and mask), "
                 "as the 'image' preprocessor gives; use it, or a per-cell registrar"
             )
-        return cls(view.intrinsics, view.scene_depth_m, view.depth_m, view.normals, _outside(view.mask))
+        return cls(view.intrinsics, view.scene_depth_m, view.depth_m, view.normals, *_outside(view.mask))
 
 
-def _outside(mask: np.ndarray) -> np.ndarray:
-    """Distance (pixels, float32) of each pixel to the mask: exact up to ``NEAR_MASK_PX``, inf beyond."""
-    out = np.full(mask.shape, np.inf, np.float32)
+def _outside(mask: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
+    """Distance (pixels, float32) of each pixel to the mask, exact up to ``NEAR_MASK_PX``: in the mask's
+    box widened by that, with the box's top-left pixel (row, column); every pixel beyond it is farther.
+    An empty mask gives an empty box."""
     box = bounding_box(mask, margin_px=NEAR_MASK_PX)
-    if box is not None:
-        (v0, v1), (u0, u1) = box
-        out[v0:v1, u0:u1] = cv2.distanceTransform((~mask[v0:v1, u0:u1]).astype(np.uint8), cv2.DIST_L2, 3)
-    return out
+    if box is None:
+        return np.zeros((0, 0), np.float32), (0, 0)
+    (v0, v1), (u0, u1) = box
+    return cv2.distanceTransform((~mask[v0:v1, u0:u1]).astype(np.uint8), cv2.DIST_L2, 3), (v0, u0)
 
 
 def look_all(
@@ -87,6 +91,7 @@ def look_all(
         target.object_m,
         target.normals,
         target.outside_px,
+        *target.outside_origin,
         _camera(target.intrinsics),
         np.ascontiguousarray(reach_m, np.float64),
         float(off_object_px),
@@ -259,7 +264,12 @@ def warm_up() -> None:
     normals = np.zeros(shape + (3,), np.float32)
     normals[..., 2] = -1
     target = Target(
-        Intrinsics(8.0, 8.0, 3.5, 3.5, width=8, height=8), depth, depth, normals, np.zeros(shape, np.float32)
+        Intrinsics(8.0, 8.0, 3.5, 3.5, width=8, height=8),
+        depth,
+        depth,
+        normals,
+        np.zeros(shape, np.float32),
+        (0, 0),
     )
     points = np.column_stack([np.zeros((n, 2)), np.full(n, 0.5)])
     motions = np.eye(4)[None]
@@ -284,7 +294,7 @@ def warm_up() -> None:
         np.eye(3) + [0, 0, 0.5], np.eye(3) + [0, 0, 0.5], inlier_m=0.01, groups=np.zeros(3, np.int64)
     )
     kernels().distinct_kernel(motions[:, :3].copy(), np.eye(4), 0.001, np.empty(1, np.bool_))
-    valid_median(depth, depth > 0)
+    valid_median(finite_depth(depth), depth > 0)
     normal_map(vertex_map(depth, target.intrinsics))
 
 

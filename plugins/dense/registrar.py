@@ -3,7 +3,8 @@
 1. Optical flow gives, on texture, where each source point went (3D correspondences through the
    target's depth).
 2. The object's motion: projective point-to-plane ICP of all points, coarse to fine, from the
-   identity, from the shift of the median point and from the flow's motion.
+   identity, from the shift of the median point and from the flow's motion; and from the first two
+   again on depth alone, in case the flow misleads everywhere (stripes).
 3. Local motions, seeded from the paper's grid cells (edge x = diameter / ``cells_per_diameter``):
    each cell's flow motion (or the object's), refined by ICP on the cell's points; all cells at once.
 4. Every hypothesis is scored on every point (:func:`~.projective.look_all`, and the flow), and the
@@ -122,9 +123,13 @@ class DenseRegistrar(PairRegistrar):
             inits.append(robust_kabsch(points[matched], matches[matched], inlier_m=fine))
         fit = _Fit(tgt, flow_px, across, noise / rule.flow_sigma_px)
         whole = fit.each(points, np.stack(inits), coarse)
+        # The object's motion from depth alone too: flow on stripes can mislead the fit as a whole (a
+        # helical stripe on a turning can seems to travel along its axis).
+        depth_only = _Fit(tgt, no_flow, no_flow, 0.0).each(points, np.stack(inits[:2]), coarse)
         hyps, names = (
-            [np.eye(4), *whole],
-            ["identity", "object", "object (shift)", "object (flow)"][: 1 + len(whole)],
+            [np.eye(4), *whole, *depth_only],
+            ["identity", "object", "object (shift)", "object (flow)"][: 1 + len(whole)]
+            + ["object (depth)", "object (depth, shift)"],
         )
 
         cells = _cells(points, size / p.cells_per_diameter, p.min_seed_points)
