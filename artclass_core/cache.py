@@ -62,7 +62,9 @@ class StageCache:
             if key not in self._tokens:
                 self._tokens[key] = self._next_token
                 self._next_token += 1
-                weakref.finalize(sequence, self._forget, key)
+                # The finalizer holds the cache weakly: a cache dropped by its user is freed at once,
+                # not kept (with every cloud in it) for as long as the sequence lives.
+                weakref.finalize(sequence, _forget_in, weakref.ref(self), key)
             return self._tokens[key]
 
     def get(self, stage: str, key: tuple) -> Any | None:
@@ -121,3 +123,9 @@ class StageCache:
                 hits=dict(self.hits),
                 misses=dict(self.misses),
             )
+
+
+def _forget_in(cache: weakref.ref[StageCache], sequence_id: int) -> None:
+    alive = cache()
+    if alive is not None:
+        alive._forget(sequence_id)

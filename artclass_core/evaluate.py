@@ -177,6 +177,7 @@ def evaluate(
     outcomes = []
     for n, seq in enumerate(sequences):
         outcomes.append(run_outcome(pipeline, seq, workers=workers)[0])
+        seq.forget_frames()
         if progress:
             progress("sequences", n + 1, len(sequences))
     return evaluation(config, outcomes)

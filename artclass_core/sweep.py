@@ -163,9 +163,12 @@ def sequence_rows(
             outcome = SequenceOutcome(source.name, source.name, "", (), None, error=one_line(exc))
             yield n, _row(source, setting, outcome, None), outcome
         return
-    for n, pipeline, cache in plan:
-        outcome, result = run_outcome(pipeline, seq, workers=workers, cache=cache)
-        yield n, _row(source, settings[n], outcome, result), outcome
+    try:
+        for n, pipeline, cache in plan:
+            outcome, result = run_outcome(pipeline, seq, workers=workers, cache=cache)
+            yield n, _row(source, settings[n], outcome, result), outcome
+    finally:
+        seq.forget_frames()  # the caller may keep the sequence open (evaluating a whole folder does)
 
 
 def _plan(

@@ -131,6 +131,11 @@ class Sequence:
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.name!r}: {self.n_frames} frames from {self.path}>"
 
+    def forget_frames(self) -> None:
+        """Drop the frames kept in memory; they are read again when next asked for. Call it when done
+        with a sequence that stays open, as an evaluation of many sequences does with each."""
+        self.frame.cache_clear()
+
     def load(self, i: int) -> Frame:
         """Read frame ``i`` from disk. Raise :class:`InputError` naming the file on bad data."""
         raise NotImplementedError

@@ -320,6 +320,21 @@ def test_cache_is_bounded_and_forgets_dead_sequences(registry):
     assert cache.stats()["frames"] == 0 and cache.stats()["pairs"] == 0
 
 
+def test_a_dropped_cache_is_freed_while_its_sequence_lives(registry):
+    """Evaluating a folder keeps every sequence open and runs each with a cache of its own: a cache
+    must not live (with every frame's cloud in it) for as long as the sequences do."""
+    seq = make_sequence("rigid", n_frames=4)
+    cache = StageCache()
+    Pipeline(registry, config()).run(seq, cache=cache)
+    gone = weakref.ref(cache)
+    del cache
+    gc.collect()
+    assert gone() is None
+    Pipeline(registry, config()).run(seq, cache=StageCache())  # the old cache's finalizer is harmless
+    del seq
+    gc.collect()
+
+
 # -- re-deciding ---------------------------------------------------------------------------------------
 
 

@@ -146,6 +146,7 @@ def test_rows_equal_separate_runs(registry, sequences, tmp_path):
     assert list(zip(table.sequence, table.setting)) == [
         (s.name, st.label) for s in sequences for st in settings
     ]
+    assert not any(s.frame.cache_info().currsize for s in sequences), "frames kept after the sweep"
     seen = set()
     for row in table.itertuples():
         seq = next(s for s in sequences if s.name == row.sequence)

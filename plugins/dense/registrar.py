@@ -122,10 +122,11 @@ class DenseRegistrar(PairRegistrar):
         if matched.sum() >= _MIN_FLOW_MATCHES:
             inits.append(robust_kabsch(points[matched], matches[matched], inlier_m=fine))
         fit = _Fit(tgt, flow_px, across, noise / rule.flow_sigma_px)
-        whole = fit.each(points, np.stack(inits), coarse)
+        starts = np.stack(inits)
+        whole = fit.each(points, starts, coarse)
         # The object's motion from depth alone too: flow on stripes can mislead the fit as a whole (a
         # helical stripe on a turning can seems to travel along its axis).
-        depth_only = _Fit(tgt, no_flow, no_flow, 0.0).each(points, np.stack(inits[:2]), coarse)
+        depth_only = _Fit(tgt, no_flow, no_flow, 0.0).each(points, starts[:2], coarse)
         hyps, names = (
             [np.eye(4), *whole, *depth_only],
             ["identity", "object", "object (shift)", "object (flow)"][: 1 + len(whole)]
