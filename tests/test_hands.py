@@ -243,16 +243,17 @@ def test_held_needs_a_line_of_contact_not_a_couple_of_pixels():
 def test_arms_reach_the_border_stand_off_the_table_and_touch_the_hand():
     """A region reaching the right border at the hand's height (10 cm over the table), joined to it,
     is an arm; the same region with a front face down to the table (a box resting on it, touched by
-    fingers lying on its top), one that the hand does not reach, and one short of the border are not."""
+    fingers lying on its top), one that the hand does not reach, and one short of the border are not,
+    unless the rest of it, to the border, has no depth reading (a sleeve too near the sensor)."""
     table = Plane(normal=tuple(float(v) for v in UP), offset_m=0.5, inlier_fraction=0.6, noise_m=0.001)
     rows = np.s_[100:130]
     hand = np.zeros((H, W), bool)
     hand[rows, 150:200] = True
 
-    def arm_of(region: np.ndarray, height: np.ndarray) -> np.ndarray:
+    def arm_of(region: np.ndarray, height: np.ndarray, edge: np.ndarray | None = None) -> np.ndarray:
         depth = table_depth(height).astype(np.float32)
         contact = on_plane(depth, INTR, table, step=np.zeros((H, W), bool), plane_distance_m=0.012)
-        return arms(region, hand, depth, INTR, contact=contact, touch_m=0.02)
+        return arms(region, hand, depth, INTR, contact=contact, touch_m=0.02, edge=edge)
 
     sleeve = np.zeros((H, W), bool)
     sleeve[rows, 200:] = True
@@ -269,6 +270,10 @@ def test_arms_reach_the_border_stand_off_the_table_and_touch_the_hand():
     assert not arm_of(sleeve, away).any()
     short = sleeve & (np.arange(W)[None, :] < W - 10)
     assert not arm_of(short, np.where(hand | short, 0.10, 0.0)).any()
+    # the rest of the sleeve, too near the sensor to be measured, reaches the border without a reading
+    unread = sleeve & ~short
+    assert mask_iou(arm_of(short, np.where(hand | short, 0.10, 0.0), edge=unread), short) > 0.97
+    assert not arm_of(short, np.where(hand | short, 0.10, 0.0), edge=np.roll(unread, 40, axis=0)).any()
 
 
 # -- whole frames and sequences --------------------------------------------------------------------

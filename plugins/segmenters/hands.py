@@ -16,12 +16,13 @@ union of:
   skin where the arm holds it, and that rest on the support plane, are an object held there
   (a wooden box, a cardboard case touched at the hand's own depth), not the hand (:func:`own_colour`);
 * **arms and sleeves, whatever their colour**: a region standing out of the background that reaches
-  the image border, is not resting on the support plane (none of its pixels away from depth steps
-  comes down to it: its lowest points stand off the plane by more than ``plane_distance_m`` plus the
-  plane's noise and a pixel's size at their depth), and touches a hand-sized skin region in 3-D (a
-  sleeve, a glove's cuff, the forearm of a robot arm), is an arm: it is removed with the hand, and
-  the hand it holds reaches the border through it. An object that reaches the border while it lies
-  on the table is kept;
+  the image border (or the pixels without a reading that do: a sleeve too near the sensor to be
+  measured but for its rim), is not resting on the support plane (none of its pixels away from
+  depth steps comes down to it: its lowest points stand off the plane by more than
+  ``plane_distance_m`` plus the plane's noise and a pixel's size at their depth), and touches a
+  hand-sized skin region in 3-D (a sleeve, a glove's cuff, the forearm of a robot arm), is an arm:
+  it is removed with the hand, and the hand it holds reaches the border through it. An object that
+  reaches the border while it lies on the table is kept;
 * **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``, or, when
   that is not set, the box the sequence's own settings give as ``gripper_hsv`` (a robot rig knows
   its gripper: the native folder format reads it from ``meta.json``); its regions are found apart
@@ -400,13 +401,12 @@ def find_hands(
         for _, r in regions:
             if r[0].any() or r[-1].any() or r[:, 0].any() or r[:, -1].any():
                 hand |= r
-        # an arm too near the sensor to be measured reaches the border through pixels without a reading
-        edge = None  # computed when first needed
+        # an arm too near the sensor to be measured reaches the border through pixels without a
+        # reading; so does a sleeve of which only the rim is measured
+        edge = _edge_gaps(d, shadow) if held_out else None
         for r in held_out:
-            if not hand[r].any():
-                edge = _edge_gaps(d, shadow) if edge is None else edge
-                if _touches(r, edge):
-                    hand |= r
+            if not hand[r].any() and _touches(r, edge):
+                hand |= r
         arm = (
             arms(
                 ~background & ~candidates & ~step & (d > 0),
@@ -415,6 +415,7 @@ def find_hands(
                 intrinsics,
                 contact=contact,
                 touch_m=touch,
+                edge=edge,
             )
             if held_out
             else hand
@@ -530,9 +531,12 @@ def arms(
     *,
     contact: np.ndarray,
     touch_m: float,
+    edge: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The arms (sleeves) among the regions of ``foreground``: those that reach the image border, do not
-    rest on the support plane, and touch ``hands`` in 3-D.
+    """The arms (sleeves) among the regions of ``foreground``: those that reach the image border (or
+    ``edge``, the pixels without a reading that do: an arm nearer than the sensor's range, of which
+    only a rim farther away is measured), do not rest on the support plane, and touch ``hands`` in
+    3-D.
 
     Parameters
     ----------
@@ -544,6 +548,8 @@ def arms(
     contact : ndarray of bool, shape (H, W) -- the pixels on the support plane (:func:`on_plane`)
     touch_m : metres -- how far an arm may be from the hand it joins, in depth and across the image
         (at the hand's median depth)
+    edge : ndarray of bool, shape (H, W), optional -- the pixels without a reading connected to the
+        image border (:func:`_edge_gaps`)
 
     Returns
     -------
@@ -553,8 +559,10 @@ def arms(
     if not hands.any():
         return out
     n, labels, stats = label_regions(_open(foreground))
-    reach = np.flatnonzero(_at_border(stats, foreground.shape)) + 1
-    regions = [labels == k for k in reach]
+    reach = _at_border(stats, foreground.shape)
+    if edge is not None:
+        reach |= np.bincount(labels[widen(edge, 1)], minlength=n)[1:] > 0
+    regions = [labels == k for k in np.flatnonzero(reach) + 1]
     for region, touches in zip(regions, _touching(regions, hands, depth_m, intrinsics, touch_m=touch_m)):
         if touches and not rests(region, contact):
             out |= region
