@@ -31,6 +31,7 @@ from artclass_plugins.segmenters.hands import (
     held,
     hsv_mask,
     on_plane,
+    own_colour,
     parse_hsv,
     projector_shadows,
     skin_mask,
@@ -642,6 +643,28 @@ def test_a_held_object_of_another_skin_shade_keeps_its_pixels():
         scene[0], sequence=scene
     )
     assert np.count_nonzero(without & wood) > 0.25 * np.count_nonzero(wood)
+
+
+def test_the_colour_of_a_hand_is_read_inside_its_outline():
+    """A hand (resting on the table along its lower rows) held by a sleeve to its right, with a wooden
+    block in its fingers (left of it, on the table too), and a strip 5 px thin of the table's colour
+    along the sleeve's top, 2 px above it (mixed pixels of the sleeve's outline against the table,
+    skin-coloured and joined to the hand): the hand's colour is read inside its outline, so the
+    strip, though it lies along the sleeve, does not set it. The hand is kept; the block is cut off
+    (reading the colour near the sleeve alone, the strip's colour was the hand's and the hand was
+    cut: checked)."""
+    hand, carriers, block, strip = (np.zeros((H, W), bool) for _ in range(4))
+    hand[95:130, 120:200] = True
+    carriers[100:130, 200:300] = True
+    block[95:130, 90:120] = True
+    strip[93:98, 200:300] = True
+    rgb = np.zeros((H, W, 3), np.uint8)
+    rgb[hand], rgb[block | strip] = LIGHT_SKIN, (120, 80, 50)
+    contact = np.zeros((H, W), bool)
+    contact[125:130, 90:200] = True
+    kept = own_colour(hand | block | strip, carriers, rgb, tolerance=0.02, contact=contact)
+    assert kept[hand].all()
+    assert not kept[block].any()
 
 
 def test_a_hand_of_another_shade_than_its_skin_coloured_sleeve_stays_whole():

@@ -656,7 +656,8 @@ def chromaticity(rgb: np.ndarray, where: np.ndarray) -> np.ndarray:
 
 
 # A hand's own colour is read from its pixels within SEED_PX of where its arm holds it, past the
-# MIXED_PX of its outline whose colour is mixed with the arm's (the camera's blur and the 3x3 average).
+# MIXED_PX of its outline whose colour is mixed with the arm's or the background's (the camera's blur,
+# the 3x3 average, and the thin strips of mixed pixels along a sleeve's outline that look like skin).
 SEED_PX = 8
 MIXED_PX = 3
 
@@ -671,11 +672,11 @@ def own_colour(
 ) -> np.ndarray:
     """``skin`` without what a hand holds on the table: in each connected region (8-connected) of
     ``skin``, the pixels whose :func:`chromaticity` lies farther than ``tolerance`` from the median of
-    its *seeds* (its pixels near the image border or near ``carriers``: where the arm holds it) or
-    that connect to the seeds only through those, form pieces; a piece that rests on the support
-    plane (:func:`rests`) is an object the hand holds there, not the hand, and is removed. A piece
-    that does not is kept (the hand, when the sleeve is skin-coloured too); so is a region without
-    seeds.
+    its *seeds* (its pixels near the image border or near ``carriers``: where the arm holds it; more
+    than MIXED_PX inside the region's outline) or that connect to the seeds only through those, form
+    pieces; a piece that rests on the support plane (:func:`rests`) is an object the hand holds
+    there, not the hand, and is removed. A piece that does not is kept (the hand, when the sleeve is
+    skin-coloured too); so is a region without seeds.
 
     Parameters
     ----------
@@ -701,7 +702,7 @@ def own_colour(
     border[0], border[-1] = y <= SEED_PX, y + bh + SEED_PX >= h  # the box's sides on the image's
     border[:, 0] |= x <= SEED_PX
     border[:, -1] |= x + bw + SEED_PX >= w
-    seeds = sk & widen(held_by | border, SEED_PX) & ~widen(held_by, MIXED_PX)
+    seeds = ~widen(~sk, MIXED_PX) & widen(held_by | border, SEED_PX) & ~widen(held_by, MIXED_PX)
     n, labels = cv2.connectedComponents(sk.view(np.uint8), connectivity=8)
     chroma = np.zeros((*sk.shape, 3), np.float32)
     chroma[sk] = chromaticity(rgb[box], sk)
