@@ -1,8 +1,8 @@
 """Accuracy and cost of the built-in joint estimator against pose noise, on synthetic joints.
 
-    python benchmarks/joint_accuracy.py [--seeds 5] [--frames 60] [--outliers 3]
+    python benchmarks/joint_accuracy.py [--seeds 5] [--frames 60] [--outliers 3] [--turn-deg 74] [--slide-mm 300]
 
-For each noise level and joint type (a 74 degree turn 20 cm from the axis, a 30 cm slide, no motion)
+For each noise level and joint type (a turn 20 cm from the axis, a slide, no motion)
 prints the share of right joint types and the median errors over the seeds: axis direction
 (degrees), axis position at the part (mm), state (degrees or mm), and the CPU time of one fit (ms).
 """
@@ -19,7 +19,6 @@ from artclass_plugins.joints import fit_joint
 from artclass_plugins.joints.synthetic import synthetic_joint
 
 NOISE = [(0.0005, 0.25), (0.001, 0.5), (0.002, 1.0), (0.005, 2.0)]  # (metres, degrees) per axis
-TRAVEL = {"revolute": np.radians(74), "prismatic": 0.3, "fixed": 0.0}
 
 
 def main() -> None:
@@ -27,15 +26,21 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--outliers", type=int, default=3, help="wrong poses per sequence")
+    parser.add_argument("--turn-deg", type=float, default=74.0, help="the revolute joint's turn")
+    parser.add_argument("--slide-mm", type=float, default=300.0, help="the prismatic joint's travel")
     args = parser.parse_args()
-    print(f"{args.frames} frames, {args.outliers} wrong poses, {args.seeds} seeds per row\n")
+    travels = {"revolute": np.radians(args.turn_deg), "prismatic": args.slide_mm / 1000, "fixed": 0.0}
+    print(
+        f"{args.frames} frames, {args.outliers} wrong poses, {args.seeds} seeds per row; "
+        f"a {args.turn_deg:g} deg turn, a {args.slide_mm:g} mm slide\n"
+    )
     print(
         "| noise (mm / deg) | joint | type right | axis direction (deg) | axis position (mm) | state "
         "| CPU per fit (ms) |"
     )
     print("|---|---|---|---|---|---|---|")
     for noise_m, noise_deg in NOISE:
-        for kind, travel in TRAVEL.items():
+        for kind, travel in travels.items():
             right, direction, position, state, cpu = [], [], [], [], []
             for seed in range(args.seeds):
                 truth = synthetic_joint(

@@ -337,6 +337,44 @@ def test_texture_alone_makes_no_part():
     assert DenseRule().decide(evidence).decision == "AM"
 
 
+def test_a_fit_that_slides_along_a_still_surface_is_no_motion():
+    """A still object's depth fits a 2 cm slide along its surface slightly better than staying still
+    (noise, flying pixels beside a hand): the slide moves the points, but shows no motion in depth."""
+    evidence = drawn_evidence(np.zeros(1600, bool))
+    rng = np.random.default_rng(2)
+    still = dataclasses.replace(
+        evidence,
+        residual_m=np.stack(
+            [rng.uniform(-0.001, 0.001, 1600), rng.uniform(-0.0005, 0.0005, 1600), np.full(1600, 0.03)]
+        ).astype(np.float32),
+        status=np.full((3, 1600), SURFACE, np.int8),
+    )
+    out = DenseRule().decide(still)
+    assert out.decision == "NM" and "staying still" in out.reason, out.reason
+    assert DenseRule().decide(evidence).decision == "RM"  # where staying still fails, the slide is motion
+
+
+def test_a_part_that_slides_along_its_base_shows_by_texture_unless_it_is_a_fit_of_the_whole():
+    """A drawer slides along its carcass: the carcass's motion fits the drawer in depth, and only
+    the flow on the drawer's texture says it moved; the drawer's motion fails the carcass in depth. A
+    part. The same evidence with the second motion fitted to the whole object (flow on stripes can
+    pull such a fit off the object's motion everywhere) is one motion."""
+    region = GRID[1].ravel() >= 28
+    evidence = drawn_evidence(region)
+    residual = evidence.residual_m.copy()
+    residual[1, region] = 0.0005  # the base explains the drawer's depth
+    slide = dataclasses.replace(
+        evidence,
+        residual_m=residual,
+        flow_px=np.stack(
+            [np.full(len(region), np.nan), np.where(region, 20.0, 0.0), np.zeros(len(region))]
+        ).astype(np.float32),
+    )
+    assert DenseRule().decide(slide).decision == "AM"
+    whole = dataclasses.replace(slide, names=["identity", "a", "object (flow)"])
+    assert DenseRule().decide(whole).decision == "RM"
+
+
 def test_motions_closer_than_the_noise_are_one():
     """Two hypotheses that each explain their own region, but move the points by less than the
     threshold apart (3 sigma plus a pixel): the same motion, twice."""

@@ -103,6 +103,18 @@ def test_a_small_turn_is_still_a_turn_but_noise_alone_is_not():
     assert fit_joint(noisy("revolute", travel=0.0).poses).type == "fixed"
 
 
+def test_a_slide_seen_in_few_poses_is_not_taken_for_a_far_hinge():
+    """Over five poses, a hinge whose axis is far off fits a slide's orientation noise better, and
+    BIC's penalty of log 5 per parameter does not stop it: the hinge must beat the slide by more than
+    two parameters do from noise alone."""
+    hinges = sum(
+        fit_joint(noisy("prismatic", travel=0.03, n_frames=5, noise_rad=np.radians(1), seed=s).poses).type
+        == "revolute"
+        for s in range(20)
+    )
+    assert hinges <= 4
+
+
 @pytest.mark.slow
 def test_uncertainties_are_the_size_of_the_errors():
     """Over seeds, the errors are within three reported standard deviations, and not far below one."""

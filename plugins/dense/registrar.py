@@ -30,7 +30,7 @@ from artclass_core.types import SURFACE
 from .flow import flow_targets
 from .image import ImageParams, noise_m
 from .projective import Target, flow_misfit, icp, kernels, look_all, robust_kabsch
-from .rule import DenseRuleParams, point_costs, regions, select
+from .rule import WHOLE_OBJECT, DenseRuleParams, point_costs, regions, select
 
 _MIN_FLOW_MATCHES = 6
 
@@ -127,11 +127,8 @@ class DenseRegistrar(PairRegistrar):
         # The object's motion from depth alone too: flow on stripes can mislead the fit as a whole (a
         # helical stripe on a turning can seems to travel along its axis).
         depth_only = _Fit(tgt, no_flow, no_flow, 0.0).each(points, starts[:2], coarse)
-        hyps, names = (
-            [np.eye(4), *whole, *depth_only],
-            ["identity", "object", "object (shift)", "object (flow)"][: 1 + len(whole)]
-            + ["object (depth)", "object (depth, shift)"],
-        )
+        kinds = ["", " (shift)", " (flow)"][: len(whole)] + [" (depth)", " (depth, shift)"]
+        hyps, names = [np.eye(4), *whole, *depth_only], ["identity"] + [f"{WHOLE_OBJECT}{k}" for k in kinds]
 
         cells = _cells(points, size / p.cells_per_diameter, p.min_seed_points)
         if cells.max() >= 0:
@@ -236,11 +233,13 @@ class DenseRegistrar(PairRegistrar):
         owner = np.asarray(chosen)[np.argmin(costs[chosen], axis=0)]
         members: list[np.ndarray] = []
         inits: list[np.ndarray] = []
+        whole: list[bool] = []
         for h in chosen:
             own = np.flatnonzero(seen & (owner == h) & (best < misfit / 2))
             if len(own) >= self.params.min_seed_points:
                 members.append(own)
                 inits.append(ev.motions[h])
+                whole.append(False)
         if len(chosen) > 1:
             # The whole object from each selected motion: one rigid motion may explain what two
             # poor fits split between them.
@@ -248,6 +247,7 @@ class DenseRegistrar(PairRegistrar):
             for h in chosen:
                 members.append(everything)
                 inits.append(ev.motions[h])
+                whole.append(True)
         for region in regions(
             seen & (best >= misfit),
             ev.pixels,
@@ -258,12 +258,14 @@ class DenseRegistrar(PairRegistrar):
             for h in chosen:
                 members.append(region)
                 inits.append(ev.motions[h])
+                whole.append(False)
         if not inits:
             return [], []
         index = np.concatenate(members)
         groups = np.repeat(np.arange(len(members)), [len(m) for m in members])
         T = fit(ev.points, index, groups, np.stack(inits), reach)
-        return list(T), [f"refit {round_}.{g}" for g in range(len(T))]
+        names = [f"refit {round_}.{g}" for g in range(len(T))]
+        return list(T), [f"{WHOLE_OBJECT} ({name})" if w else name for name, w in zip(names, whole)]
 
 
 def _sensor_noise(cloud: Cloud) -> float:

@@ -17,10 +17,11 @@ motion that explains it best: that labelling is the pair's part segmentation, an
 are mixed with another's (two fits that each explain half of a rigid object) is not a part.
 
 Decision: two or more motions that really differ (their relative motion moves the median point of
-each side by more than ``noise_factor`` sigma plus one pixel, and each fails in depth points that the
-other explains: optical flow helps choose the motions, but texture alone makes no part) are AM; one
-motion is RM when it moves the median point by as much, else NM. Too few points seen in both frames:
-skipped.
+each side by more than ``noise_factor`` sigma plus one pixel, the part fails in depth points that the
+base explains, and the base fails points the part explains, in depth or, unless the part's motion is
+a fit of the whole object, in optical flow) are AM; one motion is RM when it moves the median point
+by as much and explains in depth points that staying still fails, else NM. Too few points seen in
+both frames: skipped.
 """
 
 from __future__ import annotations
@@ -35,6 +36,9 @@ from artclass_core.geometry import transform
 from artclass_core.types import SURFACE
 
 from .projective import hypothesis_costs
+
+# The registrar's hypotheses fitted to all of the object's points are named with this first.
+WHOLE_OBJECT = "object"
 
 
 @dataclass(frozen=True)
@@ -318,7 +322,17 @@ class DenseRule(DecisionRule):
         layout, stride = _layout(ev), int(ev.info.get("stride_px", 1))
         coherence = label_coherence(decisive, layout, stride)
         misfit, enough = p.noise_factor**2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
-        depth = self.costs(ev, noise, np.inf) if len(chosen) > 1 else None  # only a part needs them
+        depth = None  # the costs without flow, worked out when first needed
+
+        def needed(a: int, b: int, *, texture: bool = False) -> bool:
+            """Whether motion ``a`` explains enough points that ``b`` fails in depth (or, with
+            ``texture``, in depth or optical flow)."""
+            nonlocal depth
+            if depth is None:
+                depth = self.costs(ev, noise, np.inf)
+            failed = costs[b] if texture else depth[b]
+            return int((seen & (costs[a] < misfit / 2) & (failed >= misfit)).sum()) >= enough
+
         for h in chosen[1:]:
             own, rest = ev.points[forward & (labels == h)], ev.points[forward & (labels >= 0) & (labels != h)]
             apart = min(
@@ -326,17 +340,18 @@ class DenseRule(DecisionRule):
                 _displacement(rest, ev.motions[h], ev.motions[base]),
             )
             # Each motion must fail points the other explains: two fits of one rigid body explain
-            # nearly the same points, a part and its base do not; and fail them in depth, since
-            # texture alone misleads (stripes that repeat, shading that moves over a turning surface).
-            needed = all(
-                int((seen & (costs[a] < misfit / 2) & (depth[b] >= misfit)).sum()) >= enough
-                for a, b in ((h, base), (base, h))
-            )
+            # nearly the same points, a part and its base do not. The part must fail the base's
+            # points in depth, since texture alone misleads (stripes that repeat, shading that moves
+            # over a turning surface); the base may fail the part's in texture (a drawer sliding
+            # along its own surface), unless the part's motion is a fit of the whole object, which
+            # flow on stripes can pull off the object's motion everywhere (a turning striped can).
+            texture = not ev.names[h].startswith(WHOLE_OBJECT)
+            both_needed = needed(h, base, texture=texture) and needed(base, h)
             # ... and a part is one region of the image where its motion is clearly the better one.
             region = regions(decisive == h, layout, stride, min_points=enough // 2, most=1)
             if (
                 apart > threshold
-                and needed
+                and both_needed
                 and region
                 and np.nanmean(coherence[decisive == h]) >= p.min_coherence
             ):
@@ -376,12 +391,17 @@ class DenseRule(DecisionRule):
                 labels=labels,
             )
         moved = motions[0].displacement_m
+        reason = f"one motion, moving points by {moved * 1000:.1f} mm (threshold {threshold * 1000:.1f} mm)"
+        # ... and, as a part must, it must be needed in depth: staying still (the evidence's first
+        # hypothesis, the identity) fails points it explains. A fit that slides along a surface depth
+        # cannot fix (a sliver of a still mug beside a moving hand) moves points, but shows no motion.
+        if moved > threshold and not needed(base, 0):
+            moved, reason = 0.0, reason + ", but staying still explains the depth as well"
         decision = "RM" if moved > threshold else "NM"
         return RuleDecision(
             decision,
             [],
-            reason=f"one motion, moving points by {moved * 1000:.1f} mm "
-            f"(threshold {threshold * 1000:.1f} mm)",
+            reason=reason,
             info=info,
             motions=motions,
             labels=labels,

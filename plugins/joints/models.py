@@ -510,12 +510,15 @@ def fit_joint(
     turns less than the orientation noise is a slide, a screw that slides less than the position
     noise along its axis is a hinge. The screw, which they do not have, is a fallback: chosen only
     when the best of the others leaves residuals beyond the noise (chi-square test at
-    ``outlier_level``) and the screw's BIC is lower. Two choices differ from theirs: (1) the per-frame states count
-    in k, so a one-degree-of-freedom model that only absorbs noise (one residual component per pose)
-    does not beat ``fixed``;
-    (2) instead of a per-model inlier/outlier mixture, the poses the general screw model cannot
+    ``outlier_level``) and the screw's BIC is lower. Three choices differ from theirs: (1) the
+    per-frame states count in k, so a one-degree-of-freedom model that only absorbs noise (one
+    residual component per pose) does not beat ``fixed``; (2) instead of a per-model inlier/outlier
+    mixture, the poses the general screw model cannot
     explain (beyond the ``outlier_level`` quantile of chi-square with 6 degrees of freedom) are left
-    out of every model's score, so all models are compared on the same poses. With
+    out of every model's score, so all models are compared on the same poses; (3) a revolute joint,
+    which holds the prismatic as its limit (the axis at infinity), is chosen over it only when the
+    likelihood ratio test at ``outlier_level`` says so, not on BIC alone, which over a few poses lets a
+    far-off axis fit a slide's orientation noise. With
     ``n_independent`` = m of N known poses, every pose counts m / N of an independent one (the
     chi-square and the number of poses in the BIC and in the degrees of freedom are scaled by m / N,
     the variances by N / m), as for m poses each given N / m times. The noise levels are
@@ -570,6 +573,13 @@ def fit_joint(
         scores[name] = share * fits[name].chi2 + n * log_norm + _n_params(fits[name].shape, n) * np.log(n)
     shown = [name for name in scores if _shows_itself(fits[name], fitted, params.distinct_sigmas)]
     chosen = min([name for name in shown if name != "screw"] or ["fixed"], key=scores.get)
+    # a slide is a hinge with its axis at infinity: the hinge is kept only where it lowers the
+    # chi-square by more than its extra parameters do from noise alone (the likelihood ratio test at
+    # outlier_level); BIC's log n per parameter is too little over a few poses
+    if chosen == "revolute" and "prismatic" in shown:
+        extra = fits["revolute"].shape.dof - fits["prismatic"].shape.dof
+        if share * (fits["prismatic"].chi2 - fits["revolute"].chi2) <= chi2.ppf(params.outlier_level, extra):
+            chosen = "prismatic"
     # the screw is the fallback: only when the simpler joint does not explain the poses within the
     # noise (its chi-square beyond the outlier_level quantile) and the screw pays for itself by BIC
     dof = max(6 * n - _n_params(fits[chosen].shape, n), 1)

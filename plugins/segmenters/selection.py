@@ -73,6 +73,7 @@ __all__ = [
     "match_instances",
     "change_scores",
     "steady_pixels",
+    "depth_edges",
     "fallback_index",
     "choose_instance",
 ]
@@ -189,7 +190,7 @@ def match_instances(instances: list[np.ndarray], others: list[np.ndarray]) -> li
     return out
 
 
-def _depth_edges(depth_m: np.ndarray, step_m: float) -> np.ndarray:
+def depth_edges(depth_m: np.ndarray, step_m: float) -> np.ndarray:
     """Pixels whose 3x3 neighbourhood spans more than ``step_m`` of depth, or touches a missing reading."""
     # max - min over 3x3 (a missing reading is 0, so every pixel next to one is an edge)
     return cv2.morphologyEx(depth_m, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > step_m
@@ -199,7 +200,7 @@ def steady_pixels(depth_m: np.ndarray, *, change_m: float) -> np.ndarray:
     """The pixels of a depth image with a reading, away from depth edges (their 3x3 neighbourhood
     spans at most ``change_m`` of depth and has no missing reading): bool (H, W)."""
     d = clean_depth(depth_m)
-    return (d > 0) & ~_depth_edges(d, change_m)
+    return (d > 0) & ~depth_edges(d, change_m)
 
 
 def change_scores(
