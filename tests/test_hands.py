@@ -25,7 +25,9 @@ from artclass_plugins.segmenters.depth_threshold import (
 )
 from artclass_plugins.segmenters.hands import (
     HandParams,
+    _depth_range,
     arms,
+    depth_steps,
     find_hands,
     hand_regions,
     held,
@@ -517,6 +519,39 @@ def test_projector_shadows_match_a_numpy_scan_of_the_rows():
         apart = np.abs(depth[v, left[v, u]] - depth[v, right[v, u]]) > 0.02
         expected[v[apart], u[apart]] = True
         assert np.array_equal(projector_shadows(depth, step_m=0.02), expected)
+
+
+def _full_range(depth: np.ndarray, where: np.ndarray, reach_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest and farthest reading of ``where`` within reach, filtered over the whole image."""
+    kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
+    seen = where & (depth > 0)
+    near = cv2.erode(np.where(seen, depth, np.float32(np.inf)), kernel, borderValue=np.inf)
+    far = cv2.dilate(np.where(seen, depth, np.float32(0)), kernel, borderValue=0)
+    return near, far
+
+
+def test_depth_steps_match_the_range_of_each_pixels_neighbourhood():
+    """The compiled 3x3 step test against the farthest minus the nearest reading around each pixel
+    (OpenCV's minimum and maximum filters over the whole image), to the bit."""
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        depth = _random_depth(rng, tuple(rng.integers(1, 40, 2)))
+        near, far = _full_range(depth, np.ones(depth.shape, bool), 1)
+        assert np.array_equal(depth_steps(depth, step_m=0.02), far - near > np.float32(0.02))
+
+
+def test_depth_range_on_the_readings_box_equals_the_whole_image_filter():
+    """The nearest and farthest readings of a region within reach, filtered on the region's bounding
+    box grown by the reach, are those of a filter over the whole image."""
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        depth = _random_depth(rng, tuple(rng.integers(1, 60, 2)))
+        where = np.zeros(depth.shape, bool)
+        y, x = (rng.integers(0, n) for n in depth.shape)
+        where[y : y + rng.integers(1, 20), x : x + rng.integers(1, 20)] = True
+        reach = int(rng.integers(1, 8))
+        for got, expected in zip(_depth_range(depth, where, reach), _full_range(depth, where, reach)):
+            assert np.array_equal(got, expected)
 
 
 def test_an_object_the_hand_passes_in_front_of_is_one_object_on_both_sides_of_it():

@@ -25,6 +25,33 @@ def shadow_kernel(depth, step, out):
 
 
 @njit(cache=True, nogil=True)
+def step_kernel(depth, step, out):
+    """Mark in ``out`` (bool (H, W)) the pixels whose 3x3 neighbourhood (within the image) holds
+    readings (``depth`` > 0, float32 (H, W)) whose farthest minus nearest exceeds ``step`` (float32):
+    the nearest and farthest over each row's three pixels first, then over three rows."""
+    h, w = depth.shape
+    near = np.empty((h, w), np.float32)  # over the row's three pixels; +inf where none has a reading
+    far = np.empty((h, w), np.float32)  # 0 where none has one (depth >= 0)
+    inf = np.float32(np.inf)
+    for v in range(h):
+        for u in range(w):
+            lo, hi = inf, np.float32(0)
+            for x in range(max(u - 1, 0), min(u + 2, w)):
+                z = depth[v, x]
+                lo = min(lo, z if z > 0 else inf)
+                hi = max(hi, z)
+            near[v, u], far[v, u] = lo, hi
+    for v in range(h):
+        y0, y1 = max(v - 1, 0), min(v + 2, h)
+        for u in range(w):
+            lo, hi = near[y0, u], far[y0, u]
+            for y in range(y0 + 1, y1):
+                lo = min(lo, near[y, u])
+                hi = max(hi, far[y, u])
+            out[v, u] = hi - lo > step
+
+
+@njit(cache=True, nogil=True)
 def distinct_kernel(colour, around, where, least_sq, out):
     """Mark in ``out`` (bool (H, W)) the pixels of ``where`` (bool (H, W)) whose ``colour`` differs
     from ``around`` (float32 (H, W, 3) each) by a squared distance of at least ``least_sq``

@@ -66,8 +66,8 @@ import numpy as np
 
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, param
 
-from ._compiled import shadow_kernel
-from .support import DEPTH_STEP_M, Plane, clean_depth, label_regions, plane_height_m
+from ._compiled import shadow_kernel, step_kernel
+from .support import DEPTH_STEP_M, Plane, clean_depth, grown_box, label_regions, plane_height_m
 
 __all__ = [
     "HandParams",
@@ -84,6 +84,7 @@ __all__ = [
     "load_hand_mask",
     "find_hands",
     "widen",
+    "depth_steps",
     "arms",
     "on_plane",
     "rests",
@@ -363,8 +364,7 @@ def find_hands(
     # pieces would not (a small skin-coloured object in the hand looks the same), so its shadows
     # stay joined
     d, touch = clean_depth(frame.depth_m), params.hand_touch_m
-    near, far = _depth_range(d, np.ones(background.shape, bool), 1)
-    step = far - near > touch  # no readings around: -inf, not a step
+    step = depth_steps(d, step_m=touch)
     shadow = projector_shadows(d, step_m=touch)
     apart = candidates & ~step
     found = [
@@ -704,13 +704,14 @@ def own_colour(
     border[:, -1] |= x + bw + SEED_PX >= w
     seeds = ~widen(~sk, MIXED_PX) & widen(held_by | border, SEED_PX) & ~widen(held_by, MIXED_PX)
     n, labels = cv2.connectedComponents(sk.view(np.uint8), connectivity=8)
-    chroma = np.zeros((*sk.shape, 3), np.float32)
-    chroma[sk] = chromaticity(rgb[box], sk)
+    chroma, of, seed = chromaticity(rgb[box], sk), labels[sk], seeds[sk]  # of the skin pixels only
     out = skin.copy()
     for k in np.unique(labels[seeds]):
         region = labels == k
-        ref = np.median(chroma[region & seeds], axis=0)
-        own = region & (np.sum((chroma - ref) ** 2, axis=2) <= tolerance * tolerance)
+        mine = of == k
+        ref = np.median(chroma[mine & seed], axis=0)
+        own = np.zeros(sk.shape, bool)
+        own[sk] = mine & (np.sum((chroma - ref) ** 2, axis=1) <= tolerance * tolerance)
         _, parts = cv2.connectedComponents(own.view(np.uint8), connectivity=8)
         other = region & ~np.isin(parts, np.unique(parts[own & seeds]))
         m, pieces = cv2.connectedComponents(other.view(np.uint8), connectivity=8)
@@ -738,13 +739,29 @@ def _touches(region: np.ndarray, other: np.ndarray | None) -> bool:
 
 def _depth_range(d: np.ndarray, where: np.ndarray, reach_px: int) -> tuple[np.ndarray, np.ndarray]:
     """Nearest and farthest reading of ``d`` (0 = none) among the pixels ``where``, in the square of
-    half-width ``reach_px`` around each pixel; +inf and 0 where there is none. float32 (H, W) each."""
+    half-width ``reach_px`` around each pixel; +inf and 0 where there is none. float32 (H, W) each.
+    The minimum and maximum filters run on the bounding box of those readings grown by ``reach_px``
+    only: outside it there is none within reach."""
     d = d.astype(np.float32, copy=False)
     seen = where & (d > 0)
+    near = np.full(d.shape, np.inf, np.float32)
+    far = np.zeros(d.shape, np.float32)
+    if not seen.any():
+        return near, far
+    box = grown_box(seen, reach_px)
     kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
-    near = cv2.erode(np.where(seen, d, np.float32(np.inf)), kernel, borderValue=np.inf)
-    far = cv2.dilate(np.where(seen, d, np.float32(0)), kernel, borderValue=0)
+    crop, dc = seen[box], d[box]
+    near[box] = cv2.erode(np.where(crop, dc, np.float32(np.inf)), kernel, borderValue=np.inf)
+    far[box] = cv2.dilate(np.where(crop, dc, np.float32(0)), kernel, borderValue=0)
     return near, far
+
+
+def depth_steps(depth_m: np.ndarray, *, step_m: float) -> np.ndarray:
+    """The pixels whose 3x3 neighbourhood holds readings (``depth_m`` > 0, float32 (H, W)) more than
+    ``step_m`` apart: bool (H, W). Pixels without a reading count when their neighbours' do."""
+    out = np.zeros(depth_m.shape, bool)
+    step_kernel(np.ascontiguousarray(depth_m, dtype=np.float32), np.float32(step_m), out)
+    return out
 
 
 def close_gaps(mask: np.ndarray, radius_px: int) -> np.ndarray:
@@ -843,6 +860,13 @@ def _along_hand(
     if not hand.any() or not instances:
         return [False] * len(instances)
     d = clean_depth(depth_m)
+    seen = hand & (d > 0)
+    if not seen.any():
+        return [False] * len(instances)
+    # no pixel farther than reach_px from the hand's readings is along it: the work is done on their
+    # bounding box grown by reach_px
+    box = grown_box(seen, reach_px)
+    d, hand = d[box], hand[box]
     near, far = _depth_range(d, hand, reach_px)  # of the hand's readings around each pixel
     if behind:
         along = (d > 0) & ~hand & (d > near + touch_m) & (far > 0)
@@ -850,7 +874,7 @@ def _along_hand(
         along = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
     out = []
     for m in instances:
-        line = m & along
+        line = m[box] & along
         n = np.count_nonzero(line)
         least = reach_px * line_m * fx / float(np.median(d[line])) if n and line_m > 0 else 1
         out.append(bool(n) and n >= least)
