@@ -141,7 +141,7 @@ def grow(instances: list[np.ndarray], low: np.ndarray) -> list[np.ndarray]:
     pixels connect become one. Largest first; low pixels that touch no instance are dropped."""
     seeds = np.logical_or.reduce(instances)
     _, labels, stats = label_regions(seeds | low)
-    keep = sorted(np.unique(labels[seeds]), key=lambda k: (-stats[k, cv2.CC_STAT_AREA], k))
+    keep = sorted(np.flatnonzero(np.bincount(labels[seeds])), key=lambda k: (-stats[k, cv2.CC_STAT_AREA], k))
     return [labels == k for k in keep]
 
 

@@ -441,9 +441,15 @@ def find_hands(
             hand = (hand & ~skin) | own_colour(
                 skin, carriers, frame.rgb, tolerance=params.hand_chroma, contact=contact
             )
+    seen = hand & (d > 0)
+    if seen.any():
+        # the hand's side of the depth steps around its readings (on their box: none is farther)
+        box = grown_box(seen, 1)
+        near, far = _depth_range(d[box], hand[box], 1)
+        hand[box] |= ~background[box] & step[box] & (far > 0) & (
+            (d[box] == 0) | ((d[box] >= near - touch) & (d[box] <= far + touch))
+        )
     if hand.any():
-        near, far = _depth_range(d, hand, 1)
-        hand |= ~background & step & (far > 0) & ((d == 0) | ((d >= near - touch) & (d <= far + touch)))
         # pixels without a reading are the hand's where a closing of the margin's radius puts them
         # inside it (dropouts on skin), not a band along its side (the sensor's shadow on the table)
         hand &= (d > 0) | close_gaps(hand & (d > 0), params.hand_margin_px)
