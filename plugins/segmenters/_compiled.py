@@ -28,26 +28,27 @@ def shadow_kernel(depth, step, out):
 def step_kernel(depth, step, out):
     """Mark in ``out`` (bool (H, W)) the pixels whose 3x3 neighbourhood (within the image) holds
     readings (``depth`` > 0, float32 (H, W)) whose farthest minus nearest exceeds ``step`` (float32):
-    the nearest and farthest over each row's three pixels first, then over three rows."""
+    the nearest and farthest over each row's three pixels first (the row padded with a pixel without
+    a reading at each end), then over three rows."""
     h, w = depth.shape
-    near = np.empty((h, w), np.float32)  # over the row's three pixels; +inf where none has a reading
-    far = np.empty((h, w), np.float32)  # 0 where none has one (depth >= 0)
     inf = np.float32(np.inf)
+    near = np.empty((h, w), np.float32)  # +inf where none of the three has a reading
+    far = np.empty((h, w), np.float32)  # 0 where none has one
+    row_near = np.full(w + 2, inf, np.float32)
+    row_far = np.zeros(w + 2, np.float32)
     for v in range(h):
         for u in range(w):
-            lo, hi = inf, np.float32(0)
-            for x in range(max(u - 1, 0), min(u + 2, w)):
-                z = depth[v, x]
-                lo = min(lo, z if z > 0 else inf)
-                hi = max(hi, z)
-            near[v, u], far[v, u] = lo, hi
-    for v in range(h):
-        y0, y1 = max(v - 1, 0), min(v + 2, h)
+            z = depth[v, u]
+            row_near[u + 1] = z if z > 0 else inf
+            row_far[u + 1] = z if z > 0 else np.float32(0)
         for u in range(w):
-            lo, hi = near[y0, u], far[y0, u]
-            for y in range(y0 + 1, y1):
-                lo = min(lo, near[y, u])
-                hi = max(hi, far[y, u])
+            near[v, u] = min(min(row_near[u], row_near[u + 1]), row_near[u + 2])
+            far[v, u] = max(max(row_far[u], row_far[u + 1]), row_far[u + 2])
+    for v in range(h):
+        a, b = max(v - 1, 0), min(v + 1, h - 1)
+        for u in range(w):
+            lo = min(min(near[a, u], near[v, u]), near[b, u])
+            hi = max(max(far[a, u], far[v, u]), far[b, u])
             out[v, u] = hi - lo > step
 
 
