@@ -25,6 +25,34 @@ def shadow_kernel(depth, step, out):
 
 
 @njit(cache=True, nogil=True)
+def step_kernel(depth, step, out):
+    """Mark in ``out`` (bool (H, W)) the pixels whose 3x3 neighbourhood (within the image) holds
+    readings (``depth`` > 0, float32 (H, W)) whose farthest minus nearest exceeds ``step`` (float32):
+    the nearest and farthest over each row's three pixels first (the row padded with a pixel without
+    a reading at each end), then over three rows."""
+    h, w = depth.shape
+    inf = np.float32(np.inf)
+    near = np.empty((h, w), np.float32)  # +inf where none of the three has a reading
+    far = np.empty((h, w), np.float32)  # 0 where none has one
+    row_near = np.full(w + 2, inf, np.float32)
+    row_far = np.zeros(w + 2, np.float32)
+    for v in range(h):
+        for u in range(w):
+            z = depth[v, u]
+            row_near[u + 1] = z if z > 0 else inf
+            row_far[u + 1] = z if z > 0 else np.float32(0)
+        for u in range(w):
+            near[v, u] = min(min(row_near[u], row_near[u + 1]), row_near[u + 2])
+            far[v, u] = max(max(row_far[u], row_far[u + 1]), row_far[u + 2])
+    for v in range(h):
+        a, b = max(v - 1, 0), min(v + 1, h - 1)
+        for u in range(w):
+            lo = min(min(near[a, u], near[v, u]), near[b, u])
+            hi = max(max(far[a, u], far[v, u]), far[b, u])
+            out[v, u] = hi - lo > step
+
+
+@njit(cache=True, nogil=True)
 def distinct_kernel(colour, around, where, least_sq, out):
     """Mark in ``out`` (bool (H, W)) the pixels of ``where`` (bool (H, W)) whose ``colour`` differs
     from ``around`` (float32 (H, W, 3) each) by a squared distance of at least ``least_sq``

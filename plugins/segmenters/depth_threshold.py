@@ -45,6 +45,7 @@ from .support import (
     background_mask,
     clean_depth,
     fit_planes,
+    grown_box,
     label_regions,
     plane_height_m,
 )
@@ -140,7 +141,7 @@ def grow(instances: list[np.ndarray], low: np.ndarray) -> list[np.ndarray]:
     pixels connect become one. Largest first; low pixels that touch no instance are dropped."""
     seeds = np.logical_or.reduce(instances)
     _, labels, stats = label_regions(seeds | low)
-    keep = sorted(np.unique(labels[seeds]), key=lambda k: (-stats[k, cv2.CC_STAT_AREA], k))
+    keep = sorted(np.flatnonzero(np.bincount(labels[seeds])), key=lambda k: (-stats[k, cv2.CC_STAT_AREA], k))
     return [labels == k for k in keep]
 
 
@@ -335,7 +336,7 @@ def colour_patches(
         return []
     surface = plane if surface is None else surface
     # the colours are needed on the plane's bounding box and the half window around it only
-    box = _grown_box(plane, max(window_px, THIN_WINDOW_PX) // 2)
+    box = grown_box(plane, max(window_px, THIN_WINDOW_PX) // 2)
     lab = cv2.cvtColor(cv2.LUT(np.ascontiguousarray(rgb[box], dtype=np.uint8), _UNIT), cv2.COLOR_RGB2Lab)
     around = cv2.blur(lab, (window_px, window_px))
     # each pixel's colour averaged over THIN_WINDOW_PX squared pixels: the camera's colour noise
@@ -346,25 +347,15 @@ def colour_patches(
     out = []
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
     for m in components(distinct, open_px=0, min_area_fraction=min_area_fraction):
-        ring = (cv2.dilate(m.astype(np.uint8), disc) > 0) & ~m
-        h = height_m[m]
+        near = grown_box(m, ring_px)  # each in its bounding box, grown by the ring
+        inside = m[near]
+        ring = (cv2.dilate(inside.view(np.uint8), disc) > 0) & ~inside
+        h = height_m[near][inside]
         mean = float(h.mean())
-        lies = np.count_nonzero(ring & surface) >= ON_TABLE_SHARE * np.count_nonzero(ring)
+        lies = np.count_nonzero(ring & surface[near]) >= ON_TABLE_SHARE * np.count_nonzero(ring)
         if lies and mean > noise_m and mean > sigmas * noise_m / np.sqrt(len(h)):
             out.append(m)
     return out
-
-
-def _grown_box(mask: np.ndarray, margin_px: int) -> tuple[slice, slice]:
-    """The bounding box of ``mask``'s pixels (bool (H, W), not empty) grown by ``margin_px`` on each
-    side, within the image: (rows, columns) slices. A filter of half-width ``margin_px`` gives the
-    same values on the mask's pixels whether it runs on this crop or on the whole image."""
-    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
-    rows, cols = mask.shape
-    return (
-        slice(max(y - margin_px, 0), min(y + h + margin_px, rows)),
-        slice(max(x - margin_px, 0), min(x + w + margin_px, cols)),
-    )
 
 
 # 8-bit colour values as floats in [0, 1] (a look-up table: one read per pixel, no division)

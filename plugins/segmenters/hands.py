@@ -11,14 +11,18 @@ union of:
   scene seldom reaches it) and its surface, measured with depth, is at least ``hand_min_area_m2``
   (two fingers: specks and patches of skin colour on objects are smaller). A region held above the
   table also reaches the border through pixels without a reading that do, other than projector
-  shadows (an arm nearer than the sensor's range);
+  shadows (an arm nearer than the sensor's range). A hand ends where its colour does: the parts
+  of its region whose chromaticity (normalised rgb) differs by more than ``hand_chroma`` from the
+  skin where the arm holds it, and that rest on the support plane, are an object held there
+  (a wooden box, a cardboard case touched at the hand's own depth), not the hand (:func:`own_colour`);
 * **arms and sleeves, whatever their colour**: a region standing out of the background that reaches
-  the image border, is not resting on the support plane (none of its pixels away from depth steps
-  comes down to it: its lowest points stand off the plane by more than ``plane_distance_m`` plus the
-  plane's noise and a pixel's size at their depth), and touches a hand-sized skin region in 3-D (a
-  sleeve, a glove's cuff, the forearm of a robot arm), is an arm: it is removed with the hand, and
-  the hand it holds reaches the border through it. An object that reaches the border while it lies
-  on the table is kept;
+  the image border (or the pixels without a reading that do: a sleeve too near the sensor to be
+  measured but for its rim), is not resting on the support plane (none of its pixels away from
+  depth steps comes down to it: its lowest points stand off the plane by more than
+  ``plane_distance_m`` plus the plane's noise and a pixel's size at their depth), and touches a
+  hand-sized skin region in 3-D (a sleeve, a glove's cuff, the forearm of a robot arm), is an arm:
+  it is removed with the hand, and the hand it holds reaches the border through it. An object that
+  reaches the border while it lies on the table is kept;
 * **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``, or, when
   that is not set, the box the sequence's own settings give as ``gripper_hsv`` (a robot rig knows
   its gripper: the native folder format reads it from ``meta.json``); its regions are found apart
@@ -45,6 +49,9 @@ The skin model is a fixed published rule, not fitted to any data here: D. Chai a
 Systems for Video Technology 9(4), 551-564, 1999. It ignores luminance, so it holds under most
 lighting, and it is known to accept wood, cardboard and some orange and pink surfaces: that is why
 only regions that reach the image border and stand out of the background planes count.
+Normalised rgb does not change with shading on a matte surface, so the faces of a hand turned
+towards or away from the light keep one chromaticity while another material changes it: T. Gevers
+and A. W. M. Smeulders, "Color-based object recognition", Pattern Recognition 32(3), 453-464, 1999.
 """
 
 from __future__ import annotations
@@ -59,8 +66,8 @@ import numpy as np
 
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, param
 
-from ._compiled import shadow_kernel
-from .support import DEPTH_STEP_M, Plane, clean_depth, label_regions, plane_height_m
+from ._compiled import shadow_kernel, step_kernel
+from .support import DEPTH_STEP_M, Plane, clean_depth, grown_box, label_regions, plane_height_m
 
 __all__ = [
     "HandParams",
@@ -77,12 +84,16 @@ __all__ = [
     "load_hand_mask",
     "find_hands",
     "widen",
+    "depth_steps",
     "arms",
     "on_plane",
     "rests",
+    "stands_on",
     "fingers",
     "pixels_across",
     "projector_shadows",
+    "chromaticity",
+    "own_colour",
     "surface_m2",
 ]
 
@@ -166,6 +177,15 @@ class HandParams(Params):
         help="An object whose pixels next to the hand lie within this depth of the hand's "
         "is held (about a finger's thickness); held objects are chosen first. An "
         "arm joins a hand it comes this close to in 3-D.",
+    )
+    hand_chroma: float = param(
+        0.02,
+        unit="rgb/(r+g+b)",
+        bounds=(0.0, 1.0),
+        help="A hand's skin keeps the chromaticity (normalised rgb) of where its arm "
+        "holds it within this distance: a held object of another shade of skin "
+        "colour (wood, cardboard) that touches it at its depth keeps its pixels; "
+        "shading does not change chromaticity. 0 = off.",
     )
     gripper_hsv: str = param(
         "",
@@ -344,8 +364,7 @@ def find_hands(
     # pieces would not (a small skin-coloured object in the hand looks the same), so its shadows
     # stay joined
     d, touch = clean_depth(frame.depth_m), params.hand_touch_m
-    near, far = _depth_range(d, np.ones(background.shape, bool), 1)
-    step = far - near > touch  # no readings around: -inf, not a step
+    step = depth_steps(d, step_m=touch)
     shadow = projector_shadows(d, step_m=touch)
     apart = candidates & ~step
     found = [
@@ -361,7 +380,7 @@ def find_hands(
     if support is None:
         hand = np.logical_or.reduce(found)
     else:
-        regions = [r for kind in found for r in _regions(kind)]
+        regions = [(k, r) for k, kind in enumerate(found) for r in _regions(kind)]  # k: 0 skin, 1 gripper
         contact = (
             on_plane(
                 d,
@@ -375,17 +394,19 @@ def find_hands(
             else None
         )
         hand = np.zeros(d.shape, bool)
-        held_out = [r for r in regions if not rests(r, contact)]  # a skin-coloured object lies on the table
-        for r in regions:
+        # a skin-coloured object stands on the table; a hand that grasps something there only touches
+        # it with its fingertips. A gripper is held out from above: a gripper-coloured region that
+        # touches the table at all is an object lying there
+        held_out = [r for k, r in regions if not (stands_on(r, contact, d) if k == 0 else rests(r, contact))]
+        for _, r in regions:
             if r[0].any() or r[-1].any() or r[:, 0].any() or r[:, -1].any():
                 hand |= r
-        # an arm too near the sensor to be measured reaches the border through pixels without a reading
-        edge = None  # computed when first needed
+        # an arm too near the sensor to be measured reaches the border through pixels without a
+        # reading; so does a sleeve of which only the rim is measured
+        edge = _edge_gaps(d, shadow) if held_out else None
         for r in held_out:
-            if not hand[r].any():
-                edge = _edge_gaps(d, shadow) if edge is None else edge
-                if _touches(r, edge):
-                    hand |= r
+            if not hand[r].any() and _touches(r, edge):
+                hand |= r
         arm = (
             arms(
                 ~background & ~candidates & ~step & (d > 0),
@@ -394,6 +415,7 @@ def find_hands(
                 intrinsics,
                 contact=contact,
                 touch_m=touch,
+                edge=edge,
             )
             if held_out
             else hand
@@ -413,9 +435,21 @@ def find_hands(
                 touch_m=touch,
                 max_area_m2=params.hand_min_area_m2,
             )
+        skin = hand & kinds[0]
+        if params.hand_chroma > 0 and skin.any():
+            carriers = (hand & ~kinds[0]) | (_edge_gaps(d, shadow) if edge is None else edge)
+            hand = (hand & ~skin) | own_colour(
+                skin, carriers, frame.rgb, tolerance=params.hand_chroma, contact=contact
+            )
+    seen = hand & (d > 0)
+    if seen.any():
+        # the hand's side of the depth steps around its readings (on their box: none is farther)
+        box = grown_box(seen, 1)
+        near, far = _depth_range(d[box], hand[box], 1)
+        hand[box] |= ~background[box] & step[box] & (far > 0) & (
+            (d[box] == 0) | ((d[box] >= near - touch) & (d[box] <= far + touch))
+        )
     if hand.any():
-        near, far = _depth_range(d, hand, 1)
-        hand |= ~background & step & (far > 0) & ((d == 0) | ((d >= near - touch) & (d <= far + touch)))
         # pixels without a reading are the hand's where a closing of the margin's radius puts them
         # inside it (dropouts on skin), not a band along its side (the sensor's shadow on the table)
         hand &= (d > 0) | close_gaps(hand & (d > 0), params.hand_margin_px)
@@ -478,6 +512,23 @@ def rests(region: np.ndarray, contact: np.ndarray) -> bool:
     return np.count_nonzero(region & contact) >= CONTACT_PX
 
 
+# A region stands on the support plane when at least this share of its lower outline comes down to it.
+STANDING_SHARE = 0.5
+
+
+def stands_on(region: np.ndarray, contact: np.ndarray, depth_m: np.ndarray) -> bool:
+    """Whether ``region`` (bool (H, W)) stands on the support plane: it :func:`rests` on it, and in at
+    least STANDING_SHARE of its columns its lowest pixel with a reading (``depth_m`` > 0) is on it
+    (``contact``). An object standing on a table meets it along the bottom of its outline; a hand
+    held over the table that grasps something lying there touches it with its fingertips only."""
+    seen = region & (depth_m > 0)
+    columns = np.flatnonzero(seen.any(axis=0))
+    if not rests(region, contact) or not len(columns):
+        return False
+    bottom = seen.shape[0] - 1 - np.argmax(seen[::-1, columns], axis=0)
+    return float(np.mean(contact[bottom, columns])) >= STANDING_SHARE
+
+
 def arms(
     foreground: np.ndarray,
     hands: np.ndarray,
@@ -486,9 +537,12 @@ def arms(
     *,
     contact: np.ndarray,
     touch_m: float,
+    edge: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The arms (sleeves) among the regions of ``foreground``: those that reach the image border, do not
-    rest on the support plane, and touch ``hands`` in 3-D.
+    """The arms (sleeves) among the regions of ``foreground``: those that reach the image border (or
+    ``edge``, the pixels without a reading that do: an arm nearer than the sensor's range, of which
+    only a rim farther away is measured), do not rest on the support plane, and touch ``hands`` in
+    3-D.
 
     Parameters
     ----------
@@ -500,6 +554,8 @@ def arms(
     contact : ndarray of bool, shape (H, W) -- the pixels on the support plane (:func:`on_plane`)
     touch_m : metres -- how far an arm may be from the hand it joins, in depth and across the image
         (at the hand's median depth)
+    edge : ndarray of bool, shape (H, W), optional -- the pixels without a reading connected to the
+        image border (:func:`_edge_gaps`)
 
     Returns
     -------
@@ -509,8 +565,10 @@ def arms(
     if not hands.any():
         return out
     n, labels, stats = label_regions(_open(foreground))
-    reach = np.flatnonzero(_at_border(stats, foreground.shape)) + 1
-    regions = [labels == k for k in reach]
+    reach = _at_border(stats, foreground.shape)
+    if edge is not None:
+        reach |= np.bincount(labels[widen(edge, 1)], minlength=n)[1:] > 0
+    regions = [labels == k for k in np.flatnonzero(reach) + 1]
     for region, touches in zip(regions, _touching(regions, hands, depth_m, intrinsics, touch_m=touch_m)):
         if touches and not rests(region, contact):
             out |= region
@@ -594,6 +652,81 @@ def projector_shadows(depth_m: np.ndarray, *, step_m: float) -> np.ndarray:
     return out
 
 
+def chromaticity(rgb: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """Normalised rgb, (r, g, b) / (r + g + b), of the pixels ``where`` (bool (H, W)) of an 8-bit RGB
+    image (H, W, 3), each averaged over its 3x3 neighbourhood first (the camera's noise divided by
+    3): float32 (N, 3), in row-major order. Shading scales r, g and b alike and leaves it unchanged;
+    a change of material does not."""
+    c = cv2.blur(np.ascontiguousarray(rgb, dtype=np.uint8), (3, 3))[where].astype(np.float32)
+    return c / np.maximum(c.sum(axis=1, keepdims=True), np.float32(1.0))
+
+
+# A hand's own colour is read from its pixels within SEED_PX of where its arm holds it, past the
+# MIXED_PX of its outline whose colour is mixed with the arm's or the background's (the camera's blur,
+# the 3x3 average, and the thin strips of mixed pixels along a sleeve's outline that look like skin).
+SEED_PX = 8
+MIXED_PX = 3
+
+
+def own_colour(
+    skin: np.ndarray,
+    carriers: np.ndarray,
+    rgb: np.ndarray,
+    *,
+    tolerance: float,
+    contact: np.ndarray,
+) -> np.ndarray:
+    """``skin`` without what a hand holds on the table: in each connected region (8-connected) of
+    ``skin``, the pixels whose :func:`chromaticity` lies farther than ``tolerance`` from the median of
+    its *seeds* (its pixels near the image border or near ``carriers``: where the arm holds it; more
+    than MIXED_PX inside the region's outline) or that connect to the seeds only through those, form
+    pieces; a piece that rests on the support plane (:func:`rests`) is an object the hand holds
+    there, not the hand, and is removed. A piece that does not is kept (the hand, when the sleeve is
+    skin-coloured too); so is a region without seeds.
+
+    Parameters
+    ----------
+    skin : ndarray of bool, shape (H, W) -- the skin-coloured pixels of the hand mask
+    carriers : ndarray of bool, shape (H, W) -- what holds the hand out: its arm, sleeve, and the
+        pixels without a reading where the arm is too near the sensor
+    rgb : ndarray, shape (H, W, 3), uint8, RGB order
+    tolerance : distance in normalised rgb; 0 = ``skin`` unchanged
+    contact : ndarray of bool, shape (H, W) -- the pixels on the support plane (:func:`on_plane`)
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+    """
+    if tolerance <= 0 or not skin.any():
+        return skin
+    # the work is done on the skin's bounding box grown by SEED_PX
+    x, y, bw, bh = cv2.boundingRect(skin.view(np.uint8))
+    h, w = skin.shape
+    box = np.s_[max(y - SEED_PX, 0) : y + bh + SEED_PX, max(x - SEED_PX, 0) : x + bw + SEED_PX]
+    sk, held_by = skin[box], carriers[box]
+    border = np.zeros(sk.shape, bool)
+    border[0], border[-1] = y <= SEED_PX, y + bh + SEED_PX >= h  # the box's sides on the image's
+    border[:, 0] |= x <= SEED_PX
+    border[:, -1] |= x + bw + SEED_PX >= w
+    seeds = ~widen(~sk, MIXED_PX) & widen(held_by | border, SEED_PX) & ~widen(held_by, MIXED_PX)
+    n, labels = cv2.connectedComponents(sk.view(np.uint8), connectivity=8)
+    chroma, of, seed = chromaticity(rgb[box], sk), labels[sk], seeds[sk]  # of the skin pixels only
+    out = skin.copy()
+    for k in np.unique(labels[seeds]):
+        region = labels == k
+        mine = of == k
+        ref = np.median(chroma[mine & seed], axis=0)
+        own = np.zeros(sk.shape, bool)
+        own[sk] = mine & (np.sum((chroma - ref) ** 2, axis=1) <= tolerance * tolerance)
+        _, parts = cv2.connectedComponents(own.view(np.uint8), connectivity=8)
+        other = region & ~np.isin(parts, np.unique(parts[own & seeds]))
+        m, pieces = cv2.connectedComponents(other.view(np.uint8), connectivity=8)
+        on_table = np.bincount(pieces[other & contact[box]], minlength=m) >= CONTACT_PX  # as rests()
+        on_table[0] = False
+        out[box] &= ~on_table[pieces]
+    return out
+
+
 def _edge_gaps(depth_m: np.ndarray, shadow: np.ndarray) -> np.ndarray:
     """The pixels without a reading, other than ``shadow``, connected (8-connected) to the image
     border: where an arm nearer than the sensor's range leaves the picture. bool (H, W)."""
@@ -612,13 +745,29 @@ def _touches(region: np.ndarray, other: np.ndarray | None) -> bool:
 
 def _depth_range(d: np.ndarray, where: np.ndarray, reach_px: int) -> tuple[np.ndarray, np.ndarray]:
     """Nearest and farthest reading of ``d`` (0 = none) among the pixels ``where``, in the square of
-    half-width ``reach_px`` around each pixel; +inf and 0 where there is none. float32 (H, W) each."""
+    half-width ``reach_px`` around each pixel; +inf and 0 where there is none. float32 (H, W) each.
+    The minimum and maximum filters run on the bounding box of those readings grown by ``reach_px``
+    only: outside it there is none within reach."""
     d = d.astype(np.float32, copy=False)
     seen = where & (d > 0)
+    near = np.full(d.shape, np.inf, np.float32)
+    far = np.zeros(d.shape, np.float32)
+    if not seen.any():
+        return near, far
+    box = grown_box(seen, reach_px)
     kernel = np.ones((2 * reach_px + 1, 2 * reach_px + 1), np.uint8)
-    near = cv2.erode(np.where(seen, d, np.float32(np.inf)), kernel, borderValue=np.inf)
-    far = cv2.dilate(np.where(seen, d, np.float32(0)), kernel, borderValue=0)
+    crop, dc = seen[box], d[box]
+    near[box] = cv2.erode(np.where(crop, dc, np.float32(np.inf)), kernel, borderValue=np.inf)
+    far[box] = cv2.dilate(np.where(crop, dc, np.float32(0)), kernel, borderValue=0)
     return near, far
+
+
+def depth_steps(depth_m: np.ndarray, *, step_m: float) -> np.ndarray:
+    """The pixels whose 3x3 neighbourhood holds readings (``depth_m`` > 0, float32 (H, W)) more than
+    ``step_m`` apart: bool (H, W). Pixels without a reading count when their neighbours' do."""
+    out = np.zeros(depth_m.shape, bool)
+    step_kernel(np.ascontiguousarray(depth_m, dtype=np.float32), np.float32(step_m), out)
+    return out
 
 
 def close_gaps(mask: np.ndarray, radius_px: int) -> np.ndarray:
@@ -717,6 +866,13 @@ def _along_hand(
     if not hand.any() or not instances:
         return [False] * len(instances)
     d = clean_depth(depth_m)
+    seen = hand & (d > 0)
+    if not seen.any():
+        return [False] * len(instances)
+    # no pixel farther than reach_px from the hand's readings is along it: the work is done on their
+    # bounding box grown by reach_px
+    box = grown_box(seen, reach_px)
+    d, hand = d[box], hand[box]
     near, far = _depth_range(d, hand, reach_px)  # of the hand's readings around each pixel
     if behind:
         along = (d > 0) & ~hand & (d > near + touch_m) & (far > 0)
@@ -724,7 +880,7 @@ def _along_hand(
         along = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
     out = []
     for m in instances:
-        line = m & along
+        line = m[box] & along
         n = np.count_nonzero(line)
         least = reach_px * line_m * fx / float(np.median(d[line])) if n and line_m > 0 else 1
         out.append(bool(n) and n >= least)

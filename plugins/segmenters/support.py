@@ -35,6 +35,7 @@ __all__ = [
     "plane_height_m",
     "DEPTH_STEP_M",
     "label_regions",
+    "grown_box",
 ]
 
 
@@ -147,6 +148,18 @@ def label_regions(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     stats[1:, 1] += y
     stats[0] = (0, 0, m.shape[1], m.shape[0], m.size - int(stats[1:, 4].sum()))
     return n, labels, stats
+
+
+def grown_box(mask: np.ndarray, margin_px: int) -> tuple[slice, slice]:
+    """The bounding box of ``mask``'s pixels (bool (H, W), not empty) grown by ``margin_px`` on each
+    side, within the image: (rows, columns) slices. A filter of half-width ``margin_px`` gives the
+    same values on the mask's pixels whether it runs on this crop or on the whole image."""
+    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+    rows, cols = mask.shape
+    return (
+        slice(max(y - margin_px, 0), min(y + h + margin_px, rows)),
+        slice(max(x - margin_px, 0), min(x + w + margin_px, cols)),
+    )
 
 
 @functools.lru_cache(maxsize=8)
