@@ -941,7 +941,8 @@ def _kinematic_tree(
     of joint costs: each step attaches the moving part whose joint on a part already in the tree
     costs least (:func:`_joint_cost`), so the outer arm of a chain hangs on the inner arm, relative
     to which it has one degree of freedom. Parts in tree order (parents first); a part that no
-    ``min_pairs`` pairs relate to the tree is left out."""
+    ``min_pairs`` pairs relate to the tree, or whose joint explains fewer of them (one relative
+    motion is always a screw motion, so it tells no joint), is left out."""
     tree = {base: _Link(None, None, 0, np.tile(np.eye(4), (n_frames, 1, 1)))}
 
     def joint_on(child: int, parent: int) -> tuple[JointEstimate, int] | None:
@@ -950,7 +951,9 @@ def _kinematic_tree(
         if len(relative) < params.min_pairs or not points.get(child):
             return None
         centre = _centre(points[child], placement)
-        return _pair_joint(relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness)
+        fit = _pair_joint(relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness)
+        # one pair's motion is always a screw about some axis: a joint is told by at least min_pairs
+        return None if fit[0].type != "free" and fit[1] < params.min_pairs else fit
 
     fits: dict[tuple[int, int], tuple[JointEstimate, int] | None] = {}
     waiting = list(moving)

@@ -329,6 +329,22 @@ def test_the_estimator_is_told_one_pose_per_pair_is_independent(bic):
     assert calls[1] == (2 * n_pairs + 1, None)
 
 
+def test_a_joint_must_explain_more_than_one_pair(bic):
+    """One relative motion is always a screw motion about some axis, so it tells no joint: a part whose
+    joint explains only one pair (the estimator finding every other pair an outlier) is left out."""
+
+    class OneInlier:
+        def estimate(self, poses, *, n_independent=None):
+            e = bic.estimate(poses, n_independent=n_independent)
+            inliers = e.inliers.copy()
+            inliers[2 : n_independent + 1] = inliers[n_independent + 2 :] = False  # all but the first pair
+            return dataclasses.replace(e, inliers=inliers)
+
+    art = find_articulation(run_result(), estimator=OneInlier())
+    assert art.joints == [] and [p.index for p in art.parts] == [0]
+    assert art.summary().startswith("no joint")
+
+
 def test_a_part_whose_regions_overlap_little_is_linked_by_its_motion(bic):
     """A carried flap whose regions in neighbouring pairs overlap too little to be linked (IoU 0.92-0.95
     here, the base's 0.96-0.98) falls apart into one part per chain of pairs (i, i + 4); its motions
