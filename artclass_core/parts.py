@@ -34,8 +34,11 @@ those per-pair segments through the frames into parts, and grows the tree of joi
 5. **Tree.** Grown from the base, it attaches at each step the moving part whose joint on a part
    already in the tree has the lowest BIC per pose, as Sturm et al. choose the kinematic tree: the
    outer arm of a chain (a lamp's, a folding ruler's) hangs on the inner arm, relative to which it
-   has one degree of freedom, not on the base. Every joint and every part's points are given in the
-   base's first-frame coordinates with all joints at state 0.
+   has one degree of freedom, not on the base. A joint's residuals that neighbouring pairs share are
+   counted as misfit, not noise: a part carried along a curve by a linkage (a desk lamp's head)
+   keeps its orientation relative to the base and passes for a slide there, but its travel turns
+   from pair to pair. Every joint and every part's points are given in the base's first-frame
+   coordinates with all joints at state 0.
 6. **Part images.** Each frame's segmentation comes from the parts' motions over the whole video,
    not from one pair's labels (which may be wrong near a seam, or missing where no pair separated
    the parts): each object point, moved by each part's motion to the frames where the parts' motions
@@ -624,8 +627,10 @@ def _pair_joint(
     states = np.full(n_frames, np.nan)
     std = np.full(n_frames, np.nan)
     direction = estimate.axis_direction
+    misfit = 0.0
     if len(keep):
         deltas = (estimate.states[forward[keep]] - estimate.states[backward[keep]]) / 2
+        misfit = smooth_misfit(_pair_residuals(estimate, [relative[k][2] for k in keep], deltas, centre_m))
         spread = estimate.states_std if estimate.states_std is not None else np.ones(len(poses))
         pair_std = np.nan_to_num(np.hypot(spread[forward[keep]], spread[backward[keep]]) / 2, nan=1.0)
         states, std = frame_states(
@@ -641,6 +646,7 @@ def _pair_joint(
         n_pairs=n,
         n_pairs_explained=int(explained.sum()),
         n_poses_explained=float(estimate.inliers.sum() * n / len(poses)),  # independent ones
+        smooth_misfit=misfit,
     )
     return JointEstimate(
         estimate.type,
@@ -654,6 +660,56 @@ def _pair_joint(
         estimate.scores,
         info,
     ), int(explained.sum())
+
+
+def _pair_residuals(
+    estimate: JointEstimate, motions: list[np.ndarray], deltas: np.ndarray, centre_m: np.ndarray
+) -> np.ndarray:
+    """How far each pair's relative motion (4, 4) is from the joint's motion over the pair's change of
+    state ``deltas`` (K,): the part's centre ``centre_m`` moved by the difference (metres), then the
+    rotation vector of the difference (radians), (K, 6)."""
+    predicted = joint_motion(estimate, deltas)
+    error = np.linalg.inv(predicted) @ np.stack(motions)
+    moved = error[:, :3, :3] @ centre_m + error[:, :3, 3] - centre_m
+    return np.hstack([moved, Rotation.from_matrix(error[:, :3, :3]).as_rotvec()])
+
+
+#: Pairs a joint must explain before its residuals are judged against their neighbours' (two
+#: differences of neighbouring pairs, the fewest a median of them needs).
+_MIN_NEIGHBOURS = 3
+
+
+def smooth_misfit(residuals: np.ndarray) -> float:
+    """How much of a joint's misfit is smooth in time, per pose: 0 when its residuals are noise.
+
+    Parameters
+    ----------
+    residuals : ndarray, shape (K, 6)
+        Each pair's position (metres) and rotation (radians) residual against the joint, pairs in
+        the order of their frames.
+
+    Returns
+    -------
+    float
+        ``3 (rho_pos - 1) + 3 (rho_rot - 1)`` (each term at least 0), with rho the median squared
+        residual over half the median squared difference of neighbouring pairs' residuals: the noise
+        of two pairs is independent, so their difference has twice its variance; a path the joint
+        does not follow (a part carried along a curve by a linkage, which keeps its orientation
+        and is fitted as a slide) leaves residuals that neighbouring pairs share, small differences
+        and a large rho. With the noise taken from the differences, rho - 1 per component is what
+        the misfit adds to the chi-square of a pose. 0 for fewer than ``_MIN_NEIGHBOURS`` pairs.
+    """
+    residuals = np.asarray(residuals, float)
+    if len(residuals) < _MIN_NEIGHBOURS:
+        return 0.0
+    steps = np.diff(residuals, axis=0)
+    out = 0.0
+    for part in (slice(0, 3), slice(3, 6)):
+        spread = float(np.median(np.sum(residuals[:, part] ** 2, axis=1)))
+        noise = float(np.median(np.sum(steps[:, part] ** 2, axis=1))) / 2
+        if noise > 0:
+            out += 3 * max(spread / noise - 1, 0.0)
+    return out
 
 
 def estimate_joint(estimator: JointEstimator, poses: np.ndarray, *, n_independent: int) -> JointEstimate:
@@ -885,7 +941,8 @@ def _kinematic_tree(
     of joint costs: each step attaches the moving part whose joint on a part already in the tree
     costs least (:func:`_joint_cost`), so the outer arm of a chain hangs on the inner arm, relative
     to which it has one degree of freedom. Parts in tree order (parents first); a part that no
-    ``min_pairs`` pairs relate to the tree is left out."""
+    ``min_pairs`` pairs relate to the tree, or whose joint explains fewer of them (one relative
+    motion is always a screw motion, so it tells no joint), is left out."""
     tree = {base: _Link(None, None, 0, np.tile(np.eye(4), (n_frames, 1, 1)))}
 
     def joint_on(child: int, parent: int) -> tuple[JointEstimate, int] | None:
@@ -894,7 +951,9 @@ def _kinematic_tree(
         if len(relative) < params.min_pairs or not points.get(child):
             return None
         centre = _centre(points[child], placement)
-        return _pair_joint(relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness)
+        fit = _pair_joint(relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness)
+        # one pair's motion is always a screw about some axis: a joint is told by at least min_pairs
+        return None if fit[0].type != "free" and fit[1] < params.min_pairs else fit
 
     fits: dict[tuple[int, int], tuple[JointEstimate, int] | None] = {}
     waiting = list(moving)
@@ -916,11 +975,17 @@ def _kinematic_tree(
 
 
 def _joint_cost(estimate: JointEstimate) -> float:
-    """What a joint costs in the tree: the BIC of the chosen model per pose it explains (lower is
-    better; infinite for a free motion or an estimator that gives no score)."""
+    """What a joint costs in the tree: the BIC of the chosen model per pose it explains, plus the
+    misfit per pose that is smooth in time (:func:`smooth_misfit`), which the estimator's noise
+    level, taken from the residuals, hides (lower is better; infinite for a free motion or an
+    estimator that gives no score). A lamp's arm carried along a circle by a parallelogram keeps
+    its orientation relative to the base and passes for a slide there, but its travel turns from
+    pair to pair; it hangs on the arm it turns against."""
     score = estimate.scores.get(estimate.type)
     n = estimate.info.get("n_poses_explained", 0)
-    return float(score) / n if score is not None and np.isfinite(score) and n else float("inf")
+    if score is None or not np.isfinite(score) or not n:
+        return float("inf")
+    return float(score) / n + float(estimate.info.get("smooth_misfit", 0.0))
 
 
 def _placement(parent: np.ndarray, estimate: JointEstimate) -> np.ndarray:
