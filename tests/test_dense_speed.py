@@ -8,6 +8,7 @@ textured by its own coordinates (so optical flow can follow it), in front of a w
 from __future__ import annotations
 
 import dataclasses
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -18,7 +19,13 @@ from artclass_core.geometry import transform
 from artclass_core.scheduler import worker_pool
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
 from artclass_plugins.dense.flow import flow_targets, structure
-from artclass_plugins.dense.image import ImagePreprocessor, finite_depth, normal_map, vertex_map
+from artclass_plugins.dense.image import (
+    ImagePreprocessor,
+    bounding_box,
+    finite_depth,
+    normal_map,
+    vertex_map,
+)
 from artclass_plugins.dense.projective import (
     NEAR_MASK_PX,
     Target,
@@ -502,6 +509,27 @@ def test_opencv_runs_on_one_thread_while_several_workers_do_and_gives_the_same_f
     assert np.isfinite(many[0]).any()
     for a, b in zip(many, one):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_pairs_flow_does_not_depend_on_the_pairs_before_it_in_its_thread(pair):
+    """Each thread reuses one DIS object; a pair's flow is the same as on a fresh thread, after the
+    flow of a pair with a crop of another size."""
+    source, target, _ = pair
+    pre = ImagePreprocessor(ImagePreprocessor.Params(max_points=2500))
+    a, b = _frame(np.eye(4), 0), _frame(_motion(angle_deg=10.0, shift_m=(0.04, 0.03, 0.1)), 1)
+    other = pre.process(a, a.mask, intrinsics=INTR), pre.process(b, b.mask, intrinsics=INTR)
+    assert bounding_box(b.mask) != bounding_box(target.view.mask)
+
+    def flows(*pairs):
+        return [flow_targets(s, t, min_texture=16.0, max_roundtrip_px=1.0) for s, t in pairs]
+
+    with ThreadPoolExecutor(1) as fresh:
+        (first,) = fresh.submit(flows, (source, target)).result()
+    with ThreadPoolExecutor(1) as used:
+        _, again = used.submit(flows, other, (source, target)).result()
+    assert np.isfinite(first[0]).any()
+    for x, y in zip(first, again):
+        np.testing.assert_array_equal(x, y)
 
 
 def test_warm_up_loads_the_compiled_loops_a_registration_runs(pair):
