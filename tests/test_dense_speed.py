@@ -8,6 +8,7 @@ textured by its own coordinates (so optical flow can follow it), in front of a w
 from __future__ import annotations
 
 import dataclasses
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -17,8 +18,14 @@ from artclass_core import Frame, Intrinsics
 from artclass_core.geometry import transform
 from artclass_core.scheduler import worker_pool
 from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
-from artclass_plugins.dense.flow import flow_targets
-from artclass_plugins.dense.image import ImagePreprocessor, finite_depth, normal_map, vertex_map
+from artclass_plugins.dense.flow import flow_targets, structure
+from artclass_plugins.dense.image import (
+    ImagePreprocessor,
+    bounding_box,
+    finite_depth,
+    normal_map,
+    vertex_map,
+)
 from artclass_plugins.dense.projective import (
     NEAR_MASK_PX,
     Target,
@@ -463,6 +470,28 @@ def test_compiled_quantiles_are_numpys():
             assert kernels().quantile(values, q) == np.quantile(values, q)
 
 
+def test_structure_tensor_at_pixels_is_the_eigen_decomposition_of_the_averaged_gradients():
+    """Smaller and larger eigenvalue, and the larger one's direction, of the 2 x 2 tensor of the
+    gradients' products averaged over the window about each pixel, against numpy's ``eigh``."""
+    rng = np.random.default_rng(5)
+    gray = cv2.GaussianBlur(rng.integers(0, 256, (60, 80)).astype(np.uint8), (5, 5), 1.0)
+    gray[20:40, 30:] = 200  # a flat patch and a straight edge along it
+    pixels = np.column_stack([rng.integers(0, 80, 300), rng.integers(0, 60, 300)])
+    small, large, angle = structure(gray, pixels, window_px=5)
+    gx = cv2.Sobel(gray.astype(float), cv2.CV_64F, 1, 0, ksize=3) / 8
+    gy = cv2.Sobel(gray.astype(float), cv2.CV_64F, 0, 1, ksize=3) / 8
+    xx, yy, xy = (cv2.blur(m, (5, 5))[pixels[:, 1], pixels[:, 0]] for m in (gx * gx, gy * gy, gx * gy))
+    values, vectors = np.linalg.eigh(np.stack([np.stack([xx, xy], -1), np.stack([xy, yy], -1)], -2))
+    scale = np.maximum(values[:, 1], 1.0)
+    assert np.abs(small - values[:, 0]).max() < 1e-4 * scale.max()
+    assert np.abs(large - values[:, 1]).max() < 1e-4 * scale.max()
+    distinct = values[:, 1] - values[:, 0] > 1e-3 * scale
+    assert distinct.sum() > 200
+    # The same direction up to its sign: |cos| of the angle between them is 1.
+    along = np.abs(np.cos(angle) * vectors[:, 0, 1] + np.sin(angle) * vectors[:, 1, 1])
+    assert np.abs(along[distinct] - 1).max() < 1e-3
+
+
 def test_opencv_runs_on_one_thread_while_several_workers_do_and_gives_the_same_flow(pair):
     source, target, _ = pair
     before = cv2.getNumThreads()
@@ -480,6 +509,27 @@ def test_opencv_runs_on_one_thread_while_several_workers_do_and_gives_the_same_f
     assert np.isfinite(many[0]).any()
     for a, b in zip(many, one):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_pairs_flow_does_not_depend_on_the_pairs_before_it_in_its_thread(pair):
+    """Each thread reuses one DIS object; a pair's flow is the same as on a fresh thread, after the
+    flow of a pair with a crop of another size."""
+    source, target, _ = pair
+    pre = ImagePreprocessor(ImagePreprocessor.Params(max_points=2500))
+    a, b = _frame(np.eye(4), 0), _frame(_motion(angle_deg=10.0, shift_m=(0.04, 0.03, 0.1)), 1)
+    other = pre.process(a, a.mask, intrinsics=INTR), pre.process(b, b.mask, intrinsics=INTR)
+    assert bounding_box(b.mask) != bounding_box(target.view.mask)
+
+    def flows(*pairs):
+        return [flow_targets(s, t, min_texture=16.0, max_roundtrip_px=1.0) for s, t in pairs]
+
+    with ThreadPoolExecutor(1) as fresh:
+        (first,) = fresh.submit(flows, (source, target)).result()
+    with ThreadPoolExecutor(1) as used:
+        _, again = used.submit(flows, other, (source, target)).result()
+    assert np.isfinite(first[0]).any()
+    for x, y in zip(first, again):
+        np.testing.assert_array_equal(x, y)
 
 
 def test_warm_up_loads_the_compiled_loops_a_registration_runs(pair):
