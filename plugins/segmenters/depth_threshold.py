@@ -337,11 +337,11 @@ def colour_patches(
     surface = plane if surface is None else surface
     # the colours are needed on the plane's bounding box and the half window around it only
     box = grown_box(plane, max(window_px, THIN_WINDOW_PX) // 2)
-    lab = cv2.LUT(cv2.cvtColor(np.ascontiguousarray(rgb[box], dtype=np.uint8), cv2.COLOR_RGB2Lab), _LAB8)
-    around = cv2.blur(lab, (window_px, window_px))
+    lab = cv2.cvtColor(np.ascontiguousarray(rgb[box], dtype=np.uint8), cv2.COLOR_RGB2Lab)
+    around = _mean_lab(lab, window_px)
     # each pixel's colour averaged over THIN_WINDOW_PX squared pixels: the camera's colour noise
     # divided by THIN_WINDOW_PX, so that it does not pass the contrast by itself
-    lab = cv2.blur(lab, (THIN_WINDOW_PX, THIN_WINDOW_PX))
+    lab = _mean_lab(lab, THIN_WINDOW_PX)
     distinct = np.zeros(plane.shape, bool)
     distinct_kernel(lab, around, plane[box], np.float32(contrast * contrast), distinct[box])
     out = []
@@ -358,12 +358,18 @@ def colour_patches(
     return out
 
 
-# OpenCV's 8-bit CIE Lab (L scaled by 255 / 100, a and b offset by 128) in CIE units, float32: a
-# look-up table per channel, (256, 1, 3). Its steps (0.4 in L, 1 in a and b) lie far below the
-# contrast sought and are averaged over a window; its conversion costs a tenth of the float one.
-_LAB8 = np.stack(
-    [np.arange(256) * (100.0 / 255.0), np.arange(256) - 128.0, np.arange(256) - 128.0], axis=1
-).astype(np.float32)[:, None, :]
+def _mean_lab(lab8: np.ndarray, size_px: int) -> np.ndarray:
+    """The mean of OpenCV's 8-bit CIE Lab (``lab8``, uint8 (H, W, 3): L scaled by 255 / 100, a and b
+    offset by 128) over the ``size_px`` square around each pixel, in CIE units but for the offset of
+    a and b (which colour differences cancel): float32 (H, W, 3). The 8-bit conversion's steps (0.4
+    in L, 1 in a and b) lie far below the contrasts sought and are averaged over the square; it
+    costs a tenth of the float conversion, and its integer sums less than float ones."""
+    mean = cv2.boxFilter(lab8, cv2.CV_32F, (size_px, size_px))
+    mean *= _LAB8_SCALE
+    return mean
+
+
+_LAB8_SCALE = np.array([100.0 / 255.0, 1.0, 1.0], np.float32)
 
 
 def _odd(px: float) -> int:
