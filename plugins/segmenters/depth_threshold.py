@@ -337,13 +337,16 @@ def colour_patches(
     surface = plane if surface is None else surface
     # the colours are needed on the plane's bounding box and the half window around it only
     box = grown_box(plane, max(window_px, THIN_WINDOW_PX) // 2)
+    # OpenCV's 8-bit CIE Lab: its steps (0.4 in L, 1 in a and b) lie far below the contrasts sought
+    # and are averaged over the windows; it costs a tenth of the float conversion, and its means are
+    # integer sums (float output), in 8-bit units until the difference is scaled to CIE units
     lab = cv2.cvtColor(np.ascontiguousarray(rgb[box], dtype=np.uint8), cv2.COLOR_RGB2Lab)
-    around = _mean_lab(lab, window_px)
+    around = cv2.boxFilter(lab, cv2.CV_32F, (window_px, window_px))
     # each pixel's colour averaged over THIN_WINDOW_PX squared pixels: the camera's colour noise
     # divided by THIN_WINDOW_PX, so that it does not pass the contrast by itself
-    lab = _mean_lab(lab, THIN_WINDOW_PX)
+    lab = cv2.boxFilter(lab, cv2.CV_32F, (THIN_WINDOW_PX, THIN_WINDOW_PX))
     distinct = np.zeros(plane.shape, bool)
-    distinct_kernel(lab, around, plane[box], np.float32(contrast * contrast), distinct[box])
+    distinct_kernel(lab, around, _LAB8_UNITS, plane[box], np.float32(contrast * contrast), distinct[box])
     out = []
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
     for m in components(distinct, open_px=0, min_area_fraction=min_area_fraction):
@@ -358,18 +361,9 @@ def colour_patches(
     return out
 
 
-def _mean_lab(lab8: np.ndarray, size_px: int) -> np.ndarray:
-    """The mean of OpenCV's 8-bit CIE Lab (``lab8``, uint8 (H, W, 3): L scaled by 255 / 100, a and b
-    offset by 128) over the ``size_px`` square around each pixel, in CIE units but for the offset of
-    a and b (which colour differences cancel): float32 (H, W, 3). The 8-bit conversion's steps (0.4
-    in L, 1 in a and b) lie far below the contrasts sought and are averaged over the square; it
-    costs a tenth of the float conversion, and its integer sums less than float ones."""
-    mean = cv2.boxFilter(lab8, cv2.CV_32F, (size_px, size_px))
-    mean *= _LAB8_SCALE
-    return mean
-
-
-_LAB8_SCALE = np.array([100.0 / 255.0, 1.0, 1.0], np.float32)
+# CIE units per unit of OpenCV's 8-bit Lab (L scaled by 255 / 100; a and b offset by 128, which
+# differences cancel)
+_LAB8_UNITS = np.array([100.0 / 255.0, 1.0, 1.0], np.float32)
 
 
 def _odd(px: float) -> int:
