@@ -485,14 +485,16 @@ def test_label_regions_match_opencv_components_with_stats():
 
 
 def test_compiled_colour_difference_matches_numpy():
-    """The compiled squared colour distance, thresholded where asked, against numpy's (float32)."""
+    """The compiled squared colour distance (each channel's difference scaled), thresholded where
+    asked, against numpy's (float32)."""
     rng = np.random.default_rng(3)
     colour, around = (rng.normal(50, 8, (30, 40, 3)).astype(np.float32) for _ in range(2))
     where = rng.random((30, 40)) < 0.7
-    diff = colour - around
+    scale = np.array([100 / 255, 1.0, 0.5], np.float32)
+    diff = (colour - around) * scale
     least_sq = np.float32(np.median(np.einsum("ijk,ijk->ij", diff, diff)))
     out = np.zeros(where.shape, bool)
-    distinct_kernel(colour, around, where, least_sq, out)
+    distinct_kernel(colour, around, scale, where, least_sq, out)
     assert np.array_equal(out, where & (np.einsum("ijk,ijk->ij", diff, diff) >= least_sq))
     assert 0 < out.sum() < where.sum()
 

@@ -53,17 +53,18 @@ def step_kernel(depth, step, out):
 
 
 @njit(cache=True, nogil=True)
-def distinct_kernel(colour, around, where, least_sq, out):
+def distinct_kernel(colour, around, scale, where, least_sq, out):
     """Mark in ``out`` (bool (H, W)) the pixels of ``where`` (bool (H, W)) whose ``colour`` differs
-    from ``around`` (float32 (H, W, 3) each) by a squared distance of at least ``least_sq``
-    (float32)."""
+    from ``around`` (float32 (H, W, 3) each), each channel's difference times its ``scale`` (float32
+    (3,)), by a squared distance of at least ``least_sq`` (float32)."""
     h, w = where.shape
+    s0, s1, s2 = scale[0], scale[1], scale[2]
     for v in range(h):
         for u in range(w):
             if where[v, u]:
-                d0 = colour[v, u, 0] - around[v, u, 0]
-                d1 = colour[v, u, 1] - around[v, u, 1]
-                d2 = colour[v, u, 2] - around[v, u, 2]
+                d0 = (colour[v, u, 0] - around[v, u, 0]) * s0
+                d1 = (colour[v, u, 1] - around[v, u, 1]) * s1
+                d2 = (colour[v, u, 2] - around[v, u, 2]) * s2
                 out[v, u] = d0 * d0 + d1 * d1 + d2 * d2 >= least_sq
 
 

@@ -337,13 +337,16 @@ def colour_patches(
     surface = plane if surface is None else surface
     # the colours are needed on the plane's bounding box and the half window around it only
     box = grown_box(plane, max(window_px, THIN_WINDOW_PX) // 2)
-    lab = cv2.cvtColor(cv2.LUT(np.ascontiguousarray(rgb[box], dtype=np.uint8), _UNIT), cv2.COLOR_RGB2Lab)
-    around = cv2.blur(lab, (window_px, window_px))
+    # OpenCV's 8-bit CIE Lab: its steps (0.4 in L, 1 in a and b) lie far below the contrasts sought
+    # and are averaged over the windows; it costs a tenth of the float conversion, and its means are
+    # integer sums (float output), in 8-bit units until the difference is scaled to CIE units
+    lab = cv2.cvtColor(np.ascontiguousarray(rgb[box], dtype=np.uint8), cv2.COLOR_RGB2Lab)
+    around = cv2.boxFilter(lab, cv2.CV_32F, (window_px, window_px))
     # each pixel's colour averaged over THIN_WINDOW_PX squared pixels: the camera's colour noise
     # divided by THIN_WINDOW_PX, so that it does not pass the contrast by itself
-    lab = cv2.blur(lab, (THIN_WINDOW_PX, THIN_WINDOW_PX))
+    lab = cv2.boxFilter(lab, cv2.CV_32F, (THIN_WINDOW_PX, THIN_WINDOW_PX))
     distinct = np.zeros(plane.shape, bool)
-    distinct_kernel(lab, around, plane[box], np.float32(contrast * contrast), distinct[box])
+    distinct_kernel(lab, around, _LAB8_UNITS, plane[box], np.float32(contrast * contrast), distinct[box])
     out = []
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
     for m in components(distinct, open_px=0, min_area_fraction=min_area_fraction):
@@ -358,8 +361,9 @@ def colour_patches(
     return out
 
 
-# 8-bit colour values as floats in [0, 1] (a look-up table: one read per pixel, no division)
-_UNIT = np.arange(256, dtype=np.float32) / 255.0
+# CIE units per unit of OpenCV's 8-bit Lab (L scaled by 255 / 100; a and b offset by 128, which
+# differences cancel)
+_LAB8_UNITS = np.array([100.0 / 255.0, 1.0, 1.0], np.float32)
 
 
 def _odd(px: float) -> int:

@@ -280,7 +280,7 @@ def fit_planes(
     vv, uu = np.nonzero(valid)
     pts = np.column_stack((rx[0, ::s][uu] * z, ry[::s, 0][vv] * z, z))
     total = len(pts)
-    rng = np.random.default_rng(params.plane_seed)
+    rng = None  # made when RANSAC first needs it (a refitted hint draws nothing)
     planes: list[Plane] = []
     support = pts[:0]  # the first plane's inliers, once it is found
     faces = 0
@@ -297,6 +297,7 @@ def fit_planes(
             if found[2].sum() < max(least, 0.5 * hint.inlier_fraction) * total:
                 found = None
         if found is None:
+            rng = np.random.default_rng(params.plane_seed) if rng is None else rng
             found = ransac_plane(
                 pts, distance_m=params.plane_distance_m, iterations=params.plane_iterations, rng=rng
             )
