@@ -15,7 +15,12 @@ those per-pair segments through the frames into parts, and grows the tree of joi
    the part with the most labelled points. A pair that found one motion saw the whole object move
    as one body: its motion is the base's.
 3. **Base poses.** The base's motions are chained through the pairs into its pose in every frame,
-   relative to the first frame. Pairs (i, i + k) link only every k-th frame; the k interleaved chains
+   relative to the first frame. A motion the rule cannot tell from staying still (below its motion
+   threshold, or in a pair it found without motion) is the identity: a fit that drags a still base
+   by a fraction of a moving part's motion would otherwise carry its poses away, pair after pair.
+   So is a motion between two pairs, from the frame before and the frame after, that saw the base
+   still over all the pair's frames: a blend of the base's motion and a part's.
+   Pairs (i, i + k) link only every k-th frame; the k interleaved chains
    are tied together by interpolating the first chain's poses in time (constant velocity).
    A small part's regions in two pairs may overlap too little to be linked in step 1; two of its
    tracks are then linked by their motions relative to the base, which for one joint are one
@@ -435,6 +440,7 @@ def _moving_nodes(
     the base's first-frame coordinates, and the velocity field (points (M, 3) -> (M, 3), metres) of
     the log of its motion relative to the base."""
     base_of = {pair: m for (pair, m), t in track.items() if t == base}
+    base_motions = _base_motions(result, track, base)
     out = {}
     for o in observations:
         G = base_poses[o.frame]
@@ -444,7 +450,7 @@ def _moving_nodes(
         local = transform(o.points, np.linalg.inv(G))
         for m in np.unique(o.labels[(o.labels >= 0) & (o.labels != base_of[o.pair])]):
             motion = {o.pair: p.motions[m].T_target_from_source}
-            parent = {o.pair: p.motions[base_of[o.pair]].T_target_from_source}
+            parent = {o.pair: base_motions[o.pair]}
             relative = _relative_motions(result, motion, parent, base_poses)
             if relative:
                 w, v = _twist_log(relative[0][2])
@@ -774,7 +780,7 @@ def find_articulation(
     base = _still_track(result, track, size, min_pairs=params.min_pairs)
     track = _one_body_pairs_on(base, result, track)
     size = _track_sizes(observations, track)
-    motions = _track_motions(result, track)
+    motions = _track_motions(result, track, base=base)
     base_poses = chain_interleaved(
         n_frames, [(result.pairs[n].i, result.pairs[n].j, T) for n, T in motions.get(base, {}).items()]
     )
@@ -782,7 +788,7 @@ def find_articulation(
         track = _linked_by_motion(
             result, observations, track, base, base_poses, link_sigmas=params.link_sigmas
         )
-        size, motions = _track_sizes(observations, track), _track_motions(result, track)
+        size, motions = _track_sizes(observations, track), _track_motions(result, track, base=base)
     seen = _seen_tracks(result, track, min_pairs=params.min_pairs) if result.label == "articulated" else set()
     views, points = _part_points(result, observations, track, base_poses)
     tree = _kinematic_tree(
@@ -855,12 +861,54 @@ def _one_body_pairs_on(base: int, result: RunResult, track: dict[tuple, int]) ->
     return {node: base if node[0] in one_body else t for node, t in track.items()}
 
 
-def _track_motions(result: RunResult, track: dict[tuple, int]) -> dict[int, dict[int, np.ndarray]]:
-    """Each track's motion T_target_from_source (4, 4) in each pair that found it (at most one a pair)."""
+def _track_motions(
+    result: RunResult, track: dict[tuple, int], *, base: int
+) -> dict[int, dict[int, np.ndarray]]:
+    """Each track's motion T_target_from_source (4, 4) in each pair that found it (at most one a pair);
+    the base's as :func:`_base_motions` gives them."""
     motions: dict[int, dict[int, np.ndarray]] = {}
     for (pair, m), t in sorted(track.items()):
-        motions.setdefault(t, {})[pair] = result.pairs[pair].motions[m].T_target_from_source
+        if t != base:
+            motions.setdefault(t, {})[pair] = result.pairs[pair].motions[m].T_target_from_source
+    motions[base] = _base_motions(result, track, base)
     return motions
+
+
+def _base_motions(result: RunResult, track: dict[tuple, int], base: int) -> dict[int, np.ndarray]:
+    """The base's motion T_target_from_source (4, 4) in each pair that found it: the identity where
+    the rule found no motion in the pair, where the motion moves its points by no more than the
+    rule's motion threshold (``threshold_m`` of the pair's info), which the rule cannot tell from
+    staying still, and where the base stayed still over the pairs from the frame before and the frame
+    after, which together span the pair's frames.
+
+    A fit of the whole object over a still base and a moving part drags the base's points by a
+    fraction of the part's motion. Below the threshold such a drift is noise to the rule, but
+    chained from pair to pair it would carry the base's poses away, and with them the axes of its
+    joints. Above it, between two pairs that saw the base still, the base would have had to move
+    and stop again within a frame: the fit is a blend of the base's motion and a part's."""
+    own = {pair: m for (pair, m), t in track.items() if t == base}
+    still = {
+        pair: result.pairs[pair].decision == "NM"
+        or result.pairs[pair].motions[m].displacement_m <= result.pairs[pair].info.get("threshold_m", -1.0)
+        for pair, m in own.items()
+    }
+    starts = {result.pairs[pair].i: pair for pair in own}
+
+    def framed(pair: int) -> bool:
+        p = result.pairs[pair]
+        before, after = starts.get(p.i - 1), starts.get(p.i + 1)
+        return (
+            before is not None
+            and after is not None
+            and still[before]
+            and still[after]
+            and max(result.pairs[before].j, result.pairs[after].j) >= p.j
+        )
+
+    return {
+        pair: np.eye(4) if still[pair] or framed(pair) else result.pairs[pair].motions[m].T_target_from_source
+        for pair, m in own.items()
+    }
 
 
 def _seen_tracks(result: RunResult, track: dict[tuple, int], *, min_pairs: int) -> set[int]:
