@@ -236,6 +236,27 @@ def test_compiled_icp_equals_the_numpy_reference(pair):
     assert np.abs(fast - inits).max() > 1e-3  # the motions did move
 
 
+def test_icp_of_indexed_points_equals_icp_of_their_copies(pair):
+    """Fitting ``points[index]`` by index gives the motions of fitting the copied points, to the bit."""
+    source, target, T_true = pair
+    tgt = Target.of(target)
+    flow, across = _flow(source, T_true, np.random.default_rng(3))
+    n = len(source)
+    index = np.concatenate([np.arange(n), np.flatnonzero(source.points[:, 1] < 0), np.arange(n)])
+    groups = np.repeat([0, 1, 2], [n, len(index) - 2 * n, n])
+    inits = np.stack([np.eye(4), np.eye(4), _motion(angle_deg=2.0, shift_m=(0.005, 0.0, 0.004))])
+    common = dict(reach_m=[0.03, 0.015, 0.004], metres_per_px=0.0005)
+    by_index, n_by_index = icp(
+        source.points, groups, inits, tgt, flow_px=flow, across=across, index=index, **common
+    )
+    copied, n_copied = icp(
+        source.points[index], groups, inits, tgt, flow_px=flow[index], across=across[index], **common
+    )
+    np.testing.assert_array_equal(by_index, copied)
+    np.testing.assert_array_equal(n_by_index, n_copied)
+    assert np.abs(by_index - inits).max() > 1e-3
+
+
 def test_look_all_equals_the_numpy_reference(pair):
     source, target, T_true = pair
     tgt = Target.of(target)

@@ -296,14 +296,15 @@ class _Fit:
     ) -> list[np.ndarray]:
         """The motions of the groups of points ``points[index]``, from ``inits``."""
         T, _ = icp(
-            points[index],
+            points,
             groups,
             inits,
             self.target,
             reach_m=reach,
-            flow_px=self.flow_px[index],
-            across=self.across[index],
+            flow_px=self.flow_px,
+            across=self.across,
             metres_per_px=self.metres_per_px,
+            index=index,
         )
         return list(T)
 
