@@ -427,8 +427,9 @@ def test_near_copies_are_dropped_as_by_their_point_distances():
             or min(np.sqrt(np.mean(np.sum((moved[i] - moved[j]) ** 2, axis=1))) for j in keep) > 0.001
         ):
             keep.append(i)
-    kept, names = _distinct(hyps, [str(i) for i in range(len(hyps))], points, 0.001)
+    kept, names = _distinct(np.stack(hyps), [str(i) for i in range(len(hyps))], points, 0.001)
     assert names == [str(i) for i in keep]
+    np.testing.assert_array_equal(kept, np.stack(hyps)[keep])
     assert 2 < len(keep) < len(hyps)
 
 
