@@ -22,7 +22,10 @@ from artclass_plugins.dense.flow import flow_targets, structure
 from artclass_plugins.dense.image import (
     ImagePreprocessor,
     bounding_box,
+    filter_depth,
     finite_depth,
+    measured_noise,
+    median_5x5,
     normal_map,
     vertex_map,
 )
@@ -576,3 +579,20 @@ def test_warm_up_loads_the_compiled_loops_a_registration_runs(pair):
     ImagePreprocessor(ImagePreprocessor.Params()).process(frame, frame.mask, intrinsics=INTR)
     DenseRegistrar(DenseRegistrar.Params()).register_pair(source, target)
     assert {name: list(getattr(kernels(), name).signatures) for name in names} == loaded
+
+
+def test_noise_and_outlier_filter_from_one_median_equal_their_own():
+    """The preprocessor blurs once for both the noise and the outlier filter: the same numbers as
+    each computing its own median, and the shared median is left as it was."""
+    rng = np.random.default_rng(5)
+    depth = (0.8 + 0.003 * np.mgrid[0:50, 0:70][0] + rng.normal(0, 0.002, (50, 70))).astype(np.float32)
+    valid = rng.random(depth.shape) < 0.8
+    valid[:, :3] = True  # a surface that reaches the image's edge
+    _, median = median_5x5(depth, valid)
+    before = median.copy()
+    assert measured_noise(depth, valid, median=median) == measured_noise(depth, valid) > 0
+    common = dict(tolerance_m=np.full(depth.shape, 0.005, np.float32), smoothing_px=2)
+    shared, own = filter_depth(depth, valid, median=median, **common), filter_depth(depth, valid, **common)
+    np.testing.assert_array_equal(shared.view(np.uint32), own.view(np.uint32))
+    assert 0 < (shared > 0).sum() < valid.sum()
+    np.testing.assert_array_equal(median, before)
