@@ -9,6 +9,7 @@ should be (free space), or a surface that is not the object.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -255,9 +256,11 @@ def icp(
     return T, inliers
 
 
+@functools.cache
 def kernels():
     """The compiled per-point loops (:mod:`._compiled`), imported on first use: importing Numba
-    takes a few tenths of a second that a command which registers nothing need not wait for."""
+    takes a few tenths of a second that a command which registers nothing need not wait for. The
+    module is kept, so that the dozen calls of a pair do not each go through the import system."""
     from . import _compiled
 
     return _compiled
