@@ -22,7 +22,10 @@ from artclass_plugins.dense.flow import flow_targets, structure
 from artclass_plugins.dense.image import (
     ImagePreprocessor,
     bounding_box,
+    filter_depth,
     finite_depth,
+    measured_noise,
+    median_5x5,
     normal_map,
     vertex_map,
 )
@@ -236,6 +239,27 @@ def test_compiled_icp_equals_the_numpy_reference(pair):
     assert np.abs(fast - inits).max() > 1e-3  # the motions did move
 
 
+def test_icp_of_indexed_points_equals_icp_of_their_copies(pair):
+    """Fitting ``points[index]`` by index gives the motions of fitting the copied points, to the bit."""
+    source, target, T_true = pair
+    tgt = Target.of(target)
+    flow, across = _flow(source, T_true, np.random.default_rng(3))
+    n = len(source)
+    index = np.concatenate([np.arange(n), np.flatnonzero(source.points[:, 1] < 0), np.arange(n)])
+    groups = np.repeat([0, 1, 2], [n, len(index) - 2 * n, n])
+    inits = np.stack([np.eye(4), np.eye(4), _motion(angle_deg=2.0, shift_m=(0.005, 0.0, 0.004))])
+    common = dict(reach_m=[0.03, 0.015, 0.004], metres_per_px=0.0005)
+    by_index, n_by_index = icp(
+        source.points, groups, inits, tgt, flow_px=flow, across=across, index=index, **common
+    )
+    copied, n_copied = icp(
+        source.points[index], groups, inits, tgt, flow_px=flow[index], across=across[index], **common
+    )
+    np.testing.assert_array_equal(by_index, copied)
+    np.testing.assert_array_equal(n_by_index, n_copied)
+    assert np.abs(by_index - inits).max() > 1e-3
+
+
 def test_look_all_equals_the_numpy_reference(pair):
     source, target, T_true = pair
     tgt = Target.of(target)
@@ -406,8 +430,9 @@ def test_near_copies_are_dropped_as_by_their_point_distances():
             or min(np.sqrt(np.mean(np.sum((moved[i] - moved[j]) ** 2, axis=1))) for j in keep) > 0.001
         ):
             keep.append(i)
-    kept, names = _distinct(hyps, [str(i) for i in range(len(hyps))], points, 0.001)
+    kept, names = _distinct(np.stack(hyps), [str(i) for i in range(len(hyps))], points, 0.001)
     assert names == [str(i) for i in keep]
+    np.testing.assert_array_equal(kept, np.stack(hyps)[keep])
     assert 2 < len(keep) < len(hyps)
 
 
@@ -554,3 +579,20 @@ def test_warm_up_loads_the_compiled_loops_a_registration_runs(pair):
     ImagePreprocessor(ImagePreprocessor.Params()).process(frame, frame.mask, intrinsics=INTR)
     DenseRegistrar(DenseRegistrar.Params()).register_pair(source, target)
     assert {name: list(getattr(kernels(), name).signatures) for name in names} == loaded
+
+
+def test_noise_and_outlier_filter_from_one_median_equal_their_own():
+    """The preprocessor blurs once for both the noise and the outlier filter: the same numbers as
+    each computing its own median, and the shared median is left as it was."""
+    rng = np.random.default_rng(5)
+    depth = (0.8 + 0.003 * np.mgrid[0:50, 0:70][0] + rng.normal(0, 0.002, (50, 70))).astype(np.float32)
+    valid = rng.random(depth.shape) < 0.8
+    valid[:, :3] = True  # a surface that reaches the image's edge
+    _, median = median_5x5(depth, valid)
+    before = median.copy()
+    assert measured_noise(depth, valid, median=median) == measured_noise(depth, valid) > 0
+    common = dict(tolerance_m=np.full(depth.shape, 0.005, np.float32), smoothing_px=2)
+    shared, own = filter_depth(depth, valid, median=median, **common), filter_depth(depth, valid, **common)
+    np.testing.assert_array_equal(shared.view(np.uint32), own.view(np.uint32))
+    assert 0 < (shared > 0).sum() < valid.sum()
+    np.testing.assert_array_equal(median, before)

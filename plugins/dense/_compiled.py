@@ -161,6 +161,7 @@ def _rotation(x0, x1, x2):
 @njit(cache=True, nogil=True)
 def _normal_equations(
     points,
+    index,
     groups,
     T,
     centre,
@@ -177,8 +178,9 @@ def _normal_equations(
     rows,
     inliers,
 ):
-    """One pass over the points: each group's Gauss-Newton normal equations (the upper triangle of
-    the sum of w J^T J in A, the sum of w J^T r in b), its number of rows and of depth matches."""
+    """One pass over the points ``points[index]`` (``groups``, ``use`` per entry of ``index``): each
+    group's Gauss-Newton normal equations (the upper triangle of the sum of w J^T J in A, the sum of
+    w J^T r in b), its number of rows and of depth matches."""
     h, w = depth.shape
     fx, fy, cx, cy = camera[0], camera[1], camera[2], camera[3]
     A[:] = 0
@@ -190,10 +192,10 @@ def _normal_equations(
         moved_centre[g, 0], moved_centre[g, 1], moved_centre[g, 2] = _moved(
             T[g], centre[g, 0], centre[g, 1], centre[g, 2]
         )
-    for i in range(points.shape[0]):
-        if not use[i]:
+    for k in range(index.shape[0]):
+        if not use[k]:
             continue
-        g = groups[i]
+        g, i = groups[k], index[k]
         q0, q1, q2 = _moved(T[g], points[i, 0], points[i, 1], points[i, 2])
         # lever arm about the moved centroid
         a0, a1, a2 = q0 - moved_centre[g, 0], q1 - moved_centre[g, 1], q2 - moved_centre[g, 2]
@@ -239,30 +241,32 @@ def _normal_equations(
 
 
 @njit(cache=True, nogil=True)
-def group_centres(points, groups, every, min_thinned, centre, thin):
-    """``centre`` (G, 3) := the centroid of each group's points (0 for an empty group); ``thin`` (N,)
-    := the points the coarse ICP iterations use: every ``every``-th point of its group, in order, or
-    every point of a group of fewer than ``min_thinned``. Sums in point order, as np.bincount's."""
+def group_centres(points, index, groups, every, min_thinned, centre, thin):
+    """``centre`` (G, 3) := the centroid of each group's points (0 for an empty group), the points
+    being ``points[index]`` and ``groups`` (M,) the group of each; ``thin`` (M,) := the entries the
+    coarse ICP iterations use: every ``every``-th of its group, in order, or every entry of a group of
+    fewer than ``min_thinned``. Sums in the order of ``index``, as np.bincount's."""
     G = centre.shape[0]
     count = np.zeros(G, np.int64)
-    rank = np.empty(points.shape[0], np.int64)
+    rank = np.empty(index.shape[0], np.int64)
     centre[:] = 0.0
-    for i in range(points.shape[0]):
-        g = groups[i]
-        rank[i] = count[g]
+    for k in range(index.shape[0]):
+        g = groups[k]
+        rank[k] = count[g]
         count[g] += 1
         for d in range(3):
-            centre[g, d] += points[i, d]
+            centre[g, d] += points[index[k], d]
     for g in range(G):
         for d in range(3):
             centre[g, d] /= max(count[g], 1)
-    for i in range(points.shape[0]):
-        thin[i] = rank[i] % every == 0 or count[groups[i]] < min_thinned
+    for k in range(index.shape[0]):
+        thin[k] = rank[k] % every == 0 or count[groups[k]] < min_thinned
 
 
 @njit(cache=True, nogil=True)
 def icp_kernel(
     points,
+    index,
     groups,
     T,
     centre,
@@ -283,12 +287,13 @@ def icp_kernel(
     A = np.zeros((G, 6, 6))
     b = np.zeros((G, 6))
     rows = np.zeros(G, np.int64)
-    everything = np.ones(points.shape[0], np.bool_)
+    everything = np.ones(index.shape[0], np.bool_)
     can_thin = not thin.all()
     for reach in reaches:
         use = thin if (reach > 2 * reaches[-1] and can_thin) else everything
         _normal_equations(
             points,
+            index,
             groups,
             T,
             centre,

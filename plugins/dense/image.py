@@ -142,40 +142,55 @@ def peel(mask: np.ndarray, edge_px: int) -> np.ndarray:
     return mask & (inside > np.minimum(edge_px, half_width / 2))
 
 
-def measured_noise(depth_m: np.ndarray, valid: np.ndarray) -> float:
+def median_5x5(depth_m: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The depth (H, W) float32 with its invalid pixels 0, and its plain 5x5 median filter (H, W)
+    float32 (``cv2.medianBlur``), which :func:`measured_noise` and :func:`valid_median` both start from."""
+    depth = _masked(depth_m, valid)
+    return depth, cv2.medianBlur(depth, 5)
+
+
+def measured_noise(depth_m: np.ndarray, valid: np.ndarray, *, median: np.ndarray | None = None) -> float:
     """Depth noise (metres, one sigma) measured on an image: the RMS deviation of the valid pixels from
     the median of their 5x5 neighbourhood, over pixels whose neighbourhood is all valid, the largest 5%
-    (creases, flying pixels) left out; 0 when too few pixels have such a neighbourhood.
+    (creases, flying pixels) left out; 0 when too few pixels have such a neighbourhood. ``median``, if
+    given, is the second result of :func:`median_5x5`, not computed again.
 
     Notes
     -----
     Not a median absolute deviation: a sensor that quantises depth (disparity steps) gives most pixels
     exactly their neighbours' depth, and the MAD of that is zero however coarse the steps are.
     """
-    depth = np.where(valid, depth_m, 0).astype(np.float32)
+    depth, plain = median_5x5(depth_m, valid) if median is None else (_masked(depth_m, valid), median)
     # Only pixels whose whole neighbourhood is valid: at an edge the median mixes in another surface.
     interior = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-    spread = np.abs(depth - cv2.medianBlur(depth, 5))[interior]
+    spread = np.abs(depth - plain)[interior]
     if len(spread) < MIN_POINTS:
         return 0.0
     kept = np.sort(spread)[: max(1, int(0.95 * len(spread)))]
     return float(np.sqrt(np.mean(np.square(kept))))
 
 
-def valid_median(depth: np.ndarray, valid: np.ndarray, *, min_count: int = 3) -> np.ndarray:
+def valid_median(
+    depth: np.ndarray, valid: np.ndarray, *, min_count: int = 3, median: np.ndarray | None = None
+) -> np.ndarray:
     """The median of each valid pixel's valid 5x5 neighbours (itself included); 0 where fewer than
-    ``min_count`` are valid, and at invalid pixels.
+    ``min_count`` are valid, and at invalid pixels. ``median``, if given, is the second result of
+    :func:`median_5x5` (left as it is), not computed again.
 
     Missing pixels must not vote: where a sensor loses half the pixels of a surface seen at a grazing
     angle, a plain median filter of the image with zeros for them returns zero."""
-    depth = np.where(valid, depth, 0).astype(np.float32)
-    out = cv2.medianBlur(depth, 5)
+    depth, out = median_5x5(depth, valid) if median is None else (_masked(depth, valid), median.copy())
     # Where a window is all valid and inside the image, the plain median is the same.
     whole = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8), borderValue=0) > 0
     from .projective import kernels  # Numba, on first use
 
     kernels().valid_median_kernel(depth, valid, valid & ~whole, out, 2, min_count)
-    return np.where(valid, out, 0).astype(np.float32)
+    return np.where(valid, out, 0).astype(np.float32, copy=False)
+
+
+def _masked(depth_m: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The depth (H, W) float32 with its invalid pixels 0."""
+    return np.where(valid, depth_m, 0).astype(np.float32, copy=False)
 
 
 def depth_step(depth_m: np.ndarray, valid: np.ndarray, *, min_levels: int = 8) -> float:
@@ -196,22 +211,30 @@ def depth_step(depth_m: np.ndarray, valid: np.ndarray, *, min_levels: int = 8) -
 
 
 def filter_depth(
-    depth_m: np.ndarray, valid: np.ndarray, *, tolerance_m: np.ndarray, smoothing_px: int
+    depth_m: np.ndarray,
+    valid: np.ndarray,
+    *,
+    tolerance_m: np.ndarray,
+    smoothing_px: int,
+    median: np.ndarray | None = None,
 ) -> np.ndarray:
     """Depth with outliers removed (0) and, if ``smoothing_px``, smoothed within ``tolerance_m``.
 
     A pixel is an outlier when it is farther than ``tolerance_m`` from the median of the valid pixels
-    of its 5x5 neighbourhood, or when fewer than three of them are valid (a lone pixel)."""
-    depth = np.where(valid, depth_m, 0).astype(np.float32)
-    median = valid_median(depth, valid)
+    of its 5x5 neighbourhood, or when fewer than three of them are valid (a lone pixel). ``median``, if
+    given, is the second result of :func:`median_5x5`, not computed again."""
+    depth = _masked(depth_m, valid)
+    median = valid_median(depth, valid, median=median)
     keep = valid & (median > 0) & (np.abs(depth - median) <= tolerance_m)
-    depth = np.where(keep, depth, 0).astype(np.float32)
+    depth = np.where(keep, depth, 0).astype(np.float32, copy=False)
     if smoothing_px:
         sigma = float(np.median(tolerance_m[keep])) if keep.any() else 0.01
         smooth = cv2.bilateralFilter(depth, 2 * smoothing_px + 1, sigma, smoothing_px)
         # Missing pixels (0) lie far outside the depth range and get no weight, except next to a hole,
         # where the filter's range term cannot tell; those pixels keep their own depth.
-        depth = np.where(keep & (np.abs(smooth - depth) <= tolerance_m), smooth, depth).astype(np.float32)
+        depth = np.where(keep & (np.abs(smooth - depth) <= tolerance_m), smooth, depth).astype(
+            np.float32, copy=False
+        )
     return depth
 
 
@@ -238,9 +261,13 @@ class ImagePreprocessor(Preprocessor):
         if n_raw < MIN_POINTS:
             return _empty(frame.index, n_raw)
         footprint = crop / intrinsics.fx
-        sigma = max(measured_noise(crop, inside), float(noise_m(np.median(crop[inside]), p.depth_noise_m)))
+        _, median = median_5x5(crop, inside)
+        sigma = max(
+            measured_noise(crop, inside, median=median),
+            float(noise_m(np.median(crop[inside]), p.depth_noise_m)),
+        )
         tolerance = p.outlier_sigmas * sigma + footprint
-        depth = filter_depth(crop, inside, tolerance_m=tolerance, smoothing_px=p.smoothing_px)
+        depth = filter_depth(crop, inside, tolerance_m=tolerance, smoothing_px=p.smoothing_px, median=median)
         vertices = vertex_map(depth, intrinsics, u0=u0, v0=v0)
         normals = normal_map(vertices)
         usable = (depth > 0) & ((normals[..., 0] != 0) | (normals[..., 1] != 0) | (normals[..., 2] != 0))

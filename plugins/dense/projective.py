@@ -9,6 +9,7 @@ should be (free space), or a surface that is not the object.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -184,6 +185,7 @@ def icp(
     flow_px: np.ndarray | None = None,
     across: np.ndarray | None = None,
     metres_per_px: float = 0.0,
+    index: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Projective point-to-plane ICP of several point groups at once, each with its own motion, with
     optical flow as a second term where it is known (as RGB-D odometry's hybrid term).
@@ -191,7 +193,7 @@ def icp(
     Parameters
     ----------
     points : (N, 3) source points, metres
-    groups : (N,) int in [0, G): the group of each point
+    groups : (M,) int in [0, G): the group of each point fitted (of each entry of ``index``)
     T : (G, 4, 4) initial ``T_target_from_source`` of each group
     target : the target frame
     reach_m : one correspondence distance per iteration (coarse to fine), metres
@@ -200,6 +202,8 @@ def icp(
         an edge point (compare along it only); NaN where unknown (see :mod:`.flow`)
     metres_per_px : how much one pixel of flow misfit weighs against one metre of depth misfit
         (depth noise / flow noise); 0 leaves the flow out
+    index : (M,) int, optional: the points fitted are ``points[index]``, so that a point can be in
+        several groups without copies of the points and their flow; every point once by default
 
     Returns
     -------
@@ -222,14 +226,18 @@ def icp(
     T = np.array(T, dtype=np.float64, copy=True)
     points = np.ascontiguousarray(points, np.float64)
     groups = np.ascontiguousarray(groups, np.int64)
+    index = np.arange(len(points)) if index is None else np.ascontiguousarray(index, np.int64)
     centre = np.zeros((len(T), 3))
-    thin = np.empty(len(points), np.bool_)
-    kernels().group_centres(points, groups, COARSE_THINNING, 4 * COARSE_THINNING * min_points, centre, thin)
+    thin = np.empty(len(index), np.bool_)
+    kernels().group_centres(
+        points, index, groups, COARSE_THINNING, 4 * COARSE_THINNING * min_points, centre, thin
+    )
     use_flow = flow_px is not None and metres_per_px > 0
     unknown = np.full((len(points), 2), np.nan)
     inliers = np.zeros(len(T), np.int64)
     kernels().icp_kernel(
         points,
+        index,
         groups,
         T,
         centre,
@@ -248,9 +256,11 @@ def icp(
     return T, inliers
 
 
+@functools.cache
 def kernels():
     """The compiled per-point loops (:mod:`._compiled`), imported on first use: importing Numba
-    takes a few tenths of a second that a command which registers nothing need not wait for."""
+    takes a few tenths of a second that a command which registers nothing need not wait for. The
+    module is kept, so that the dozen calls of a pair do not each go through the import system."""
     from . import _compiled
 
     return _compiled

@@ -128,7 +128,8 @@ class DenseRegistrar(PairRegistrar):
         # helical stripe on a turning can seems to travel along its axis).
         depth_only = _Fit(tgt, no_flow, no_flow, 0.0).each(points, starts[:2], coarse)
         kinds = ["", " (shift)", " (flow)"][: len(whole)] + [" (depth)", " (depth, shift)"]
-        hyps, names = [np.eye(4), *whole, *depth_only], ["identity"] + [f"{WHOLE_OBJECT}{k}" for k in kinds]
+        hyps = np.concatenate([np.eye(4)[None], whole, depth_only])
+        names = ["identity"] + [f"{WHOLE_OBJECT}{k}" for k in kinds]
 
         cells = _cells(points, size / p.cells_per_diameter, p.min_seed_points)
         if cells.max() >= 0:
@@ -146,7 +147,7 @@ class DenseRegistrar(PairRegistrar):
                 )
             used = cells >= 0
             local = fit(points, np.flatnonzero(used), cells[used], seeds, coarse[1:])
-            hyps += list(local)
+            hyps = np.concatenate([hyps, local])
             names += [f"cell {c}" for c in range(len(local))]
 
         hyps, names = _distinct(hyps, names, points, sigma0)
@@ -155,7 +156,7 @@ class DenseRegistrar(PairRegistrar):
 
         for r in range(p.refine_rounds):
             ev = MotionEvidence(
-                np.stack(hyps),
+                hyps,
                 names,
                 residual,
                 status,
@@ -167,10 +168,10 @@ class DenseRegistrar(PairRegistrar):
                 dict(stride_px=int(source.info.get("stride_px", 1))),
             )
             new, new_names = self._refits(ev, fit, rule, r, coarse)
-            if not new:
+            if not len(new):
                 break
             n_before = len(hyps)
-            hyps, names = _distinct(hyps + new, names + new_names, points, sigma0)
+            hyps, names = _distinct(np.concatenate([hyps, new]), names + new_names, points, sigma0)
             if len(hyps) == n_before:
                 break
             more_status, more_residual = _look_all(hyps[n_before:], points, tgt, reach)
@@ -178,7 +179,7 @@ class DenseRegistrar(PairRegistrar):
             flow_err = np.vstack([flow_err, _flow_errors(hyps[n_before:], points, flow_px, across, tgt)])
         # The other way round: each target point moved by each motion's inverse onto the source image.
         back = Target.of(source)
-        inverse = np.linalg.inv(np.stack(hyps))
+        inverse = np.linalg.inv(hyps)
         status_back, residual_back = _look_all(
             inverse, target.points, back, self.reach(target, back.intrinsics.fx)
         )
@@ -189,7 +190,7 @@ class DenseRegistrar(PairRegistrar):
             seconds=round(time.perf_counter() - t0, 4),
         )
         return MotionEvidence(
-            np.stack(hyps),
+            hyps,
             names,
             np.hstack([residual, residual_back]),
             np.hstack([status, status_back]),
@@ -210,14 +211,14 @@ class DenseRegistrar(PairRegistrar):
 
     def _refits(
         self, ev: MotionEvidence, fit: _Fit, rule: DenseRuleParams, round_: int, reach: list[float]
-    ) -> tuple[list, list]:
+    ) -> tuple[np.ndarray, list]:
         """The motions a default selection picks, refitted on the points they explain; and, for each
         of the largest image regions of points that none of them explains, motions fitted to that
         region from each selected motion (coarse to fine)."""
         costs = point_costs(ev, noise_factor=rule.noise_factor, flow_sigma_px=rule.flow_sigma_px)
         seen = (ev.status == SURFACE).any(axis=0)
         if seen.sum() < self.params.min_seed_points:
-            return [], []
+            return np.empty((0, 4, 4)), []
         n = int(seen.sum())
         misfit = rule.noise_factor**2
         chosen = select(
@@ -260,12 +261,12 @@ class DenseRegistrar(PairRegistrar):
                 inits.append(ev.motions[h])
                 whole.append(False)
         if not inits:
-            return [], []
+            return np.empty((0, 4, 4)), []
         index = np.concatenate(members)
         groups = np.repeat(np.arange(len(members)), [len(m) for m in members])
         T = fit(ev.points, index, groups, np.stack(inits), reach)
         names = [f"refit {round_}.{g}" for g in range(len(T))]
-        return list(T), [f"{WHOLE_OBJECT} ({name})" if w else name for name, w in zip(names, whole)]
+        return T, [f"{WHOLE_OBJECT} ({name})" if w else name for name, w in zip(names, whole)]
 
 
 def _sensor_noise(cloud: Cloud) -> float:
@@ -293,21 +294,22 @@ class _Fit:
 
     def __call__(
         self, points: np.ndarray, index: np.ndarray, groups: np.ndarray, inits: np.ndarray, reach: list[float]
-    ) -> list[np.ndarray]:
-        """The motions of the groups of points ``points[index]``, from ``inits``."""
+    ) -> np.ndarray:
+        """The motions (G, 4, 4) of the groups of points ``points[index]``, from ``inits``."""
         T, _ = icp(
-            points[index],
+            points,
             groups,
             inits,
             self.target,
             reach_m=reach,
-            flow_px=self.flow_px[index],
-            across=self.across[index],
+            flow_px=self.flow_px,
+            across=self.across,
             metres_per_px=self.metres_per_px,
+            index=index,
         )
-        return list(T)
+        return T
 
-    def each(self, points: np.ndarray, inits: np.ndarray, reach: list[float]) -> list[np.ndarray]:
+    def each(self, points: np.ndarray, inits: np.ndarray, reach: list[float]) -> np.ndarray:
         """All the points, from each of the initial motions."""
         index = np.tile(np.arange(len(points)), len(inits))
         return self(points, index, np.repeat(np.arange(len(inits)), len(points)), inits, reach)
@@ -327,24 +329,26 @@ def _cells(points: np.ndarray, size_m: float, min_points: int) -> np.ndarray:
     return number[cell]
 
 
-def _distinct(hyps: list, names: list, points: np.ndarray, tolerance_m: float) -> tuple[list, list]:
-    """The hypotheses without near-copies: a motion that puts every point within ``tolerance_m`` (RMS)
-    of where an earlier one does is dropped."""
+def _distinct(
+    hyps: np.ndarray, names: list, points: np.ndarray, tolerance_m: float
+) -> tuple[np.ndarray, list]:
+    """The hypotheses (H, 4, 4) without near-copies: a motion that puts every point within
+    ``tolerance_m`` (RMS) of where an earlier one does is dropped."""
     sample = points[:: max(1, len(points) // 200)]
     x = np.column_stack([sample, np.ones(len(sample))])
     moment = x.T @ x / len(x)  # (4, 4) second moment: the mean of |(T_i - T_j) x|^2 follows from it
     keep = np.empty(len(hyps), np.bool_)
-    kernels().distinct_kernel(np.ascontiguousarray(np.stack(hyps)[:, :3]), moment, float(tolerance_m), keep)
-    return [h for h, k in zip(hyps, keep) if k], [n for n, k in zip(names, keep) if k]
+    kernels().distinct_kernel(np.ascontiguousarray(hyps[:, :3]), moment, float(tolerance_m), keep)
+    return hyps[keep], [n for n, k in zip(names, keep) if k]
 
 
-def _look_all(hyps: list, points: np.ndarray, tgt: Target, reach: np.ndarray):
-    return look_all(np.stack(hyps), points, tgt, reach_m=reach, off_object_px=2.0)
+def _look_all(hyps: np.ndarray, points: np.ndarray, tgt: Target, reach: np.ndarray):
+    return look_all(hyps, points, tgt, reach_m=reach, off_object_px=2.0)
 
 
 def _flow_errors(
-    hyps: list, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray, tgt: Target
+    hyps: np.ndarray, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray, tgt: Target
 ) -> np.ndarray:
     """Distance (H, N) in pixels between where each motion and where the flow put each point (across
     the edge only, at an edge point)."""
-    return flow_misfit(np.stack(hyps), points, flow_px, across, tgt.intrinsics)
+    return flow_misfit(hyps, points, flow_px, across, tgt.intrinsics)
