@@ -56,6 +56,8 @@ from artclass_plugins.segmenters.support import (
     background_mask,
     fit_planes,
     label_regions,
+    plane_height_m,
+    range_mask,
 )
 
 YCBV = (Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "ycbv").resolve()
@@ -424,6 +426,30 @@ def test_a_ruler_thinner_than_the_noise_allows_per_pixel_is_found_over_a_window(
     assert np.count_nonzero(single & ruler) < 0.1 * np.count_nonzero(ruler)
     found = DepthThresholdSegmenter().instances(frame, sequence=seq)
     assert len(found) == 1 and mask_iou(found[0], ruler) > 0.7
+
+
+def test_above_planes_with_a_shared_range_mask_leaves_it_and_gives_the_same_pixels():
+    """The range mask and heights computed once and given to both kinds of call (single readings
+    and window means): the same pixels as computed inside, and the given mask left as it was."""
+    shape = np.zeros((H, W), np.uint8)
+    shape[60:70, 30:130] = 1
+    frame, _ = scissors_scene(colour=(60, 60, 64), height_m=0.0025, shape=shape)
+    p = BackgroundParams()
+    depth = frame.depth_m.copy()
+    depth[:10] = np.nan  # no reading
+    depth[10:20] = p.far_m + 0.5  # out of range
+    planes = fit_planes(depth, INTR, params=p)
+    clean = np.nan_to_num(depth, nan=0.0)
+    inside = range_mask(clean, near_m=p.near_m, far_m=p.far_m)
+    kept = inside.copy()
+    heights = [plane_height_m(clean, INTR, plane) for plane in planes]
+    for window_px in (1, 3):
+        alone = above_planes(depth, INTR, planes, params=p, sigmas=4.0, window_px=window_px)
+        shared = above_planes(
+            clean, INTR, planes, params=p, sigmas=4.0, window_px=window_px, heights=heights, inside=inside
+        )
+        assert alone.any() and np.array_equal(alone, shared)
+    assert np.array_equal(inside, kept)
 
 
 def test_instances_that_touch_in_3d_are_joined():
