@@ -452,6 +452,23 @@ def test_above_planes_with_a_shared_range_mask_leaves_it_and_gives_the_same_pixe
     assert np.array_equal(inside, kept)
 
 
+def test_the_warmed_compiled_loops_are_those_segmenting_uses():
+    """After ``warm_up`` and segmenting a frame with hands looked for and a thin object on the table,
+    each compiled loop holds only the argument types that ``warm_up`` loaded (one each; two layouts
+    of the colour difference's masks): the first frame loads nothing more."""
+    from artclass_plugins.segmenters import _compiled
+
+    _compiled.warm_up()
+    shape = np.zeros((H, W), np.uint8)
+    shape[60:70, 30:130] = 1
+    frame, _ = scissors_scene(colour=(60, 60, 64), height_m=0.0025, shape=shape)
+    seg = DepthThresholdSegmenter()
+    assert seg.params.exclude_hands and seg.params.thin_contrast > 0
+    seg.instances(frame, sequence=ArraySequence([frame]))
+    kernels = (_compiled.shadow_kernel, _compiled.step_kernel, _compiled.distinct_kernel, _compiled.region_stats)
+    assert [len(k.signatures) for k in kernels] == [1, 1, 2, 1]
+
+
 def test_instances_that_touch_in_3d_are_joined():
     depth = np.full((H, W), 0.5, np.float32)  # a wall: one pixel is 3.3 mm across
     left, right, far = (np.zeros((H, W), bool) for _ in range(3))
