@@ -56,6 +56,8 @@ from artclass_plugins.segmenters.support import (
     background_mask,
     fit_planes,
     label_regions,
+    plane_height_m,
+    range_mask,
 )
 
 YCBV = (Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "ycbv").resolve()
@@ -424,6 +426,47 @@ def test_a_ruler_thinner_than_the_noise_allows_per_pixel_is_found_over_a_window(
     assert np.count_nonzero(single & ruler) < 0.1 * np.count_nonzero(ruler)
     found = DepthThresholdSegmenter().instances(frame, sequence=seq)
     assert len(found) == 1 and mask_iou(found[0], ruler) > 0.7
+
+
+def test_above_planes_with_a_shared_range_mask_leaves_it_and_gives_the_same_pixels():
+    """The range mask and heights computed once and given to both kinds of call (single readings
+    and window means): the same pixels as computed inside, and the given mask left as it was."""
+    shape = np.zeros((H, W), np.uint8)
+    shape[60:70, 30:130] = 1
+    frame, _ = scissors_scene(colour=(60, 60, 64), height_m=0.0025, shape=shape)
+    p = BackgroundParams()
+    depth = frame.depth_m.copy()
+    depth[:10] = np.nan  # no reading
+    depth[10:20] = p.far_m + 0.5  # out of range
+    planes = fit_planes(depth, INTR, params=p)
+    clean = np.nan_to_num(depth, nan=0.0)
+    inside = range_mask(clean, near_m=p.near_m, far_m=p.far_m)
+    kept = inside.copy()
+    heights = [plane_height_m(clean, INTR, plane) for plane in planes]
+    for window_px in (1, 3):
+        alone = above_planes(depth, INTR, planes, params=p, sigmas=4.0, window_px=window_px)
+        shared = above_planes(
+            clean, INTR, planes, params=p, sigmas=4.0, window_px=window_px, heights=heights, inside=inside
+        )
+        assert alone.any() and np.array_equal(alone, shared)
+    assert np.array_equal(inside, kept)
+
+
+def test_the_warmed_compiled_loops_are_those_segmenting_uses():
+    """After ``warm_up`` and segmenting a frame with hands looked for and a thin object on the table,
+    each compiled loop holds only the argument types that ``warm_up`` loaded (one each; two layouts
+    of the colour difference's masks): the first frame loads nothing more."""
+    from artclass_plugins.segmenters import _compiled
+
+    _compiled.warm_up()
+    shape = np.zeros((H, W), np.uint8)
+    shape[60:70, 30:130] = 1
+    frame, _ = scissors_scene(colour=(60, 60, 64), height_m=0.0025, shape=shape)
+    seg = DepthThresholdSegmenter()
+    assert seg.params.exclude_hands and seg.params.thin_contrast > 0
+    seg.instances(frame, sequence=ArraySequence([frame]))
+    kernels = (_compiled.shadow_kernel, _compiled.step_kernel, _compiled.distinct_kernel, _compiled.region_stats)
+    assert [len(k.signatures) for k in kernels] == [1, 1, 2, 1]
 
 
 def test_instances_that_touch_in_3d_are_joined():

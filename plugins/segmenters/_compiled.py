@@ -96,3 +96,20 @@ def region_stats(labels, n):
         stats[k, 2] = x1[k] - x0[k] + 1
         stats[k, 3] = y1[k] - y0[k] + 1
     return stats
+
+
+def warm_up() -> None:
+    """Load the compiled loops: run each once on a tiny image with the argument types of the
+    segmenters' calls, so that the first frame does not pay for loading Numba's cached machine code
+    (or compiling it)."""
+    depth = np.full((4, 6), 0.5, np.float32)
+    flags = np.zeros(depth.shape, bool)
+    shadow_kernel(depth, np.float32(0.01), flags)
+    step_kernel(depth, np.float32(0.01), flags)
+    # the colours are of a bounding box; its masks are views of the image's: contiguous when the box
+    # is as wide as the image, not when narrower
+    for box in (np.s_[:, :], np.s_[:, 1:]):
+        where, out = np.ones(depth.shape, bool)[box], flags[box]
+        colour = np.zeros(where.shape + (3,), np.float32)
+        distinct_kernel(colour, colour, np.ones(3, np.float32), where, np.float32(1.0), out)
+    region_stats(np.zeros(depth.shape, np.int32), 1)

@@ -48,6 +48,7 @@ from .support import (
     grown_box,
     label_regions,
     plane_height_m,
+    range_mask,
 )
 
 __all__ = [
@@ -512,7 +513,10 @@ class DepthThresholdSegmenter(MaskFreeSegmenter):
         objects = valid & ~background if allowed is None else valid & ~background & allowed
         found = components(objects, open_px=p.open_px, min_area_fraction=p.min_area_fraction)
         if p.grow_sigmas > 0:
-            low = background & above_planes(depth, K, planes, params=p, sigmas=p.grow_sigmas, heights=heights)
+            inside = range_mask(depth, near_m=p.near_m, far_m=p.far_m)  # shared by both calls
+            low = background & above_planes(
+                depth, K, planes, params=p, sigmas=p.grow_sigmas, heights=heights, inside=inside
+            )
             low = low if allowed is None else low & allowed
             if p.thin_contrast > 0:
                 flat = background & above_planes(
@@ -523,6 +527,7 @@ class DepthThresholdSegmenter(MaskFreeSegmenter):
                     sigmas=p.grow_sigmas,
                     window_px=THIN_WINDOW_PX,
                     heights=heights,
+                    inside=inside,
                 )
                 found += thin_objects(
                     flat if allowed is None else flat & allowed,

@@ -389,6 +389,7 @@ def above_planes(
     sigmas: float,
     window_px: int = 1,
     heights: list[np.ndarray] | None = None,
+    inside: np.ndarray | None = None,
 ) -> np.ndarray:
     """Pixels inside ``[near_m, far_m]`` that lie in front of every plane by more than ``sigmas``
     times its measured noise (``Plane.noise_m``, at least DEPTH_STEP_M): off the plane by more than
@@ -399,14 +400,16 @@ def above_planes(
     this image (the robust sigma of the means within ``plane_distance_m`` of it): up to
     ``window_px`` times smaller than a single reading's where the sensor's noise is independent from
     pixel to pixel, so that a surface a few millimetres proud of the plane stands out of it though
-    its single readings do not. ``heights``: each plane's :func:`plane_height_m`, when already
-    computed."""
-    d = clean_depth(depth_m)
-    inside = (d >= params.near_m) & (d <= params.far_m) & (d > 0)
-    out = inside
+    its single readings do not. ``heights``: each plane's :func:`plane_height_m`, and ``inside``:
+    :func:`range_mask` of the depth, when already computed (the depth is then not read)."""
+    d = clean_depth(depth_m) if inside is None or heights is None else depth_m
+    if inside is None:
+        inside = range_mask(d, near_m=params.near_m, far_m=params.far_m)
     if window_px > 1:
         size = (window_px, window_px)
         out = cv2.erode(inside.astype(np.uint8), np.ones(size, np.uint8), borderValue=0) > 0
+    else:
+        out = inside.copy()  # a given ``inside`` is left as it was
     for plane, height in zip(planes, _heights(d, intrinsics, planes, heights)):
         noise = max(plane.noise_m, DEPTH_STEP_M)
         if window_px > 1:
