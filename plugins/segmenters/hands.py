@@ -446,8 +446,11 @@ def find_hands(
         # the hand's side of the depth steps around its readings (on their box: none is farther)
         box = grown_box(seen, 1)
         near, far = _depth_range(d[box], hand[box], 1)
-        hand[box] |= ~background[box] & step[box] & (far > 0) & (
-            (d[box] == 0) | ((d[box] >= near - touch) & (d[box] <= far + touch))
+        hand[box] |= (
+            ~background[box]
+            & step[box]
+            & (far > 0)
+            & ((d[box] == 0) | ((d[box] >= near - touch) & (d[box] <= far + touch)))
         )
     if hand.any():
         # pixels without a reading are the hand's where a closing of the margin's radius puts them
