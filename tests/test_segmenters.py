@@ -465,7 +465,12 @@ def test_the_warmed_compiled_loops_are_those_segmenting_uses():
     seg = DepthThresholdSegmenter()
     assert seg.params.exclude_hands and seg.params.thin_contrast > 0
     seg.instances(frame, sequence=ArraySequence([frame]))
-    kernels = (_compiled.shadow_kernel, _compiled.step_kernel, _compiled.distinct_kernel, _compiled.region_stats)
+    kernels = (
+        _compiled.shadow_kernel,
+        _compiled.step_kernel,
+        _compiled.distinct_kernel,
+        _compiled.region_stats,
+    )
     assert [len(k.signatures) for k in kernels] == [1, 1, 2, 1]
 
 
