@@ -703,14 +703,12 @@ def own_colour(
     if tolerance <= 0 or not skin.any():
         return skin
     # the work is done on the skin's bounding box grown by SEED_PX
-    x, y, bw, bh = cv2.boundingRect(skin.view(np.uint8))
-    h, w = skin.shape
-    box = np.s_[max(y - SEED_PX, 0) : y + bh + SEED_PX, max(x - SEED_PX, 0) : x + bw + SEED_PX]
+    box = rows, cols = grown_box(skin, SEED_PX)
     sk, held_by = skin[box], carriers[box]
-    border = np.zeros(sk.shape, bool)
-    border[0], border[-1] = y <= SEED_PX, y + bh + SEED_PX >= h  # the box's sides on the image's
-    border[:, 0] |= x <= SEED_PX
-    border[:, -1] |= x + bw + SEED_PX >= w
+    border = np.zeros(sk.shape, bool)  # the box's sides that are the image's
+    border[0], border[-1] = rows.start == 0, rows.stop == skin.shape[0]
+    border[:, 0] |= cols.start == 0
+    border[:, -1] |= cols.stop == skin.shape[1]
     seeds = ~widen(~sk, MIXED_PX) & widen(held_by | border, SEED_PX) & ~widen(held_by, MIXED_PX)
     n, labels = cv2.connectedComponents(sk.view(np.uint8), connectivity=8)
     chroma, of, seed = chromaticity(rgb[box], sk), labels[sk], seeds[sk]  # of the skin pixels only
