@@ -34,6 +34,9 @@ MODELS = ("fixed", "prismatic", "revolute", "screw")
 #: axis away without end; the path's prismatic model wins anyway).
 MAX_EVALUATIONS = 50
 
+#: Steps of the fixed-point iteration of the mean orientation, and the step (radians) at which it stops.
+KARCHER_STEPS, KARCHER_TOLERANCE_RAD = 20, 1e-10
+
 
 @dataclass(frozen=True)
 class BICJointParams(Params):
@@ -360,15 +363,20 @@ class _Fit:
 
     def _gauge(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
         """Residuals (..., 1 or 2) that are zero along the directions no pose can see (sliding the pose
-        at state 0 along the joint; the screw twist's scale), so least squares has a unique optimum."""
+        at state 0 along the joint; the screw twist's scale), so least squares has a unique optimum.
+
+        The slide is measured in noise sigmas, as the pose residuals are, and the scale as stiffly:
+        a gauge that costs as little as a step in the parameters' own units (radians, metres) is so
+        soft next to the poses that the trust-region fit of the robust loss wanders along it for
+        dozens of steps, dragging the poses' states with it."""
         n = self.shape.n_joint
         if self.shape.name == "fixed":
             return np.zeros(x.shape[:-1] + (0,))
         w, v = self.shape.start[:3], self.shape.start[3:]
         along = np.concatenate([w / poses.sigma_rad, (_cross(w, self.t0) + v) / poses.sigma_m])
-        rows = [x[..., n : n + 6] @ along / np.linalg.norm(along)]
+        rows = [x[..., n : n + 6] @ along]
         if self.shape.name == "screw":
-            rows.append(x[..., :n] @ self.shape.start)
+            rows.append(x[..., :n] @ self.shape.start * np.linalg.norm(along))
         return np.stack(rows, axis=-1)
 
 
@@ -400,6 +408,22 @@ def _best_start(name: str, poses: _Poses, pairs: np.ndarray) -> _Fit | None:
     best = int(np.argmin(score))
     shape = _Shape(name, starts[best])
     return _Fit(shape, np.zeros(shape.n_joint + 6), poses.R[first[best]], poses.t[first[best]])
+
+
+def _fixed(poses: _Poses) -> _Fit:
+    """The fixed model's least-squares fit in closed form: the mean origin, and the mean orientation
+    (the Karcher mean, which minimises the squared rotation angles to the poses; its fixed-point
+    iteration from the chordal mean converges in a few steps)."""
+    aligned = np.where(poses.R @ poses.R[0] < 0, -1.0, 1.0)[:, None] * poses.R
+    R0 = aligned.sum(axis=0) / np.linalg.norm(aligned.sum(axis=0))
+    for _ in range(KARCHER_STEPS):
+        step = _quat_to_rotvec(_quat_mul(_quat_inv(R0), poses.R)).mean(axis=0)
+        R0 = _quat_mul(R0, _quat_from_rotvec(step))
+        if np.linalg.norm(step) < KARCHER_TOLERANCE_RAD:
+            break
+    fit = _Fit(_Shape("fixed", np.zeros(6)), np.zeros(6), R0, poses.t.mean(axis=0))
+    fit.chi2 = float(np.sum(fit.pose_residuals(fit.x, poses) ** 2))
+    return fit
 
 
 def _refine(fit: _Fit, poses: _Poses, *, robust: bool) -> _Fit:
@@ -567,10 +591,13 @@ def fit_joint(
     log_norm = 3 * np.log(2 * np.pi * sigma_m**2) + 3 * np.log(2 * np.pi * sigma_rad**2)
     fits, scores = {}, {}
     for name in MODELS:
-        start = _best_start(name, fitted, inlier_pairs)
-        if start is None:
-            continue
-        fits[name] = _refine(start, fitted, robust=False)
+        if name == "fixed":
+            fits[name] = _fixed(fitted)
+        else:
+            start = _best_start(name, fitted, inlier_pairs)
+            if start is None:
+                continue
+            fits[name] = _refine(start, fitted, robust=False)
         scores[name] = share * fits[name].chi2 + n * log_norm + _n_params(fits[name].shape, n) * np.log(n)
     shown = [name for name in scores if _shows_itself(fits[name], fitted, params.distinct_sigmas)]
     chosen = min([name for name in shown if name != "screw"] or ["fixed"], key=scores.get)
