@@ -234,17 +234,110 @@ def test_batched_residuals_and_jacobian_match_one_at_a_time(name):
 
     from artclass_plugins.joints import models
 
-    truth = synthetic_joint("revolute", n_frames=12, travel=0.8, noise_m=0.001, noise_rad=0.005, seed=1)
-    poses = models._Poses(
-        Rotation.from_matrix(truth.poses[:, :3, :3]).as_quat(), truth.poses[:, :3, 3], 0.001, 0.005
-    )
-    fit = models._best_start(name, poses, models._draw_pairs(12, 20, np.random.default_rng(0)))
+    poses, pairs = _start_problem()
+    fit = models._best_start(name, poses, pairs)
     x = np.random.default_rng(2).normal(0.0, 0.01, (5, len(fit.x)))
     batched = fit.residuals(x, poses)
     np.testing.assert_allclose(batched, np.stack([fit.residuals(row, poses) for row in x]), atol=1e-9)
     expected = approx_derivative(fit.residuals, x[0], args=(poses,))
     # both are forward differences: they agree to the rounding of a step of 1.5e-8
     np.testing.assert_allclose(fit.jacobian(x[0], poses), expected, atol=1e-6 * np.abs(expected).max())
+
+
+def test_one_residual_evaluation_per_jacobian_and_no_refit_after_recentring(monkeypatch):
+    """The cost of a fit: the forward-difference Jacobian evaluates the residuals at x and its steps in
+    one batched call, and least squares runs once for the general model (robustly) and once for
+    each model but the fixed one (in closed form); the chosen model, already at its optimum, is
+    recentred without another run."""
+    from artclass_plugins.joints import models
+
+    runs, evaluations = [], []
+    least_squares, residuals = models.least_squares, models._Fit.residuals
+    monkeypatch.setattr(models, "least_squares", lambda *a, **kw: runs.append(1) or least_squares(*a, **kw))
+
+    def counted(self, x, poses):
+        evaluations.append(np.shape(x))
+        return residuals(self, x, poses)
+
+    monkeypatch.setattr(models._Fit, "residuals", counted)
+    fit = models._best_start("revolute", *_start_problem())
+    evaluations.clear()
+    fit.jacobian(np.zeros(len(fit.x)), _start_problem()[0])
+    assert evaluations == [(len(fit.x) + 1, len(fit.x))]
+    runs.clear()
+    assert fit_joint(noisy("revolute").poses).type == "revolute"
+    assert len(runs) == 1 + len(models.MODELS) - 1
+
+
+def test_the_fixed_fit_in_closed_form_is_the_least_squares_optimum():
+    """The mean origin and the Karcher mean orientation are where Levenberg-Marquardt ends up from the
+    least-median start, to well within the noise (1 mm, 0.5 degree), and the chi-square is no higher."""
+    from artclass_plugins.joints import models
+
+    truth = noisy("fixed", n_frames=30, seed=3)
+    poses = _observed(truth, NOISE_M, NOISE_RAD)
+    closed = models._fixed(poses)
+    start = models._best_start("fixed", poses, models._draw_pairs(30, 48, np.random.default_rng(0)))
+    iterated = models._refine(start, poses, robust=False)
+    _, R_closed, t_closed = closed.unpack()
+    _, R_iterated, t_iterated = iterated.unpack()
+    np.testing.assert_allclose(t_closed, t_iterated, atol=0.01 * NOISE_M)
+    angle = np.linalg.norm(models._quat_to_rotvec(models._quat_mul(models._quat_inv(R_closed), R_iterated)))
+    assert angle < 0.01 * NOISE_RAD
+    assert closed.chi2 <= iterated.chi2 * (1 + 1e-9)
+
+
+@pytest.mark.parametrize("kind", ["revolute", "prismatic"])
+def test_the_robust_fit_keeps_its_pose_at_state_0_in_place(kind):
+    """The pose at state 0 sliding along the joint changes no prediction, and the gauge residual holds
+    it in place: the robust fit of the general model (Cauchy loss, outliers present) ends with it
+    moved along the joint by a small fraction of a noise sigma, not by tens of them."""
+    from artclass_plugins.joints import models
+
+    truth = noisy(kind, n_outliers=5)
+    poses = _observed(truth, NOISE_M, NOISE_RAD)
+    start = models._best_start("screw", poses, models._draw_pairs(len(poses.t), 48, np.random.default_rng(0)))
+    fit = models._refine(start, poses, robust=True)
+    w, v, n = fit.shape.start[:3], fit.shape.start[3:], fit.shape.n_joint
+    along = np.r_[w / NOISE_RAD, (np.cross(w, fit.t0) + v) / NOISE_M]  # sigmas per unit step along the joint
+    assert abs(fit.x[n : n + 6] @ along) < 0.1
+
+
+def _observed(truth, sigma_m: float, sigma_rad: float):
+    """The estimator's view of a synthetic joint's poses, with the given noise levels."""
+    from artclass_plugins.joints import models
+
+    return models._Poses(
+        Rotation.from_matrix(truth.poses[:, :3, :3]).as_quat(), truth.poses[:, :3, 3], sigma_m, sigma_rad
+    )
+
+
+def _start_problem():
+    from artclass_plugins.joints import models
+
+    truth = synthetic_joint("revolute", n_frames=12, travel=0.8, noise_m=0.001, noise_rad=0.005, seed=1)
+    poses = _observed(truth, 0.001, 0.005)
+    return poses, models._draw_pairs(12, 20, np.random.default_rng(0))
+
+
+def test_start_twists_of_a_turn_and_of_a_standstill():
+    """A pair's relative motion, a turn of 0.5 rad about the axis (0, 0, 1) through (0.1, 0, 0), gives
+    the revolute start of that axis (and the screw start of the same twist, scaled to unit length);
+    a pair that does not move gives no revolute, prismatic or screw start (NaN), and the fixed start."""
+    from artclass_plugins.joints import models
+
+    u, c = np.array([0.0, 0.0, 1.0]), np.array([0.1, 0.0, 0.0])
+    xi = np.stack([np.r_[0.5 * u, np.cross(c, 0.5 * u)], np.zeros(6)])
+    displacement = np.stack([[0.0, 0.05, 0.0], np.zeros(3)])
+    revolute = models._start_twists("revolute", xi, displacement)
+    np.testing.assert_allclose(revolute[0], np.r_[u, np.cross(c, u)], atol=1e-12)
+    np.testing.assert_allclose(
+        models._start_twists("screw", xi, displacement)[0], xi[0] / np.linalg.norm(xi[0])
+    )
+    np.testing.assert_allclose(models._start_twists("prismatic", xi, displacement)[0], [0, 0, 0, 0, 1, 0])
+    for name in ("revolute", "prismatic", "screw"):
+        assert np.isnan(models._start_twists(name, xi, displacement)[1]).any(), name
+    assert not models._start_twists("fixed", xi, displacement).any()
 
 
 def test_chain_pair_motions_rebuilds_the_poses():

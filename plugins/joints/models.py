@@ -34,6 +34,9 @@ MODELS = ("fixed", "prismatic", "revolute", "screw")
 #: axis away without end; the path's prismatic model wins anyway).
 MAX_EVALUATIONS = 50
 
+#: Steps of the fixed-point iteration of the mean orientation, and the step (radians) at which it stops.
+KARCHER_STEPS, KARCHER_TOLERANCE_RAD = 20, 1e-10
+
 
 @dataclass(frozen=True)
 class BICJointParams(Params):
@@ -123,7 +126,7 @@ def _quat_inv(q: np.ndarray) -> np.ndarray:
 
 def _quat_from_rotvec(v: np.ndarray) -> np.ndarray:
     """Quaternions (..., 4) of rotation vectors (..., 3), radians."""
-    angle = np.linalg.norm(v, axis=-1, keepdims=True)
+    angle = _norm(v)
     small = angle < 1e-6
     half_sinc = np.where(small, 0.5 - angle**2 / 48, np.sin(angle / 2) / np.where(small, 1.0, angle))
     return np.concatenate([v * half_sinc, np.cos(angle / 2)], -1)
@@ -132,7 +135,7 @@ def _quat_from_rotvec(v: np.ndarray) -> np.ndarray:
 def _quat_to_rotvec(q: np.ndarray) -> np.ndarray:
     """Rotation vectors (..., 3), angle in [0, pi], of quaternions (..., 4)."""
     q = np.where(q[..., 3:] < 0, -q, q)
-    sin_half = np.linalg.norm(q[..., :3], axis=-1, keepdims=True)
+    sin_half = _norm(q[..., :3])
     angle = 2 * np.arctan2(sin_half, q[..., 3:])
     small = sin_half < 1e-9
     return q[..., :3] * np.where(small, 2.0, angle / np.where(small, 1.0, sin_half))
@@ -172,14 +175,17 @@ def _series_coefficients(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross product of vectors (..., 3), broadcast (numpy's own is slow on small arrays)."""
-    return np.stack(
-        [
-            a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-            a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-            a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
-        ],
-        axis=-1,
-    )
+    first = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out = np.empty(first.shape + (3,))
+    out[..., 0] = first
+    np.subtract(a[..., 2] * b[..., 0], a[..., 0] * b[..., 2], out=out[..., 1])
+    np.subtract(a[..., 0] * b[..., 1], a[..., 1] * b[..., 0], out=out[..., 2])
+    return out
+
+
+def _norm(v: np.ndarray) -> np.ndarray:
+    """Lengths (..., 1) of vectors (..., k) (numpy's ``linalg.norm`` does the same with more overhead)."""
+    return np.sqrt(np.sum(v * v, axis=-1, keepdims=True))
 
 
 def twist_exp(xi: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -188,7 +194,7 @@ def twist_exp(xi: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     w, v = xi[..., None, :3], xi[..., None, 3:]
     q = np.asarray(q)[..., None]
     R = _quat_from_rotvec(q * w)
-    a, b = _series_coefficients(np.abs(q) * np.linalg.norm(w, axis=-1, keepdims=True))
+    a, b = _series_coefficients(np.abs(q) * _norm(w))
     wv = _cross(w, v)
     return R, q * v + a * q**2 * wv + b * q**3 * _cross(w, wv)
 
@@ -197,7 +203,7 @@ def twist_log(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Twists (..., 6) with exp(ξ) = (R, t), for rotations as quaternions (..., 4) and translations
     (..., 3)."""
     w = _quat_to_rotvec(R)
-    theta = np.linalg.norm(w, axis=-1, keepdims=True)
+    theta = _norm(w)
     small = theta < 1e-4
     th = np.where(small, 1.0, theta)
     c = np.where(small, 1 / 12, (1 - th * np.sin(th) / (2 * (1 - np.cos(th)))) / th**2)
@@ -252,31 +258,30 @@ class _Shape:
             return np.zeros(g.shape[:-1] + (6,))
         if self.name == "screw":
             xi = self.start + g
-            return xi / np.linalg.norm(xi, axis=-1, keepdims=True)
+            return xi / _norm(xi)
         if self.name == "prismatic":
             d = self.start[3:] + g[..., :2] @ self._basis
-            return np.concatenate([np.zeros_like(d), d / np.linalg.norm(d, axis=-1, keepdims=True)], axis=-1)
+            return np.concatenate([np.zeros_like(d), d / _norm(d)], axis=-1)
         u = self.start[:3] + g[..., :2] @ self._basis
-        u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+        u = u / _norm(u)
         return np.concatenate([u, _cross(self._axis_point + g[..., 2:4] @ self._basis, u)], axis=-1)
 
 
-def _shape_from_twist(name: str, xi: np.ndarray, displacement: np.ndarray) -> _Shape | None:
-    """The model's starting shape from a pair's relative motion ξ and its origin displacement (3,)."""
-    w = xi[:3]
-    theta = np.linalg.norm(w)
-    if name == "fixed":
-        return _Shape(name, np.zeros(6))
-    if name == "prismatic":
-        length = np.linalg.norm(displacement)
-        return _Shape(name, np.concatenate([np.zeros(3), displacement / length])) if length > 0 else None
-    if name == "screw":
-        return _Shape(name, xi / np.linalg.norm(xi)) if np.linalg.norm(xi) > 0 else None
-    if theta == 0:
-        return None
-    u = w / theta
-    c = _cross(w, xi[3:]) / theta**2  # the point of the screw axis nearest the origin
-    return _Shape(name, np.concatenate([u, _cross(c, u)]))
+def _start_twists(name: str, xi: np.ndarray, displacement: np.ndarray) -> np.ndarray:
+    """The model's starting twists (K, 6) from pairs' relative motions ξ (K, 6) and origin
+    displacements (K, 3); NaN where the pair shows none of the model's motion."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if name == "fixed":
+            return np.zeros_like(xi)
+        if name == "prismatic":
+            return np.concatenate([np.zeros_like(displacement), displacement / _norm(displacement)], axis=-1)
+        if name == "screw":
+            return xi / _norm(xi)
+        w = xi[:, :3]
+        theta = _norm(w)
+        u = w / theta
+        c = _cross(w, xi[:, 3:]) / theta**2  # the point of the screw axis nearest the origin
+        return np.concatenate([u, _cross(c, u)], axis=-1)
 
 
 @dataclass
@@ -302,7 +307,7 @@ class _Poses:
         # the relative motions in coordinates centred on t0
         logs = twist_log(_quat_mul(self.R, _quat_inv(R0)[..., None, :]), self.t - t0[..., None, :])
         xi_centred = np.concatenate([xi[..., :3], xi[..., 3:] + _cross(xi[..., :3], t0)], axis=-1)
-        weighted = np.r_[np.full(3, (self.sigma_m / self.sigma_rad) ** 2), np.ones(3)] * xi_centred
+        weighted = np.array([(self.sigma_m / self.sigma_rad) ** 2] * 3 + [1.0] * 3) * xi_centred
         norm = np.sum(xi_centred * weighted, axis=-1, keepdims=True)
         return np.einsum("...nk,...k->...n", logs, weighted) / np.where(norm > 0, norm, np.inf)
 
@@ -350,23 +355,28 @@ class _Fit:
 
     def jacobian(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
         """The Jacobian (M, P) of :meth:`residuals` at x (P,) by forward differences, all P steps in
-        one batched evaluation (the steps of scipy's ``2-point`` scheme)."""
+        one batched evaluation with x itself (the steps of scipy's ``2-point`` scheme)."""
         step = np.sqrt(np.finfo(float).eps) * np.where(x >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x))
         step = (x + step) - x
-        shifted = self.residuals(x + np.diag(step), poses)
-        return ((shifted - self.residuals(x, poses)) / step[:, None]).T
+        f = self.residuals(x + np.vstack([np.zeros_like(x), np.diag(step)]), poses)  # x, then the steps
+        return ((f[1:] - f[0]) / step[:, None]).T
 
     def _gauge(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
         """Residuals (..., 1 or 2) that are zero along the directions no pose can see (sliding the pose
-        at state 0 along the joint; the screw twist's scale), so least squares has a unique optimum."""
+        at state 0 along the joint; the screw twist's scale), so least squares has a unique optimum.
+
+        The slide is measured in noise sigmas, as the pose residuals are, and the scale as stiffly:
+        a gauge that costs as little as a step in the parameters' own units (radians, metres) is so
+        soft next to the poses that the trust-region fit of the robust loss wanders along it for
+        dozens of steps, dragging the poses' states with it."""
         n = self.shape.n_joint
         if self.shape.name == "fixed":
             return np.zeros(x.shape[:-1] + (0,))
         w, v = self.shape.start[:3], self.shape.start[3:]
-        along = np.r_[w / poses.sigma_rad, (_cross(w, self.t0) + v) / poses.sigma_m]
-        rows = [x[..., n : n + 6] @ along / np.linalg.norm(along)]
+        along = np.concatenate([w / poses.sigma_rad, (_cross(w, self.t0) + v) / poses.sigma_m])
+        rows = [x[..., n : n + 6] @ along]
         if self.shape.name == "screw":
-            rows.append(x[..., :n] @ self.shape.start)
+            rows.append(x[..., :n] @ self.shape.start * np.linalg.norm(along))
         return np.stack(rows, axis=-1)
 
 
@@ -384,23 +394,36 @@ def _best_start(name: str, poses: _Poses, pairs: np.ndarray) -> _Fit | None:
     to the pair's relative motion, and pose a as the pose at state 0."""
     R_rel = _quat_mul(poses.R[pairs[:, 1]], _quat_inv(poses.R[pairs[:, 0]]))
     xis = twist_log(R_rel, poses.t[pairs[:, 1]] - _quat_apply(R_rel, poses.t[pairs[:, 0]]))
-    fits = []
-    for (a, b), xi in zip(pairs, xis):
-        shape = _shape_from_twist(name, xi, poses.t[b] - poses.t[a])
-        if shape is not None:
-            fits.append(_Fit(shape, np.zeros(shape.n_joint + 6), poses.R[a], poses.t[a]))
-    if not fits:
+    starts = _start_twists(name, xis, poses.t[pairs[:, 1]] - poses.t[pairs[:, 0]])
+    valid = np.isfinite(starts).all(axis=1)
+    if not valid.any():
         return None
-    # every start at once: at zero steps each start's twist is the shape's start twist
-    _, R_hat, t_hat = _predict(
-        poses,
-        np.stack([f.shape.twist(np.zeros(f.shape.n_joint)) for f in fits]),
-        np.stack([f.R0 for f in fits]),
-        np.stack([f.t0 for f in fits]),
-    )
+    starts, first = starts[valid], pairs[valid, 0]
+    # every start at once, with the pose of its pair's first frame as the pose at state 0
+    _, R_hat, t_hat = _predict(poses, starts, poses.R[first], poses.t[first])
     score = np.median(np.sum(poses.residuals(R_hat, t_hat) ** 2, axis=-1), axis=-1)
     score = np.where(np.isnan(score), np.inf, score)
-    return fits[int(np.argmin(score))] if np.isfinite(score).any() else None
+    if not np.isfinite(score).any():
+        return None
+    best = int(np.argmin(score))
+    shape = _Shape(name, starts[best])
+    return _Fit(shape, np.zeros(shape.n_joint + 6), poses.R[first[best]], poses.t[first[best]])
+
+
+def _fixed(poses: _Poses) -> _Fit:
+    """The fixed model's least-squares fit in closed form: the mean origin, and the mean orientation
+    (the Karcher mean, which minimises the squared rotation angles to the poses; its fixed-point
+    iteration from the chordal mean converges in a few steps)."""
+    aligned = np.where(poses.R @ poses.R[0] < 0, -1.0, 1.0)[:, None] * poses.R
+    R0 = aligned.sum(axis=0) / np.linalg.norm(aligned.sum(axis=0))
+    for _ in range(KARCHER_STEPS):
+        step = _quat_to_rotvec(_quat_mul(_quat_inv(R0), poses.R)).mean(axis=0)
+        R0 = _quat_mul(R0, _quat_from_rotvec(step))
+        if np.linalg.norm(step) < KARCHER_TOLERANCE_RAD:
+            break
+    fit = _Fit(_Shape("fixed", np.zeros(6)), np.zeros(6), R0, poses.t.mean(axis=0))
+    fit.chi2 = float(np.sum(fit.pose_residuals(fit.x, poses) ** 2))
+    return fit
 
 
 def _refine(fit: _Fit, poses: _Poses, *, robust: bool) -> _Fit:
@@ -426,10 +449,12 @@ def _refine(fit: _Fit, poses: _Poses, *, robust: bool) -> _Fit:
 def _recentred(fit: _Fit, poses: _Poses) -> _Fit:
     """The same fit with its steps folded into the start, so the parameters are 0 at the optimum and
     the axis point is varied at the part (the covariance of the steps is then that of the axis
-    direction and of the axis position at the part)."""
+    direction and of the axis position at the part), with its Jacobian there (the optimum is already
+    found: a new least-squares run would only repeat it)."""
     xi, R0, t0 = fit.unpack()
-    shape = _Shape(fit.shape.name, xi, anchor=t0)
-    return _refine(_Fit(shape, np.zeros(fit.shape.n_joint + 6), R0, t0), poses, robust=False)
+    out = _Fit(_Shape(fit.shape.name, xi, anchor=t0), np.zeros(fit.shape.n_joint + 6), R0, t0, chi2=fit.chi2)
+    out.jac = out.jacobian(out.x, poses)
+    return out
 
 
 # -- noise and outliers ----------------------------------------------------------------------------------
@@ -566,10 +591,13 @@ def fit_joint(
     log_norm = 3 * np.log(2 * np.pi * sigma_m**2) + 3 * np.log(2 * np.pi * sigma_rad**2)
     fits, scores = {}, {}
     for name in MODELS:
-        start = _best_start(name, fitted, inlier_pairs)
-        if start is None:
-            continue
-        fits[name] = _refine(start, fitted, robust=False)
+        if name == "fixed":
+            fits[name] = _fixed(fitted)
+        else:
+            start = _best_start(name, fitted, inlier_pairs)
+            if start is None:
+                continue
+            fits[name] = _refine(start, fitted, robust=False)
         scores[name] = share * fits[name].chi2 + n * log_norm + _n_params(fits[name].shape, n) * np.log(n)
     shown = [name for name in scores if _shows_itself(fits[name], fitted, params.distinct_sigmas)]
     chosen = min([name for name in shown if name != "screw"] or ["fixed"], key=scores.get)
