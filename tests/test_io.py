@@ -1,0 +1,102 @@
+"""Image decoding: the common PNG layouts go through imagecodecs, everything else through OpenCV, and
+the pixels are the same either way."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+import cv2
+import numpy as np
+import pytest
+
+from artclass_core import InputError
+from artclass_core.io import _decode_png, read_depth, read_label, read_mask, read_rgb
+
+RNG = np.random.default_rng(7)
+RGB = RNG.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+GREY = RNG.integers(0, 256, (48, 64), dtype=np.uint8)
+DEPTH = RNG.integers(0, 65536, (48, 64), dtype=np.uint16)
+
+
+def png(image: np.ndarray) -> bytes:
+    """PNG bytes of an RGB (H, W, 3) or single-channel image."""
+    return cv2.imencode(".png", image[..., ::-1] if image.ndim == 3 else image)[1].tobytes()
+
+
+def with_transparency(data: bytes, payload: bytes) -> bytes:
+    """The PNG with a tRNS chunk (``payload``) inserted after its header."""
+    chunk = b"tRNS" + payload
+    end_of_header = 8 + 8 + 13 + 4  # signature, IHDR's length and type, its 13 bytes, its CRC
+    trns = struct.pack(">I", len(payload)) + chunk + struct.pack(">I", zlib.crc32(chunk))
+    return data[:end_of_header] + trns + data[end_of_header:]
+
+
+def opencv(data: bytes, flags: int) -> np.ndarray:
+    return cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags)
+
+
+@pytest.mark.parametrize(
+    "image, read, flags",
+    [
+        (RGB, read_rgb, cv2.IMREAD_COLOR_RGB),
+        (GREY, read_mask, cv2.IMREAD_UNCHANGED),
+        (GREY, read_label, cv2.IMREAD_UNCHANGED),
+        (DEPTH, read_depth, cv2.IMREAD_UNCHANGED),
+    ],
+)
+def test_the_common_layouts_are_decoded_by_imagecodecs_to_opencvs_pixels(image, read, flags, tmp_path):
+    data = png(image)
+    decoded = _decode_png(data, flags)
+    assert decoded is not None, "this layout should not be left to OpenCV"
+    reference = opencv(data, flags)
+    assert decoded.dtype == reference.dtype and np.array_equal(decoded, reference)
+    path = tmp_path / "image.png"
+    path.write_bytes(data)
+    kwargs = {"units_per_metre": 1000.0} if read is read_depth else {}
+    if read is read_depth:
+        expected = reference.astype(np.float32) / np.float32(1000.0)
+    elif read is read_mask:
+        expected = reference > 0
+    else:
+        expected = reference
+    assert np.array_equal(read(path, **kwargs), expected)
+
+
+@pytest.mark.parametrize(
+    "name, data, flags",
+    [
+        ("grey with a transparent level", with_transparency(png(GREY), b"\x00\x07"), cv2.IMREAD_UNCHANGED),
+        (
+            "16-bit grey with a transparent level",
+            with_transparency(png(DEPTH), b"\x00\x07"),
+            cv2.IMREAD_UNCHANGED,
+        ),
+        ("RGB with a transparent colour", with_transparency(png(RGB), b"\x00\x01" * 3), cv2.IMREAD_COLOR_RGB),
+        ("RGB asked unchanged (OpenCV gives BGR)", png(RGB), cv2.IMREAD_UNCHANGED),
+        ("grey asked as colour", png(GREY), cv2.IMREAD_COLOR_RGB),
+        ("JPEG", cv2.imencode(".jpg", RGB)[1].tobytes(), cv2.IMREAD_COLOR_RGB),
+    ],
+)
+def test_other_layouts_and_formats_are_left_to_opencv(name, data, flags, tmp_path):
+    assert _decode_png(data, flags) is None
+    path = tmp_path / "image.bin"
+    path.write_bytes(data)
+    if flags == cv2.IMREAD_COLOR_RGB:
+        assert np.array_equal(read_rgb(path), opencv(data, flags))
+    else:
+        reference = opencv(data, flags)
+        assert np.array_equal(
+            read_mask(path), (reference if reference.ndim == 2 else reference.max(axis=2)) > 0
+        )
+
+
+@pytest.mark.parametrize("image, read", [(RGB, read_rgb), (GREY, read_mask), (DEPTH, read_depth)])
+@pytest.mark.parametrize("keep", [0.5, 0.95])
+def test_a_truncated_png_is_the_same_input_error_as_before(image, read, keep, tmp_path):
+    data = png(image)
+    path = tmp_path / "cut.png"
+    path.write_bytes(data[: int(len(data) * keep)])
+    kwargs = {"units_per_metre": 1000.0} if read is read_depth else {}
+    with pytest.raises(InputError, match="cut.png.*unreadable or truncated image"):
+        read(path, **kwargs)
