@@ -72,7 +72,13 @@ def _read(path: Path, flags: int) -> np.ndarray:
     image = _decode_png(data, flags)
     if image is None:
         with _quiet_opencv():
-            image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags) if data else None
+            try:
+                image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags) if data else None
+            except cv2.error:  # OpenCV refuses a header that claims more pixels than it will hold
+                raise InputError(
+                    "image too large to decode (its header claims more pixels than the decoder accepts)",
+                    path=path,
+                ) from None
     if image is None:
         raise InputError("unreadable or truncated image", path=path)
     return image

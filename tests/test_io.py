@@ -100,3 +100,21 @@ def test_a_truncated_png_is_the_same_input_error_as_before(image, read, keep, tm
     kwargs = {"units_per_metre": 1000.0} if read is read_depth else {}
     with pytest.raises(InputError, match="cut.png.*unreadable or truncated image"):
         read(path, **kwargs)
+
+
+@pytest.mark.parametrize("read", [read_rgb, read_mask, read_depth])
+def test_a_png_whose_header_claims_billions_of_pixels_is_an_input_error(read, tmp_path):
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    header = struct.pack(">IIBBBBB", 60000, 60000, 16, 0, 0, 0, 0)  # 16-bit grey, 3.6e9 pixels
+    path = tmp_path / "huge.png"
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", header)
+        + chunk(b"IDAT", zlib.compress(b"\0" * 16))
+        + chunk(b"IEND", b"")
+    )
+    kwargs = {"units_per_metre": 1000.0} if read is read_depth else {}
+    with pytest.raises(InputError, match="huge.png.*too large"):
+        read(path, **kwargs)
