@@ -106,10 +106,8 @@ def warm_up() -> None:
     flags = np.zeros(depth.shape, bool)
     shadow_kernel(depth, np.float32(0.01), flags)
     step_kernel(depth, np.float32(0.01), flags)
-    # the colours are of a bounding box; its masks are views of the image's: contiguous when the box
-    # is as wide as the image, not when narrower
-    for box in (np.s_[:, :], np.s_[:, 1:]):
-        where, out = np.ones(depth.shape, bool)[box], flags[box]
-        colour = np.zeros(where.shape + (3,), np.float32)
-        distinct_kernel(colour, colour, np.ones(3, np.float32), where, np.float32(1.0), out)
+    colour = np.zeros(depth.shape + (3,), np.float32)
+    distinct_kernel(
+        colour, colour, np.ones(3, np.float32), np.ones(depth.shape, bool), np.float32(1.0), flags
+    )
     region_stats(np.zeros(depth.shape, np.int32), 1)

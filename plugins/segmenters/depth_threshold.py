@@ -310,7 +310,8 @@ def colour_patches(
 ) -> list[np.ndarray]:
     """Objects lying flat, found by colour first: the pixels of ``plane`` whose CIE Lab colour differs
     by at least ``contrast`` (CIE76 delta E, their colour averaged over ``THIN_WINDOW_PX`` squared
-    pixels) from the mean colour of the ``window_px`` square around them, grouped into connected
+    pixels) from the mean colour of the ``window_px`` square around them (:class:`SampledColours`:
+    first on a sample of the pixels, then pixel by pixel near what it finds), grouped into connected
     components of at least ``min_area_fraction`` of the image, whose mean height above the plane is
     more than the plane's noise ``noise_m`` and more than ``sigmas`` times the noise of that mean
     (``noise_m / sqrt(n)`` over n readings). A pattern on the table is at its height; an object a
@@ -337,20 +338,19 @@ def colour_patches(
         return []
     surface = plane if surface is None else surface
     # the colours are needed on the plane's bounding box and the half window around it only
-    box = grown_box(plane, max(window_px, THIN_WINDOW_PX) // 2)
-    # OpenCV's 8-bit CIE Lab: its steps (0.4 in L, 1 in a and b) lie far below the contrasts sought
-    # and are averaged over the windows; it costs a tenth of the float conversion, and its means are
-    # integer sums (float output), in 8-bit units until the difference is scaled to CIE units
-    lab = cv2.cvtColor(np.ascontiguousarray(rgb[box], dtype=np.uint8), cv2.COLOR_RGB2Lab)
-    around = cv2.boxFilter(lab, cv2.CV_32F, (window_px, window_px))
-    # each pixel's colour averaged over THIN_WINDOW_PX squared pixels: the camera's colour noise
-    # divided by THIN_WINDOW_PX, so that it does not pass the contrast by itself
-    lab = cv2.boxFilter(lab, cv2.CV_32F, (THIN_WINDOW_PX, THIN_WINDOW_PX))
+    box = grown_box(plane, window_px // 2 + COLOUR_STRIDE_PX)
+    colours = SampledColours(rgb[box], window_px=window_px)
+    least_sq = np.float32(contrast * contrast)
+    least_px = min_area_fraction * plane.size
     distinct = np.zeros(plane.shape, bool)
-    distinct_kernel(lab, around, _LAB8_UNITS, plane[box], np.float32(contrast * contrast), distinct[box])
+    for within, own in colours.candidates(least_sq, plane[box], least_px=least_px):
+        # pixel by pixel, on the box of the candidate's pixels (in the image: ``near``)
+        near = tuple(slice(b.start + w.start, b.start + w.stop) for b, w in zip(box, within))
+        distinct[near] |= colours.pixels_distinct(rgb[near], within, least_sq) & own & plane[near]
+    found = components(distinct, open_px=0, min_area_fraction=min_area_fraction)
     out = []
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
-    for m in components(distinct, open_px=0, min_area_fraction=min_area_fraction):
+    for m in found:
         near = grown_box(m, ring_px)  # each in its bounding box, grown by the ring
         inside = m[near]
         ring = (cv2.dilate(inside.view(np.uint8), disc) > 0) & ~inside
@@ -360,6 +360,85 @@ def colour_patches(
         if lies and mean > noise_m and mean > sigmas * noise_m / np.sqrt(len(h)):
             out.append(m)
     return out
+
+
+class SampledColours:
+    """The colour test of objects lying flat (see :func:`colour_patches`) on an 8-bit RGB image
+    (H, W, 3), first on every ``COLOUR_STRIDE_PX``-th pixel in x and y: the CIE Lab colour of each
+    sample (the mean of its THIN_WINDOW_PX squared pixels) and the mean of the samples in the
+    ``window_px`` square around it (the surface around it); then pixel by pixel where the samples
+    find something. The window's mean is smooth on the scale of the stride, and the samples cost a
+    fraction of the pixels' conversion to CIE Lab.
+    """
+
+    def __init__(self, rgb: np.ndarray, *, window_px: int):
+        s = COLOUR_STRIDE_PX
+        mean = cv2.blur(np.ascontiguousarray(rgb, dtype=np.uint8), (THIN_WINDOW_PX, THIN_WINDOW_PX))
+        # OpenCV's 8-bit CIE Lab: its steps (0.4 in L, 1 in a and b) lie far below the contrasts sought;
+        # it costs a tenth of the float conversion, and the window's means are integer sums (float
+        # output), in 8-bit units until the difference is scaled to CIE units
+        lab = cv2.cvtColor(np.ascontiguousarray(mean[::s, ::s]), cv2.COLOR_RGB2Lab)
+        self.lab = lab.astype(np.float32)
+        # as many samples a side as span the window with their own means' reach
+        samples = _odd((window_px - THIN_WINDOW_PX) / s + 1)
+        self.around = cv2.boxFilter(lab, cv2.CV_32F, (samples, samples))
+        self.shape = rgb.shape[:2]
+
+    def candidates(
+        self, least_sq: np.float32, where: np.ndarray, *, least_px: float
+    ) -> list[tuple[tuple[slice, slice], np.ndarray]]:
+        """Where to test pixel by pixel: the samples whose colour differs from their window's mean by
+        a squared CIE76 distance of at least ``least_sq``, with their neighbours (a thin object is
+        found whole, though some of its samples fall on its outline and miss), on ``where`` (bool
+        (H, W)), in connected regions (8-connected) of at least ``least_px`` pixels (a sample stands
+        for ``COLOUR_STRIDE_PX`` squared). Each as the box of its pixels and of those their means
+        reach (rows, columns) and which pixels of the box are its own (their nearest sample is):
+        bool (H', W')."""
+        s = COLOUR_STRIDE_PX
+        found = np.zeros(self.lab.shape[:2], bool)
+        distinct_kernel(self.lab, self.around, _LAB8_UNITS, np.ones(found.shape, bool), least_sq, found)
+        grown = (cv2.dilate(found.view(np.uint8), np.ones((3, 3), np.uint8)) > 0) & where[::s, ::s]
+        n, labels, stats = label_regions(grown)
+        out = []
+        for k in np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] * s * s >= least_px) + 1:
+            x, y, w, h = stats[k, :4]
+            # pixel p's nearest sample is (p + s // 2) // s: the samples first .. last are nearest to
+            # the pixels s * first - s // 2 .. s * (last + 1) - s // 2 - 1; and the box holds the
+            # pixels their means reach
+            reach = THIN_WINDOW_PX // 2
+            box = tuple(
+                slice(max(s * start - s // 2 - reach, 0), min(s * (start + size) - s // 2 + reach, limit))
+                for start, size, limit in ((y, h, self.shape[0]), (x, w, self.shape[1]))
+            )
+            rows, cols = (
+                np.minimum((np.arange(b.start, b.stop) + s // 2) // s, n_samples - 1)
+                for b, n_samples in zip(box, labels.shape)
+            )
+            out.append((box, labels[rows[:, None], cols[None, :]] == k))
+        return out
+
+    def pixels_distinct(
+        self, rgb: np.ndarray, within: tuple[slice, slice], least_sq: np.float32
+    ) -> np.ndarray:
+        """The test for each pixel of ``rgb``, the crop ``within`` of the image (H', W', 3): its own
+        colour, averaged over THIN_WINDOW_PX squared pixels (the crop's edge repeated), against the
+        window's mean, interpolated between the samples. bool (H', W')."""
+        lab = cv2.cvtColor(np.ascontiguousarray(rgb, dtype=np.uint8), cv2.COLOR_RGB2Lab)
+        lab = cv2.boxFilter(lab, cv2.CV_32F, (THIN_WINDOW_PX, THIN_WINDOW_PX))
+        # sample i lies at pixel COLOUR_STRIDE_PX * i: the crop's pixel (x, y) at sample
+        # ((x + first column) / stride, (y + first row) / stride), linearly interpolated
+        s = COLOUR_STRIDE_PX
+        to_samples = np.array([[1 / s, 0, within[1].start / s], [0, 1 / s, within[0].start / s]])
+        around = cv2.warpAffine(
+            self.around,
+            to_samples,
+            (lab.shape[1], lab.shape[0]),
+            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
+        found = np.zeros(lab.shape[:2], bool)
+        distinct_kernel(lab, around, _LAB8_UNITS, np.ones(found.shape, bool), least_sq, found)
+        return found
 
 
 # CIE units per unit of OpenCV's 8-bit Lab (L scaled by 255 / 100; a and b offset by 128, which
@@ -405,6 +484,9 @@ def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> l
 # Thin objects lying flat are sought in the height above the plane averaged over squares of this many
 # pixels a side (a third of a single reading's noise): an object is a region, not a pixel.
 THIN_WINDOW_PX = 3
+# Objects lying flat are sought by colour on every this-many-th pixel in x and y first, then pixel by
+# pixel near what these samples find.
+COLOUR_STRIDE_PX = 2
 # The surface around an object lying flat, whose colour it is told from: a square this wide at the
 # table's depth (wider than a ruler or a blade of scissors).
 THIN_CONTEXT_M = 0.05

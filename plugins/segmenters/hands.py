@@ -270,6 +270,10 @@ def hand_regions(
     if not len(kept):
         return np.zeros(candidates.shape, bool)
     d = clean_depth(depth_m)
+    # a region of n pixels covers at most n (z_max / fx) (z_max / fy), with a margin for rounding: the
+    # smaller ones (specks of skin colour) need no surface
+    least_px = min_area_m2 * intrinsics.fx * intrinsics.fy / (1.001 * max(float(d.max()), 1e-9) ** 2)
+    kept = kept[stats[kept, cv2.CC_STAT_AREA] >= least_px]
     out = np.zeros(candidates.shape, bool)
     for k in kept:
         box = np.s_[y[k - 1] : y[k - 1] + bh[k - 1], x[k - 1] : x[k - 1] + bw[k - 1]]
