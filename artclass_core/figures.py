@@ -774,6 +774,24 @@ def parts_3d(articulation, *, max_points: int = 4000) -> go.Figure:
     return _layout(fig, title=f"Parts and joints: {articulation.summary()}", height=480)
 
 
+def _bands(frames: np.ndarray, upper: np.ndarray, lower: np.ndarray) -> tuple[list, list]:
+    """The outline (x, y) of a band between ``lower`` and ``upper`` over each run of consecutive frames
+    where both are known, one after the other with None between them, which Plotly fills one by one:
+    a band never bridges frames where the state is unknown. A frame alone gets a band 0.6 frame wide."""
+    xs: list = []
+    ys: list = []
+    known = np.flatnonzero(np.isfinite(upper) & np.isfinite(lower))
+    for run in np.split(known, np.flatnonzero(np.diff(known) > 1) + 1):
+        if not len(run):
+            continue
+        x, hi, lo = frames[run].astype(float), upper[run], lower[run]
+        if len(run) == 1:
+            x, hi, lo = x[0] + np.array([-0.3, 0.3]), np.repeat(hi, 2), np.repeat(lo, 2)
+        xs += [*x, *x[::-1], None]
+        ys += [*hi, *lo[::-1], None]
+    return xs, ys
+
+
 def joint_states(articulation) -> go.Figure:
     """Each joint's state over the video (degrees or millimetres), with one standard deviation as a band."""
     fig = go.Figure()
@@ -785,10 +803,11 @@ def joint_states(articulation) -> go.Figure:
         std = (e.states_std if e.states_std is not None else np.zeros_like(e.states)) * scale
         colour = _part_colour(joint.child)
         name = f"part{joint.child} ({e.type}, {unit})"
+        x, y = _bands(frames, q + std, q - std)
         fig.add_trace(
             go.Scatter(
-                x=np.r_[frames, frames[::-1]],
-                y=np.r_[q + std, (q - std)[::-1]],
+                x=x,
+                y=y,
                 fill="toself",
                 fillcolor=colour,
                 opacity=0.2,

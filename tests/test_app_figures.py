@@ -100,3 +100,18 @@ def test_confusion_figure_and_html_export(registry, laptop, laptop_run):
     assert (
         page.count("* plotly.js v") == 1 and 'src="https://' not in page
     )  # plotly.js embedded once: offline
+
+
+def test_joint_state_band_never_bridges_unknown_frames():
+    from types import SimpleNamespace
+
+    states = np.array([0.0, 0.1, np.nan, 0.2, 0.3, np.nan, np.nan, 0.5])
+    estimate = SimpleNamespace(type="revolute", states=states, states_std=np.full(8, 0.01))
+    fig = figures.joint_states(SimpleNamespace(joints=[SimpleNamespace(child=1, estimate=estimate)]))
+    band = next(t for t in fig.data if t.fill == "toself")
+    x = np.array([np.nan if v is None else v for v in band.x], float)
+    runs = [r[np.isfinite(r)] for r in np.split(x, np.flatnonzero(np.isnan(x)))]
+    spans = sorted((r.min(), r.max()) for r in runs if len(r))
+    assert spans == [(0.0, 1.0), (3.0, 4.0), (6.7, 7.3)]  # the lone frame 7 gets a narrow band of its own
+    line = next(t for t in fig.data if t.mode == "lines+markers")
+    np.testing.assert_allclose(np.array(line.y, float), np.degrees(states))
