@@ -11,7 +11,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from artclass_core import ArtclassError
+from artclass_core import ArtclassError, parts
 from artclass_core.geometry import transform
 from artclass_core.joint_metrics import axis_direction_error_rad, axis_position_error_m, score_articulation
 from artclass_core.parts import (
@@ -416,6 +416,19 @@ def test_a_frame_no_pair_separates_gets_its_parts(bic):
     assert not np.isfinite(art.joints[0].estimate.states[21]), "no pair gives the state of frame 21"
     assert _agreement(art, 21) > 0.95
     assert (art.label_image(21) == 2).any()
+
+
+def test_a_frame_where_the_part_is_not_found_gets_it_from_the_joint(bic, monkeypatch):
+    """Where looking the flap's points up finds none of them (hidden, or turned away), its state is
+    held from the nearest frame that gave one, and the frame's points take the part whose points,
+    placed there by the joint, are nearest: the flap keeps its part, a few degrees off."""
+    monkeypatch.setattr(
+        parts, "_look", lambda motions, points, view, reach_m: np.full((len(motions), len(points)), np.nan)
+    )
+    art = find_articulation(run_result(hidden=range(20, 24)), estimator=bic)
+    for f in (21, 23):
+        assert (art.label_image(f) == 2).any()
+        assert _agreement(art, f) > 0.9
 
 
 def test_a_chain_is_followed_into_frames_no_pair_separates(bic):
