@@ -53,7 +53,8 @@ those per-pair segments through the frames into parts, and grows the tree of joi
    them are found there (the part hidden, or turned away), the state is the one between the nearest
    frames that gave one (held at the ends of the video), and where no pair separated the parts
    either, each of the frame's points takes the part whose points, placed there by the joints, are
-   nearest: every frame gets its parts, and a part hidden for a while keeps its track.
+   nearest: every frame gets its parts, and a part hidden for a while keeps its track. A frame no
+   pair reaches is labelled so too, with the base placed between the frames before and after it.
 """
 
 from __future__ import annotations
@@ -1139,6 +1140,14 @@ def _relabelled(
     that pair's labels, elsewhere its points take the nearest part placed at the guessed states
     (:func:`_nearest_part_labels`)."""
     tracks = np.asarray(list(tree))
+    # the base's pose where no pair reached: between the frames that have one (a guess, as below)
+    reached = np.isfinite(base_poses).all(axis=(1, 2))
+    base_poses = np.stack(
+        [
+            p if k else _interpolated(base_poses, reached, f)
+            for f, (p, k) in enumerate(zip(base_poses, reached))
+        ]
+    )
     clouds = _frame_clouds(result, observations)
     images = {f: result.frames[f].cloud.view for f in clouds if _has_depth(result, f)}
     noise, spacing = _noise(result), _spacing(result)
@@ -1191,6 +1200,7 @@ def _relabelled(
         placements, guessed = _track_states(
             tree, base_poses, clouds, sure, images, reach=reach, spacing=spacing, params=params
         )
+        guessed |= ~reached
         # a frame where a state was only guessed is neither judged by the motions nor a view to judge by
         looked = {t: np.where(guessed[:, None, None], np.nan, p) for t, p in placements.items()}
         labels.update(label(looked, [f for f in placed(looked) if f not in labels]))
