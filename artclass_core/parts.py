@@ -49,7 +49,12 @@ those per-pair segments through the frames into parts, and grows the tree of joi
    the parts): each object point, moved by each part's motion to the frames where the parts' motions
    differ most, takes the part that puts it on the surface seen there, as multi-body trackers keep
    their segmentation consistent. In a frame where no pair gave a part's state, the state is found
-   first by looking the part's points up in the frame at each state of its joint.
+   first by looking the part's points up in the frame at each state of its joint. Where too few of
+   them are found there (the part hidden, or turned away), the state is the one between the nearest
+   frames that gave one (held at the ends of the video), and where no pair separated the parts
+   either, each of the frame's points takes the part whose points, placed there by the joints, are
+   nearest: every frame gets its parts, and a part hidden for a while keeps its track. A frame no
+   pair reaches is labelled so too, with the base placed between the frames before and after it.
 """
 
 from __future__ import annotations
@@ -62,6 +67,7 @@ from typing import Any
 import cv2
 import numpy as np
 from scipy.ndimage import distance_transform_edt
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from .errors import ArtclassError
@@ -1129,8 +1135,19 @@ def _relabelled(
     the part image gives its pixel the part of the nearest labelled point. A frame where no point is
     decided keeps its pair's labels. This is done first in the frames where every part's pose is
     known from the pairs, then, once each part's state is found in the others
-    (:func:`_track_states`), in every frame where the parts are placed."""
+    (:func:`_track_states`), in every frame where the parts are placed. A frame where a state could
+    only be guessed is not judged so (nor judges others): where a pair separated the parts it keeps
+    that pair's labels, elsewhere its points take the nearest part placed at the guessed states
+    (:func:`_nearest_part_labels`)."""
     tracks = np.asarray(list(tree))
+    # the base's pose where no pair reached: between the frames that have one (a guess, as below)
+    reached = np.isfinite(base_poses).all(axis=(1, 2))
+    base_poses = np.stack(
+        [
+            p if k else _interpolated(base_poses, reached, f)
+            for f, (p, k) in enumerate(zip(base_poses, reached))
+        ]
+    )
     clouds = _frame_clouds(result, observations)
     images = {f: result.frames[f].cloud.view for f in clouds if _has_depth(result, f)}
     noise, spacing = _noise(result), _spacing(result)
@@ -1180,10 +1197,19 @@ def _relabelled(
     if hidden and known:  # the parts' states there are found from the labels of the nearest frames
         nearest = {g for f in hidden for g in sorted(known, key=lambda g: abs(g - f))[: params.n_views]}
         labels = label(placements, sorted(nearest))
-        placements = _track_states(
+        placements, guessed = _track_states(
             tree, base_poses, clouds, sure, images, reach=reach, spacing=spacing, params=params
         )
-    labels.update(label(placements, [f for f in placed(placements) if f not in labels]))
+        guessed |= ~reached
+        # a frame where a state was only guessed is neither judged by the motions nor a view to judge by
+        looked = {t: np.where(guessed[:, None, None], np.nan, p) for t, p in placements.items()}
+        labels.update(label(looked, [f for f in placed(looked) if f not in labels]))
+        # ... and where no pair separated the parts, they are placed at the guessed states
+        separated = [f for f, part in prior.items() if len(np.intersect1d(part, tracks)) > 1]
+        guessed[separated] = False
+        labels.update(_nearest_part_labels(clouds, sure, base_poses, placements, looked, guessed))
+    else:
+        labels.update(label(placements, [f for f in placed(placements) if f not in labels]))
     out = dict(views)
     for f, part in labels.items():
         if (part >= 0).any():  # a frame no pair labelled and where nothing was decided stays unlabelled
@@ -1260,6 +1286,8 @@ def _thinned(points: np.ndarray, n: int) -> np.ndarray:
 #: Points of a frame used to choose the frames it is judged in, and of a part looked up per state.
 _SAMPLE = 32
 _TRACKED_POINTS = 200
+#: Points of a part's model, by which frames where its state was only guessed are labelled.
+_MODEL_POINTS = 5000
 #: Every how many of a frame's points are labelled: the part image gives each pixel the part of the
 #: nearest labelled point anyway, so every second one gives the same images at half the cost.
 _LABELLED_EVERY = 2
@@ -1281,9 +1309,14 @@ def _track_states(
     state 0 and moved by the joint to each state of a grid (steps that move the part's farthest point
     by one point spacing, over the states seen and as far again either side), are looked up in the
     frame; the state that puts most of them on the surface seen there (at least ``min_seen`` of
-    them) is the frame's. Parents first, so a chain's outer part moves with its inner one (also
-    where its own state is known from the pairs but its parent's was not)."""
+    them) is the frame's. Where none does, the state is interpolated between the nearest frames that
+    have one and held beyond them, and the frame is marked as guessed. Parents first, so a chain's
+    outer part moves with its inner one (also where its own state is known from the pairs but its
+    parent's was not).
+
+    Returns the placements and the guessed frames (n_frames,) bool."""
     placements = {t: link.placement.copy() for t, link in tree.items()}
+    guessed = np.zeros(len(base_poses), bool)
     for t, link in tree.items():
         e = link.estimate
         if e is None or e.type not in ("revolute", "prismatic") or e.axis_direction is None:
@@ -1299,28 +1332,95 @@ def _track_states(
             if known[f] and np.count_nonzero(part == t)
         }
         todo = [f for f in sorted(images) if not known[f] and np.isfinite(base_poses[f] @ parent[f]).all()]
-        if not local or not todo:
+        if not todo or not known.any():
             continue
-        seen = e.states[known]
-        span = float(seen.max() - seen.min())
-        if e.type == "revolute":
-            everything = np.concatenate(list(local.values()))
-            lever = np.linalg.norm(np.cross(everything - e.axis_point_m, e.axis_direction), axis=1).max()
-            step = spacing / max(float(lever), spacing)
-        else:
-            step = spacing
-        grid = np.arange(seen.min() - span, seen.max() + span + step, step)
-        motions = joint_motion(e, grid)  # (G, 4, 4)
-        for f in todo:
-            near = sorted(local, key=lambda g: abs(g - f))[: params.n_views]
-            X = np.concatenate([local[g] for g in near])
-            X = X[:: max(1, len(X) // _TRACKED_POINTS)]
-            residual = _look(base_poses[f] @ parent[f] @ motions, X, images[f], reach_m=reach)
-            share = (residual < reach).mean(axis=1)
-            best = int(np.argmax(share))
-            if share[best] >= params.min_seen:
-                placements[t][f] = parent[f] @ motions[best]
-    return placements
+        states = e.states.copy()
+        if local:
+            states[todo] = _looked_up_states(
+                e, local, todo, base_poses, parent, images, reach, spacing, params
+            )
+        # where the look-up found too little of the part (hidden, or turned away), the state between
+        # the nearest frames that gave one, held at the ends
+        found = np.flatnonzero(np.isfinite(states))
+        guessed[todo] |= np.isnan(states[todo])
+        states[todo] = np.interp(todo, found, states[found])
+        placements[t][todo] = parent[todo] @ joint_motion(e, states[todo])
+    return placements, guessed
+
+
+def _nearest_part_labels(
+    clouds: dict[int, tuple[np.ndarray, np.ndarray]],
+    sure: dict[int, np.ndarray],
+    base_poses: np.ndarray,
+    placements: dict[int, np.ndarray],
+    looked: dict[int, np.ndarray],
+    guessed: np.ndarray,
+) -> dict[int, np.ndarray]:
+    """The labels of the frames where a part's state was only guessed (``guessed``): each part's
+    points labelled for sure in the frames where the parts are placed (``looked``), brought to
+    state 0 and placed in the frame at the guessed states (``placements``); each of the frame's
+    points takes the part with the nearest of them."""
+    models = {}
+    for t, placement in looked.items():
+        frames = [f for f in sure if np.isfinite(base_poses[f] @ placement[f]).all()]
+        step = max(1, sum(np.count_nonzero(sure[f] == t) for f in frames) // _MODEL_POINTS)
+        local = [
+            transform(clouds[f][1][sure[f] == t][::step], np.linalg.inv(base_poses[f] @ placement[f]))
+            for f in frames
+        ]
+        if sum(map(len, local)):
+            models[t] = np.concatenate(local)
+    if len(models) < 2:
+        return {}
+    owner = np.concatenate([np.full(len(points), t) for t, points in models.items()])
+    out = {}
+    for f in np.flatnonzero(guessed):
+        poses = [base_poses[f] @ placements[t][f] for t in models]
+        if f not in clouds or not all(np.isfinite(P).all() for P in poses):
+            continue
+        placed = np.concatenate([transform(points, P) for points, P in zip(models.values(), poses)])
+        _, nearest = cKDTree(placed).query(clouds[f][1][::_LABELLED_EVERY])
+        out[int(f)] = np.full(len(clouds[f][1]), -1)
+        out[int(f)][::_LABELLED_EVERY] = owner[nearest]
+    return out
+
+
+def _looked_up_states(
+    e: JointEstimate,
+    local: dict[int, np.ndarray],
+    todo: list[int],
+    base_poses: np.ndarray,
+    parent: np.ndarray,
+    images: dict,
+    reach: float,
+    spacing: float,
+    params: PartsParams,
+) -> np.ndarray:
+    """The joint's state (len(todo),) in each frame of ``todo`` that puts most of the part's points
+    (``local``: per frame where they were labelled for sure, at state 0) on the surface seen there, on
+    a grid of states (steps that move its farthest point by one point spacing, over the states seen
+    and as far again either side); NaN where fewer than ``min_seen`` of them land on it."""
+    seen = e.states[np.isfinite(e.states)]
+    span = float(seen.max() - seen.min())
+    if e.type == "revolute":
+        everything = np.concatenate(list(local.values()))
+        lever = np.linalg.norm(np.cross(everything - e.axis_point_m, e.axis_direction), axis=1).max()
+        step = spacing / max(float(lever), spacing)
+    else:
+        step = spacing
+    grid = np.arange(seen.min() - span, seen.max() + span + step, step)
+    motions = joint_motion(e, grid)  # (G, 4, 4)
+    out = np.full(len(todo), np.nan)
+    for n, f in enumerate(todo):
+        near = sorted(local, key=lambda g: abs(g - f))[: params.n_views]
+        X = np.concatenate([local[g] for g in near])
+        X = X[:: max(1, len(X) // _TRACKED_POINTS)]
+        residual = _look(base_poses[f] @ parent[f] @ motions, X, images[f], reach_m=reach)
+        share = (residual < reach).mean(axis=1)
+        best = int(np.argmax(share))
+        if share[best] >= params.min_seen:
+            out[n] = grid[best]
+    return out
 
 
 def _has_depth(result: RunResult, frame: int) -> bool:

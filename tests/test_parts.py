@@ -11,7 +11,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from artclass_core import ArtclassError
+from artclass_core import ArtclassError, parts
 from artclass_core.geometry import transform
 from artclass_core.joint_metrics import axis_direction_error_rad, axis_position_error_m, score_articulation
 from artclass_core.parts import (
@@ -389,9 +389,9 @@ def test_labels_become_part_images(bic):
     assert art.label_image(99) is None
 
 
-def _agreement(art, f: int, chain: bool = False) -> float:
+def _agreement(art, f: int, chain: bool = False, carried: bool = False) -> float:
     """Share of frame f's points whose pixel in the part image has their true part."""
-    cloud, part = _cloud(f, False, chain)
+    cloud, part = _cloud(f, carried, chain)
     u, v = cloud.pixels.T
     return float(np.mean(art.label_image(f)[v, u] == part + 1))
 
@@ -416,6 +416,32 @@ def test_a_frame_no_pair_separates_gets_its_parts(bic):
     assert not np.isfinite(art.joints[0].estimate.states[21]), "no pair gives the state of frame 21"
     assert _agreement(art, 21) > 0.95
     assert (art.label_image(21) == 2).any()
+
+
+def test_a_frame_where_the_part_is_not_found_gets_it_from_the_joint(bic, monkeypatch):
+    """Where looking the flap's points up finds none of them (hidden, or turned away), its state is
+    held from the nearest frame that gave one, and the frame's points take the part whose points,
+    placed there by the joint, are nearest: the flap keeps its part, a few degrees off."""
+    monkeypatch.setattr(
+        parts, "_look", lambda motions, points, view, reach_m: np.full((len(motions), len(points)), np.nan)
+    )
+    art = find_articulation(run_result(hidden=range(20, 24)), estimator=bic)
+    for f in (21, 23):
+        assert (art.label_image(f) == 2).any()
+        assert _agreement(art, f) > 0.9
+
+
+def test_a_frame_no_pair_reaches_is_placed_between_its_neighbours(bic):
+    """The pairs from and to frame 10 of a carried object are skipped: no pair gives the base's pose
+    there, which stays unknown, but the frame's parts are found with the base placed between the
+    frames before and after it and the flap at its state there."""
+    result = run_result(carried=True)
+    for p in result.pairs:
+        if 10 in (p.i, p.j):
+            p.decision, p.motions, p.labels, p.evidence = "skipped", [], None, None
+    art = find_articulation(result, estimator=bic)
+    assert np.isnan(art.base_poses[10]).all()
+    assert _agreement(art, 10, carried=True) > 0.9
 
 
 def test_a_chain_is_followed_into_frames_no_pair_separates(bic):
