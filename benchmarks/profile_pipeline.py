@@ -25,14 +25,20 @@ import cv2
 from artclass_core import Config, Pipeline, load_registry, open_sequences
 from artclass_plugins.bench import bench_sequence, start_up
 
+_DECODING = {"_decode_png", "_decode_plain_png", "_image_data", "unfilter"}
+
 
 def kind_of(function: tuple[str, int, str]) -> str:
     """The kind of work of a profiled function, from its (file, line, name) key."""
     path, _, name = function
     if name == "<method 'calc' of 'cv2.DenseOpticalFlow' objects>":
         return "optical flow (OpenCV DIS)"
-    # imagecodecs' decoder is compiled code the profile does not see: its time is its caller's own
-    if name == "<imdecode>" or (path.endswith("artclass_core/io.py") and name == "_decode_png"):
+    # OpenCV's and imagecodecs' decoders, and the steps and compiled loop of artclass_core.io's own
+    if (
+        name == "<imdecode>"
+        or "imagecodecs" in name
+        or (path.endswith("artclass_core/io.py") and name in _DECODING)
+    ):
         return "PNG decoding"
     if path.endswith("_compiled.py"):
         return "compiled loops (Numba)"

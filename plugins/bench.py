@@ -185,13 +185,17 @@ def _run_kwargs(pipeline, spec: dict) -> dict:
 
 
 def start_up() -> float:
-    """Load what plugins only load when first used (the dense registrar's and the segmenters'
-    compiled loops: Numba and its cached machine code), which the timed run leaves out as start-up;
-    returns its seconds."""
+    """Load what is only loaded when first used (the PNG decoder's, the dense registrar's and the
+    segmenters' compiled loops: Numba and its cached machine code), which the timed run leaves out as
+    start-up; returns its seconds."""
     import importlib
 
     t0 = time.perf_counter()
-    for module in ("artclass_plugins.dense.projective", "artclass_plugins.segmenters._compiled"):
+    for module in (
+        "artclass_core.io",
+        "artclass_plugins.dense.projective",
+        "artclass_plugins.segmenters._compiled",
+    ):
         try:
             warm_up = importlib.import_module(module).warm_up
         except ImportError:
