@@ -229,6 +229,7 @@ class DenseRegistrar(PairRegistrar):
             min_points=max(rule.min_part_points, int(rule.min_part_share * n)),
             min_coherence=rule.min_coherence,
             stride=int(ev.info["stride_px"]),
+            min_still_points=rule.min_part_points,
         )
         best = costs[chosen].min(axis=0)
         owner = np.asarray(chosen)[np.argmin(costs[chosen], axis=0)]

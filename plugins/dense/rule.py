@@ -10,9 +10,10 @@ put the point adds a cost of the same kind.
 
 Selection: motions are added one at a time, the one that lowers the total cost most first, while
 the saving pays for the motion's six parameters (BIC: ``6 ln N``), the points it explains better
-than the motions already chosen are at least ``min_part_share`` of the seen points, and those points
-form one region of the image rather than a scatter; then each selected motion in turn is swapped for
-the hypothesis that explains the points best with the others. Each point then takes the selected
+than the motions already chosen are at least ``min_part_share`` of the seen points (staying still,
+which is no fit, needs only ``min_part_points``), and those points form one region of the image
+rather than a scatter; then each selected motion in turn is swapped for the hypothesis that
+explains the points best with the others. Each point then takes the selected
 motion that explains it best: that labelling is the pair's part segmentation, and a part whose points
 are mixed with another's (two fits that each explain half of a rigid object) is not a part.
 
@@ -75,7 +76,10 @@ class DenseRuleParams(Params):
         "better than the motions already chosen.",
     )
     min_part_points: int = param(
-        20, unit="points", bounds=(1, 100000), help="... and at least this many points."
+        20,
+        unit="points",
+        bounds=(1, 100000),
+        help="... and at least this many points (staying still needs only these: it is no fit).",
     )
     min_coherence: float = param(
         0.6,
@@ -173,6 +177,7 @@ def select(
     min_points: int,
     min_coherence: float,
     stride: int,
+    min_still_points: int | None = None,
 ) -> list[int]:
     """Greedy model selection: the hypotheses (indices into ``costs``) the points need.
 
@@ -180,6 +185,9 @@ def select(
     saving exceeds ``penalty`` and the points it explains (cost below ``misfit / 2``) that the chosen
     ones do not (cost at least ``misfit``) number ``min_points`` and are a coherent image region. A
     motion that merely fits some points a little better (two fits of a symmetric object) adds nothing.
+    Staying still (hypothesis 0, the identity) is no fit, so it needs only ``min_still_points``: a
+    still base seen as a thin strip, sliding in itself under its part's motion, fails that motion at
+    its edges only.
     Finally each chosen motion is swapped for the best one given the others (:func:`_swapped`).
     """
     chosen = [int(np.argmin(costs.sum(axis=1)))]
@@ -192,7 +200,8 @@ def select(
             if saving[h] <= penalty:
                 return _swapped(costs, chosen)
             members = (costs[h] < misfit / 2) & (best >= misfit)
-            if members.sum() >= min_points and _coherence(members, pixels, stride) >= min_coherence:
+            enough = min_points if h or min_still_points is None else min_still_points
+            if members.sum() >= enough and _coherence(members, pixels, stride) >= min_coherence:
                 chosen.append(int(h))
                 best = np.minimum(best, costs[h])
                 break
@@ -290,6 +299,7 @@ class DenseRule(DecisionRule):
             min_points=max(p.min_part_points, int(p.min_part_share * n)),
             min_coherence=p.min_coherence,
             stride=int(ev.info.get("stride_px", 1)),
+            min_still_points=p.min_part_points,
         )
 
     def decide(self, ev: MotionEvidence, *, source=None, target=None) -> RuleDecision:
@@ -329,12 +339,13 @@ class DenseRule(DecisionRule):
 
         def needed(a: int, b: int, *, texture: bool = False) -> bool:
             """Whether motion ``a`` explains enough points that ``b`` fails in depth (or, with
-            ``texture``, in depth or optical flow)."""
+            ``texture``, in depth or optical flow); staying still needs only ``min_part_points``."""
             nonlocal depth
             if depth is None:  # a miss counts beyond noise_factor sigma plus the look-up's half pixel
                 depth = self.costs(ev, noise + ev.pixel_m / 2 / p.noise_factor, np.inf)
             failed = costs[b] if texture else depth[b]
-            return int((seen & (costs[a] < misfit / 2) & (failed >= misfit)).sum()) >= enough
+            explained = int((seen & (costs[a] < misfit / 2) & (failed >= misfit)).sum())
+            return explained >= (p.min_part_points if a == 0 else enough)
 
         for h in chosen[1:]:
             own, rest = ev.points[forward & (labels == h)], ev.points[forward & (labels >= 0) & (labels != h)]
