@@ -335,6 +335,11 @@ class DenseRule(DecisionRule):
         layout, stride = _layout(ev), int(ev.info.get("stride_px", 1))
         coherence = label_coherence(decisive, layout, stride)
         misfit, enough = p.noise_factor**2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
+
+        def least(h: int) -> int:
+            """The points motion ``h`` must explain on its own: staying still is no fit."""
+            return p.min_part_points if h == 0 else enough
+
         depth = None  # the costs without flow, worked out when first needed
 
         def needed(a: int, b: int, *, texture: bool = False) -> bool:
@@ -344,8 +349,7 @@ class DenseRule(DecisionRule):
             if depth is None:  # a miss counts beyond noise_factor sigma plus the look-up's half pixel
                 depth = self.costs(ev, noise + ev.pixel_m / 2 / p.noise_factor, np.inf)
             failed = costs[b] if texture else depth[b]
-            explained = int((seen & (costs[a] < misfit / 2) & (failed >= misfit)).sum())
-            return explained >= (p.min_part_points if a == 0 else enough)
+            return int((seen & (costs[a] < misfit / 2) & (failed >= misfit)).sum()) >= least(a)
 
         for h in chosen[1:]:
             own, rest = ev.points[forward & (labels == h)], ev.points[forward & (labels >= 0) & (labels != h)]
@@ -362,7 +366,7 @@ class DenseRule(DecisionRule):
             texture = not ev.names[h].startswith(WHOLE_OBJECT)
             both_needed = needed(h, base, texture=texture) and needed(base, h)
             # ... and a part is one region of the image where its motion is clearly the better one.
-            region = regions(decisive == h, layout, stride, min_points=enough // 2, most=1)
+            region = regions(decisive == h, layout, stride, min_points=least(h) // 2, most=1)
             if (
                 apart > threshold
                 and both_needed
