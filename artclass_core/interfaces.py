@@ -211,14 +211,18 @@ class JointEstimate:
 
 
 class JointEstimator(Plugin):
-    def estimate(self, poses: np.ndarray, *, n_independent: int | None = None) -> JointEstimate:
+    def estimate(
+        self, poses: np.ndarray, *, n_independent: int | None = None, reach_m: float | None = None
+    ) -> JointEstimate:
         """The joint of a part from its poses in its parent's frame.
 
         ``poses`` has shape (N, 4, 4): ``poses[i]`` maps the part's frame (its origin at the part, e.g.
         its centroid) to the parent's frame in frame ``i`` of the video, metres; NaN where unknown.
         ``n_independent`` says how many of the known poses carry independent errors (None: all of
         them); an estimator that weighs evidence (a chi-square test, a BIC) should count that many.
-        An ``estimate`` without this argument still works: it is then not passed.
+        ``reach_m`` is how far the object (the part and its parent) reaches from the part's origin:
+        a joint lies where the two meet, so a joint axis passes within it (None: unknown).
+        An ``estimate`` without one of these arguments still works: it is then not passed.
         """
         raise NotImplementedError
 

@@ -617,17 +617,19 @@ def _pair_joint(
     *,
     estimator: JointEstimator,
     smoothness: float,
+    reach_m: float | None = None,
 ) -> tuple[JointEstimate, int]:
     """The joint from a part's relative motions (i, j, motion in the base's first-frame coordinates)
     and the number of pairs it explains. The estimator sees the part's pose (origin ``centre_m``)
     moved by each relative motion and by its inverse, and unmoved: for a one-degree-of-freedom joint
-    all lie on one path, ``exp(±Δq ξ)``; one pose per pair is independent."""
+    all lie on one path, ``exp(±Δq ξ)``; one pose per pair is independent. ``reach_m``: how far the
+    object reaches from ``centre_m``."""
     start = _translation(centre_m)
     poses = np.stack(
         [start] + [M @ start for _, _, M in relative] + [np.linalg.inv(M) @ start for _, _, M in relative]
     )
     n = len(relative)
-    estimate = estimate_joint(estimator, poses, n_independent=n)
+    estimate = estimate_joint(estimator, poses, n_independent=n, reach_m=reach_m)
     forward, backward = np.arange(1, n + 1), np.arange(n + 1, 2 * n + 1)
     explained = (
         estimate.inliers[forward]
@@ -724,13 +726,13 @@ def smooth_misfit(residuals: np.ndarray) -> float:
     return out
 
 
-def estimate_joint(estimator: JointEstimator, poses: np.ndarray, *, n_independent: int) -> JointEstimate:
-    """``estimator.estimate(poses, n_independent=...)``, or ``estimator.estimate(poses)`` for an
-    estimator whose ``estimate`` takes no ``n_independent`` (one written before it existed)."""
+def estimate_joint(estimator: JointEstimator, poses: np.ndarray, **evidence: Any) -> JointEstimate:
+    """``estimator.estimate(poses, **evidence)``, leaving out the keywords (``n_independent``,
+    ``reach_m``) that an estimator written before they existed does not take."""
     parameters = inspect.signature(estimator.estimate).parameters.values()
-    if any(p.name == "n_independent" or p.kind is p.VAR_KEYWORD for p in parameters):
-        return estimator.estimate(poses, n_independent=n_independent)
-    return estimator.estimate(poses)
+    if not any(p.kind is p.VAR_KEYWORD for p in parameters):
+        evidence = {k: v for k, v in evidence.items() if k in {p.name for p in parameters}}
+    return estimator.estimate(poses, **evidence)
 
 
 def joint_motion(estimate: JointEstimate, state) -> np.ndarray:
@@ -1005,7 +1007,10 @@ def _kinematic_tree(
         if len(relative) < params.min_pairs or not points.get(child):
             return None
         centre = _centre(points[child], placement)
-        fit = _pair_joint(relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness)
+        reach = _reach([points[child], points.get(parent, {})], placement, centre)
+        fit = _pair_joint(
+            relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness, reach_m=reach
+        )
         # one pair's motion is always a screw about some axis: a joint is told by at least min_pairs
         return None if fit[0].type != "free" and fit[1] < params.min_pairs else fit
 
@@ -1051,13 +1056,25 @@ def _placement(parent: np.ndarray, estimate: JointEstimate) -> np.ndarray:
     return out
 
 
-def _centre(own: dict[int, np.ndarray], placement: np.ndarray) -> np.ndarray:
-    """The median (3,) of a part's points (per frame, base's first-frame coordinates) in its parent's
-    coordinates at state 0: each frame's points with the parent's ``placement`` undone (all the
-    points as they are when the parent is placed in none of the frames)."""
+def _placed(own: dict[int, np.ndarray], placement: np.ndarray) -> np.ndarray:
+    """A part's points (per frame, base's first-frame coordinates) in its parent's coordinates at
+    state 0: each frame's points with the parent's ``placement`` undone (all the points as they are
+    when the parent is placed in none of the frames)."""
     placed = [f for f in own if np.isfinite(placement[f]).all()]
     clouds = [transform(own[f], np.linalg.inv(placement[f])) for f in placed] or list(own.values())
-    return np.median(np.concatenate(clouds), axis=0)
+    return np.concatenate(clouds)
+
+
+def _centre(own: dict[int, np.ndarray], placement: np.ndarray) -> np.ndarray:
+    """The median (3,) of a part's points in its parent's coordinates at state 0 (:func:`_placed`)."""
+    return np.median(_placed(own, placement), axis=0)
+
+
+def _reach(parts: list[dict[int, np.ndarray]], placement: np.ndarray, centre_m: np.ndarray) -> float:
+    """How far (metres) the points of ``parts`` (a part and its parent), placed as by :func:`_placed`,
+    reach from ``centre_m``."""
+    clouds = [_placed(own, placement) for own in parts if own]
+    return float(np.linalg.norm(np.concatenate(clouds) - centre_m, axis=1).max())
 
 
 def _relative_motions(

@@ -20,8 +20,8 @@ class BICJointEstimator(JointEstimator):
     )
     Params = BICJointParams
 
-    def estimate(self, poses, *, n_independent=None) -> JointEstimate:
-        return fit_joint(poses, n_independent=n_independent, params=self.params)
+    def estimate(self, poses, *, n_independent=None, reach_m=None) -> JointEstimate:
+        return fit_joint(poses, n_independent=n_independent, reach_m=reach_m, params=self.params)
 
 
 @hookimpl

@@ -493,7 +493,11 @@ def _draw_pairs(n: int, count: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def fit_joint(
-    poses: np.ndarray, *, n_independent: int | None = None, params: BICJointParams = BICJointParams()
+    poses: np.ndarray,
+    *,
+    n_independent: int | None = None,
+    reach_m: float | None = None,
+    params: BICJointParams = BICJointParams(),
 ) -> JointEstimate:
     """Fit the fixed, prismatic, revolute and screw models to a part's poses and choose one by BIC.
 
@@ -507,6 +511,11 @@ def fit_joint(
         How many of the known poses carry independent errors (default: all of them). When each
         measurement is given as several poses (a relative motion and its inverse), the chi-square,
         the BIC and the uncertainties count ``n_independent`` poses' worth of evidence, not N.
+    reach_m : float, optional
+        How far the object reaches from the part's origin (metres). A joint lies where the part meets
+        its parent, on the object: a revolute or screw axis that passes farther from the part's
+        origin is not considered (a slide whose poses turn by noise can fit a hinge far off the
+        object). None: no bound.
     params : BICJointParams
 
     Returns
@@ -599,7 +608,12 @@ def fit_joint(
                 continue
             fits[name] = _refine(start, fitted, robust=False)
         scores[name] = share * fits[name].chi2 + n * log_norm + _n_params(fits[name].shape, n) * np.log(n)
-    shown = [name for name in scores if _shows_itself(fits[name], fitted, params.distinct_sigmas)]
+    shown = [
+        name
+        for name in scores
+        if _shows_itself(fits[name], fitted, params.distinct_sigmas)
+        and (reach_m is None or _axis_distance(fits[name]) <= reach_m)
+    ]
     chosen = min([name for name in shown if name != "screw"] or ["fixed"], key=scores.get)
     # a slide is a hinge with its axis at infinity: the hinge is kept only where it lowers the
     # chi-square by more than its extra parameters do from noise alone (the likelihood ratio test at
@@ -654,6 +668,20 @@ def _shows_itself(fit: _Fit, poses: _Poses, factor: float) -> bool:
     if fit.shape.name == "revolute":
         return turn > factor * poses.sigma_rad
     return turn > factor * poses.sigma_rad and slide > factor * poses.sigma_m
+
+
+def _axis_distance(fit: _Fit) -> float:
+    """How far (metres) the axis of a revolute or screw fit passes from the part's origin at state 0
+    (0 for the other models, which have no axis)."""
+    if fit.shape.name not in ("revolute", "screw"):
+        return 0.0
+    xi, _, t0 = fit.unpack()
+    w, v = xi[:3], xi[3:]
+    turn = float(w @ w)
+    if turn < 1e-12:
+        return np.inf
+    offset = t0 - _cross(w, v) / turn  # from the axis point nearest the origin to the part's origin
+    return float(np.linalg.norm(offset - (offset @ w) / turn * w))
 
 
 def _n_params(shape: _Shape, n_poses: float) -> float:
