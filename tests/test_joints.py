@@ -118,14 +118,15 @@ def test_a_slide_seen_in_few_poses_is_not_taken_for_a_far_hinge():
 def test_a_slide_that_turns_by_a_drift_is_no_hinge_off_the_object():
     """A carried drawer: its base's error about a flat face turns the slide by 5 degrees over 30 cm of
     travel, which a hinge 3.4 m off fits. Where the object reaches 30 cm from the part, no joint can lie
-    that far off: a slide. A true hinge 20 cm from the part stays a hinge."""
+    that far off: a slide. A true hinge 20 cm from the part stays a hinge, even where the points seen
+    reach only 15 cm."""
     truth = noisy("prismatic")
     drift = Rotation.from_rotvec(np.outer(np.linspace(0, np.radians(5), len(truth.poses)), [0.3, 1.0, 0.2]))
     poses = truth.poses.copy()
     poses[:, :3, :3] = (drift * Rotation.from_matrix(truth.poses[:, :3, :3])).as_matrix()
     assert fit_joint(poses).type in ("revolute", "screw")
     assert fit_joint(poses, reach_m=0.3).type == "prismatic"
-    assert fit_joint(noisy("revolute").poses, reach_m=0.3).type == "revolute"
+    assert fit_joint(noisy("revolute").poses, reach_m=0.15).type == "revolute"
 
 
 @pytest.mark.slow

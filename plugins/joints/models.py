@@ -104,6 +104,14 @@ class BICJointParams(Params):
         "noise sigmas over the video: a revolute joint's turn, a prismatic joint's "
         "travel, a screw's turn and its slide along the axis.",
     )
+    axis_reach: float = param(
+        2.0,
+        unit="1",
+        bounds=(0.5, 1000.0),
+        help="A revolute or screw axis must pass within this many times the object's reach "
+        "(how far its points reach from the part's origin) of the part: a joint lies on the "
+        "object, and the points seen may be only part of it.",
+    )
     seed: int = param(0, unit="1", bounds=(0, 2**31 - 1), help="Seed of the drawing of pose pairs.")
 
 
@@ -512,10 +520,10 @@ def fit_joint(
         measurement is given as several poses (a relative motion and its inverse), the chi-square,
         the BIC and the uncertainties count ``n_independent`` poses' worth of evidence, not N.
     reach_m : float, optional
-        How far the object reaches from the part's origin (metres). A joint lies where the part meets
-        its parent, on the object: a revolute or screw axis that passes farther from the part's
-        origin is not considered (a slide whose poses turn by noise can fit a hinge far off the
-        object). None: no bound.
+        How far the object's points reach from the part's origin (metres). A joint lies where the
+        part meets its parent, on the object: a revolute or screw axis that passes farther than
+        ``params.axis_reach`` times this from the part's origin is not considered (a slide whose poses
+        turn by noise can fit a hinge far off the object). None: no bound.
     params : BICJointParams
 
     Returns
@@ -612,7 +620,7 @@ def fit_joint(
         name
         for name in scores
         if _shows_itself(fits[name], fitted, params.distinct_sigmas)
-        and (reach_m is None or _axis_distance(fits[name]) <= reach_m)
+        and (reach_m is None or _axis_distance(fits[name]) <= params.axis_reach * reach_m)
     ]
     chosen = min([name for name in shown if name != "screw"] or ["fixed"], key=scores.get)
     # a slide is a hinge with its axis at infinity: the hinge is kept only where it lowers the
