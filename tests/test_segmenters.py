@@ -42,6 +42,7 @@ from artclass_plugins.segmenters.depth_threshold import (
     fill_dropouts,
     fill_floors,
     join_touching,
+    without_arm,
 )
 from artclass_plugins.segmenters.selection import (
     change_scores,
@@ -789,3 +790,20 @@ def test_depth_threshold_matches_the_synthetic_ground_truth(path):
     seg = DepthThresholdSegmenter()
     ious = [mask_iou(seg.segment(seq[i], sequence=seq), seq[i].mask) for i in range(len(seq))]
     assert np.mean(ious) > 0.85 and min(ious) > 0.75, ious
+
+
+def test_a_piece_of_sleeve_along_the_arm_is_not_an_object():
+    """A fold of sleeve the hand mask missed runs along the arm to the picture's border: arm. An
+    object the hand holds at one side, and one at the border away from the hand, stay."""
+    hand = np.zeros((240, 320), bool)
+    hand[80:120, :200] = True  # an arm from the left border to the hand
+    strip = np.zeros_like(hand)
+    strip[90:100, :190] = True
+    hand &= ~strip
+    held = np.zeros_like(hand)
+    held[118:180, 190:260] = True
+    beside = np.zeros_like(hand)
+    beside[180:240, :60] = True
+    kept = without_arm([strip, held, beside], hand, share=0.5)
+    assert [m is held or m is beside for m in kept] == [True, True] and len(kept) == 2
+    assert len(without_arm([strip, held, beside], hand, share=0.0)) == 3

@@ -66,6 +66,11 @@ __all__ = [
 ]
 
 
+#: An instance within this many pixels of the picture's border reaches it; an outline pixel within
+#: this many of the hand runs beside it.
+BORDER_PX = 2
+
+
 @dataclass(frozen=True)
 class DepthThresholdParams(SelectionParams, BackgroundParams, HandParams):
     open_px: int = param(
@@ -567,6 +572,24 @@ class MaskFreeSegmenter(InstanceSegmenter):
         return None if hand is None else ~widen(hand, self.params.hand_margin_px)
 
 
+def without_arm(instances: list[np.ndarray], hand: np.ndarray, *, share: float) -> list[np.ndarray]:
+    """``instances`` without the pieces of arm the hand mask missed (a fold or a shaded strip of a
+    sleeve): an arm enters the picture at its border, so an instance that reaches the border and
+    whose outline (away from the border) runs within ``BORDER_PX`` of ``hand`` for at least
+    ``share`` of its length is arm. A held object touches the hand along a part of its outline."""
+    if not share or not hand.any():
+        return instances
+    border = np.zeros_like(hand)
+    border[:BORDER_PX], border[-BORDER_PX:], border[:, :BORDER_PX], border[:, -BORDER_PX:] = (True,) * 4
+    beside = widen(hand, BORDER_PX)
+    out = []
+    for mask in instances:
+        outline = mask & ~(cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0) & ~border
+        if not (mask & border).any() or (outline & beside).sum() < share * max(outline.sum(), 1):
+            out.append(mask)
+    return out
+
+
 def keep_within(
     instances: list[np.ndarray], allowed: np.ndarray | None, *, min_area_fraction: float
 ) -> list[np.ndarray]:
@@ -640,4 +663,5 @@ class DepthThresholdSegmenter(MaskFreeSegmenter):
             found = join_hidden(found, hand, depth, K, touch_m=p.hand_touch_m)
         found = fill_floors(found, depth, K, gap_m=p.plane_distance_m)
         found = fill_dropouts(found, valid, fill_px=p.fill_px)
-        return keep_within(found, allowed, min_area_fraction=p.min_area_fraction)
+        found = keep_within(found, allowed, min_area_fraction=p.min_area_fraction)
+        return found if allowed is None else without_arm(found, ~allowed, share=p.arm_outline_share)

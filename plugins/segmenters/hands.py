@@ -170,6 +170,14 @@ class HandParams(Params):
         help="The hand mask grows by this radius before it is removed: the mixed-colour "
         "pixels of its outline.",
     )
+    arm_outline_share: float = param(
+        0.5,
+        unit="fraction",
+        bounds=(0.0, 1.0),
+        help="An object candidate that reaches the image border and whose outline runs "
+        "beside the hand for at least this share of its length is the rest of the arm "
+        "(a fold or shaded strip of a sleeve), not an object. 0 = off.",
+    )
     hand_touch_m: float = param(
         0.02,
         unit="m",
