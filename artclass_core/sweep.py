@@ -102,7 +102,7 @@ def grid_settings(
 ) -> list[Setting]:
     """Every combination of ``grid`` (the last name varies fastest), on top of ``plugins`` and ``params``.
 
-    A grid name is a parameter (by name or paper symbol) or a plugin kind (``rule=robust,paper``).
+    A grid name is a parameter (by name or paper symbol) or a plugin kind (``rule=dense,paper``).
     Every setting is checked here, so a bad name or value fails before anything runs.
     """
     base = {kind: plugins.get(kind, getattr(Config(), kind)) for kind in PLUGIN_KINDS}

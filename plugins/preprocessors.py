@@ -90,8 +90,7 @@ class PaperPreprocessor(Preprocessor):
 
     Choices the paper leaves open: the object diameter for the automatic v is the largest distance
     between the back-projected points after outlier removal, computed per frame; normals (for
-    point-to-plane ICP and the robust rule) are estimated within 3 v after smoothing and oriented to
-    the camera.
+    point-to-plane ICP) are estimated within 3 v after smoothing and oriented to the camera.
     """
 
     name = "paper"
@@ -176,7 +175,7 @@ class FinePreprocessor(PaperPreprocessor):
         return valid & grid
 
     name = "fine"
-    description = "Algorithm 1 at a finer resolution (v = D/40, r = 2v) that keeps thin parts apart (default)"
+    description = "Algorithm 1 at a finer resolution (v = D/40, r = 2v) that keeps thin parts apart"
     Params = FinePreprocessParams
 
 

@@ -20,7 +20,7 @@ BUILTINS = {
     "segmenter": {"mask", "depth_threshold", "u2net", "maskrcnn"},
     "preprocessor": {"paper", "fine"},
     "registrar": {"icp_point_to_point", "icp_point_to_plane"},
-    "rule": {"paper", "robust"},
+    "rule": {"dense", "paper"},
     "joint_estimator": {"bic"},
 }
 SAMPLES = sample_sequences()

@@ -393,13 +393,28 @@ def test_redecide_from_the_cache(registry):
 def test_redecide_goes_without_a_skipped_frame_between(registry):
     """A frame between a pair's two that was skipped (no object in it) is not needed to re-decide the
     pair with a rule that looks at the frames between: the run went without it too."""
+    from artclass_plugins.rules.paper import PaperRule
+
+    seen = []
+
+    class Between(PaperRule):
+        uses_frames_between = True  # as a rule that follows the images from frame to frame
+
+        def decide(self, cells, *, between=(), **kw):
+            seen.append(len(between))
+            return super().decide(cells, **kw)
+
+    def pipeline(cfg: Config) -> Pipeline:
+        pipe = Pipeline(registry, cfg)
+        pipe.rule = Between(pipe.rule.params)
+        return pipe
+
     seq = make_sequence("hinge", n_frames=6, empty_frames=(2,))
-    first = Pipeline(registry, config(rule="robust")).run(seq, keep_clouds=True)
+    first = pipeline(config()).run(seq, keep_clouds=True)
     assert [f.index for f in first.frames if f.skipped] == [2]
-    changed = config(rule="robust", pipeline=PipelineParams(k=2, w=1))
-    assert fingerprint(Pipeline(registry, changed).redecide(first)) == fingerprint(
-        Pipeline(registry, changed).run(seq)
-    )
+    assert 1 in seen, "pairs whose frame between was kept get it"
+    changed = config(pipeline=PipelineParams(k=2, w=1))
+    assert fingerprint(pipeline(changed).redecide(first)) == fingerprint(pipeline(changed).run(seq))
 
 
 @pytest.mark.parametrize(

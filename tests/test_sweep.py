@@ -97,8 +97,8 @@ def test_grid_settings_are_every_combination(registry):
         1,
     )
     assert len({s.recipe for s in settings}) == 6
-    rules = grid_settings(registry, {"rule": ["robust", "paper"]})
-    assert [s.config(registry).rule for s in rules] == ["robust", "paper"]
+    rules = grid_settings(registry, {"rule": ["dense", "paper"]})
+    assert [s.config(registry).rule for s in rules] == ["dense", "paper"]
     with pytest.raises(ParamError, match=r"setting k=0: .*k = 0 is out of bounds"):
         grid_settings(registry, {"k": ["3", "0"]})
     with pytest.raises(ArtclassError, match="unknown parameter 'nope'"):
@@ -343,7 +343,7 @@ def test_scheduler_without_dask_says_how_to_install_it(capsys, root, tmp_path, m
 
 
 def test_figure_has_a_panel_per_swept_name(registry, sequences, tmp_path):
-    settings = grid_settings(registry, {"w": ["1", "3", "5"], "rule": ["robust", "paper"]})
+    settings = grid_settings(registry, {"w": ["1", "3", "5"], "rule": ["dense", "paper"]})
     table = sweep(registry, sequences, settings, out=tmp_path / "t.parquet")
     fig = figure(table)
     titles = [a.text for a in fig.layout.annotations]
@@ -352,8 +352,8 @@ def test_figure_has_a_panel_per_swept_name(registry, sequences, tmp_path):
     # Panel w: one sequence-accuracy line per rule, x the numeric values of w, y the setting's accuracy.
     w_lines = [t for t in fig.data if t.xaxis == "x" and t.name.startswith("sequence accuracy")]
     assert sorted(t.name for t in w_lines) == [
+        "sequence accuracy, rule=dense",
         "sequence accuracy, rule=paper",
-        "sequence accuracy, rule=robust",
     ]
     for t in w_lines:
         rule = t.name.split("=")[1]

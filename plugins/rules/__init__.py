@@ -4,11 +4,9 @@ from artclass_core import hookimpl
 
 from ..dense.rule import DenseRule
 from .paper import PaperRule
-from .robust import RobustRule
 
 
 @hookimpl
 def register_rules(register):
     register(DenseRule)
     register(PaperRule)
-    register(RobustRule)
