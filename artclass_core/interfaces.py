@@ -220,8 +220,8 @@ class JointEstimator(Plugin):
         its centroid) to the parent's frame in frame ``i`` of the video, metres; NaN where unknown.
         ``n_independent`` says how many of the known poses carry independent errors (None: all of
         them); an estimator that weighs evidence (a chi-square test, a BIC) should count that many.
-        ``reach_m`` is how far the object (the part and its parent) reaches from the part's origin:
-        a joint lies where the two meet, so a joint axis passes within it (None: unknown).
+        ``reach_m`` is how far the object's points (the part's and its parent's) reach from the
+        part's origin: a joint lies where the two meet, so its axis passes near them (None: unknown).
         An ``estimate`` without one of these arguments still works: it is then not passed.
         """
         raise NotImplementedError

@@ -13,9 +13,9 @@ the saving pays for the motion's six parameters (BIC: ``6 ln N``), the points it
 than the motions already chosen are at least ``min_part_share`` of the seen points (staying still,
 which is no fit, needs only ``min_part_points``), and those points form one region of the image
 rather than a scatter; then each selected motion in turn is swapped for the hypothesis that
-explains the points best with the others. Each point then takes the selected
-motion that explains it best: that labelling is the pair's part segmentation, and a part whose points
-are mixed with another's (two fits that each explain half of a rigid object) is not a part.
+explains the points best with the others. Each point then takes the selected motion that explains
+it best: that labelling is the pair's part segmentation, and a part whose points are mixed with
+another's (two fits that each explain half of a rigid object) is not a part.
 
 Decision: two or more motions that really differ (their relative motion moves the median point of
 each side by more than ``noise_factor`` sigma plus one pixel, the part fails in depth points that the
