@@ -12,7 +12,8 @@ cached under ``$XDG_CACHE_HOME/artclass/bench`` keyed by the generator's version
 - the time to re-decide the sequence after a decision-rule parameter changes (reusing the cached
   registrations through :class:`artclass_core.pipeline.StageCache`), next to a full re-run;
 - the cost of finding the parts and joints (:func:`artclass_core.parts.find_articulation`) on top of
-  the classification, as a share of its run time;
+  the classification, as a share of its run time, on a clip whose part is found (:data:`PARTS_SEQUENCE`,
+  rendered and cached the same way; with ``--sequence``, that sequence);
 - a long sequence (default 1000 frames, the rendered frames played back and forth by
   :class:`CycledSequence`, so nothing long has to be rendered): peak resident memory and the
   resident memory after 10 % of the pairs and at the end (it must not grow with the length).
@@ -48,6 +49,8 @@ FRAME_STAGES = ("read", "segment", "preprocess")
 DEFAULT_SEQUENCE = dict(
     object_name="drawer", motion="carry_articulate", noise="low", n_frames=60, seed=0, width=640, height=480
 )
+#: The clip the parts-and-joints cost is measured on: a laptop opening, whose lid the parts stage finds.
+PARTS_SEQUENCE = dict(object_name="laptop", motion="articulate", n_frames=24)
 
 
 # -- the benchmark sequence ------------------------------------------------------------------------
@@ -278,7 +281,8 @@ def format_parts(m: dict) -> str:
     if "error" in m:
         return f"parts and joints: error: {m['error']}\n"
     return (
-        f"parts and joints ({m['n_frames']} frames, segmenter={m['spec']['segmenter']}, "
+        f"parts and joints ({Path(m['spec']['path']).name}, {m['n_frames']} frames, "
+        f"segmenter={m['spec']['segmenter']}, "
         f"workers={m['spec'].get('workers', 1)}): {m['parts_s']:.2f} s on top of the run's {m['run_s']:.2f} s "
         f"= {m['parts_s'] / m['run_s']:.1%} of the classification's wall time ({m['parts_cpu_s']:.2f} / "
         f"{m['run_cpu_s']:.2f} s = {m['parts_cpu_s'] / m['run_cpu_s']:.1%} of its CPU time; peak RSS "
@@ -565,7 +569,11 @@ def run_bench(args) -> int:
         out.write(format_redecide(m) + "\n")
         out.flush()
     if not args.skip_parts and segmenters and not args.paper:
-        m = in_child("parts", dict(base, segmenter=segmenters[0], workers=max(workers)))
+        parts_path = path
+        if not args.sequence:
+            size = dict(width=args.width, height=args.height, seed=args.seed)
+            parts_path = str(bench_sequence(cache_dir=args.cache_dir, **size, **PARTS_SEQUENCE))
+        m = in_child("parts", dict(base, path=parts_path, segmenter=segmenters[0], workers=max(workers)))
         results["parts"] = m
         out.write(format_parts(m) + "\n")
         out.flush()
