@@ -348,6 +348,21 @@ def test_the_estimator_is_told_one_pose_per_pair_is_independent(bic):
     assert calls[1] == (2 * n_pairs + 1, None)
 
 
+def test_the_estimator_is_told_how_far_the_object_reaches(bic):
+    """``reach_m``: how far the flap's and the base's points reach from the flap's centre, about the
+    far corner of the base (the points the pairs label, so up to a couple of centimetres short)."""
+    reaches = []
+
+    class Told:
+        def estimate(self, poses, *, n_independent=None, reach_m=None):
+            reaches.append(reach_m)
+            return bic.estimate(poses, n_independent=n_independent, reach_m=reach_m)
+
+    _check_hinge(find_articulation(run_result(), estimator=Told()))
+    far = np.linalg.norm(np.vstack([BASE, LID]) - np.median(LID, axis=0), axis=1).max()
+    assert len(reaches) == 1 and far - 0.02 < reaches[0] <= far + 0.005
+
+
 def test_a_joint_must_explain_more_than_one_pair(bic):
     """One relative motion is always a screw motion about some axis, so it tells no joint: a part whose
     joint explains only one pair (the estimator finding every other pair an outlier) is left out."""
