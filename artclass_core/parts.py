@@ -1006,8 +1006,9 @@ def _kinematic_tree(
         relative = _relative_motions(result, motions[child], motions[parent], base_poses @ placement)
         if len(relative) < params.min_pairs or not points.get(child):
             return None
-        centre = _centre(points[child], placement)
-        reach = _reach([points[child], points.get(parent, {})], placement, centre)
+        own = _placed(points[child], placement)
+        centre = np.median(own, axis=0)
+        reach = _reach(own, points.get(parent, {}), placement, centre)
         fit = _pair_joint(
             relative, centre, n_frames, estimator=estimator, smoothness=params.smoothness, reach_m=reach
         )
@@ -1065,15 +1066,12 @@ def _placed(own: dict[int, np.ndarray], placement: np.ndarray) -> np.ndarray:
     return np.concatenate(clouds)
 
 
-def _centre(own: dict[int, np.ndarray], placement: np.ndarray) -> np.ndarray:
-    """The median (3,) of a part's points in its parent's coordinates at state 0 (:func:`_placed`)."""
-    return np.median(_placed(own, placement), axis=0)
-
-
-def _reach(parts: list[dict[int, np.ndarray]], placement: np.ndarray, centre_m: np.ndarray) -> float:
-    """How far (metres) the points of ``parts`` (a part and its parent), placed as by :func:`_placed`,
-    reach from ``centre_m``."""
-    clouds = [_placed(own, placement) for own in parts if own]
+def _reach(
+    own_m: np.ndarray, parent: dict[int, np.ndarray], placement: np.ndarray, centre_m: np.ndarray
+) -> float:
+    """How far (metres) a part's points ``own_m`` (as :func:`_placed` gives them) and its parent's
+    points, placed the same way, reach from ``centre_m``."""
+    clouds = [own_m, _placed(parent, placement)] if parent else [own_m]
     return float(np.linalg.norm(np.concatenate(clouds) - centre_m, axis=1).max())
 
 
