@@ -1,6 +1,7 @@
 """The compiled (Numba) per-pixel loops of the segmenters, one pass over an image where numpy makes
 several full-image temporaries or OpenCV a slow generic pass: the projector's shadows (a scan of
-each row), the colour difference of the thin-object search and the statistics of labelled regions."""
+each row), the colour difference of the thin-object search, the statistics of labelled regions and
+the least-squares refit of a plane."""
 
 from __future__ import annotations
 
@@ -98,6 +99,62 @@ def region_stats(labels, n):
     return stats
 
 
+@njit(cache=True, nogil=True)
+def plane_moments(points, normal, offset, distance, inliers):
+    """Mark in ``inliers`` (bool (N,)) the ``points`` (float64 (N, 3)) within ``distance`` of the plane
+    ``points @ normal + offset == 0``; return their number, their centre (3,) and their scatter about
+    it (3, 3), two passes over the points instead of numpy's several temporaries."""
+    n = 0
+    centre = np.zeros(3)
+    for i in range(points.shape[0]):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        inliers[i] = abs(x * normal[0] + y * normal[1] + z * normal[2] + offset) < distance
+        if inliers[i]:
+            n += 1
+            centre[0] += x
+            centre[1] += y
+            centre[2] += z
+    scatter = np.zeros((3, 3))
+    if n == 0:
+        return n, centre, scatter
+    centre /= n
+    for i in range(points.shape[0]):
+        if inliers[i]:
+            for a in range(3):
+                d = points[i, a] - centre[a]
+                for b in range(a, 3):
+                    scatter[a, b] += d * (points[i, b] - centre[b])
+    for a in range(3):
+        for b in range(a):
+            scatter[a, b] = scatter[b, a]
+    return n, centre, scatter
+
+
+@njit(cache=True, nogil=True)
+def strided_points(depth, stride, near, far, rx, ry):
+    """The back-projected points (float64 (N, 3)) of every ``stride``-th pixel in x and y of ``depth``
+    (float32 (H, W), metres) with a reading in [``near``, ``far``] (float32), in row-major order; ``rx``
+    (W,) and ``ry`` (H,) are the pixels' ray slopes (float32)."""
+    h, w = depth.shape
+    n = 0
+    for v in range(0, h, stride):
+        for u in range(0, w, stride):
+            z = depth[v, u]
+            if z >= near and z <= far and z > 0:
+                n += 1
+    out = np.empty((n, 3))
+    i = 0
+    for v in range(0, h, stride):
+        for u in range(0, w, stride):
+            z = depth[v, u]
+            if z >= near and z <= far and z > 0:
+                out[i, 0] = np.float64(rx[u]) * np.float64(z)
+                out[i, 1] = np.float64(ry[v]) * np.float64(z)
+                out[i, 2] = z
+                i += 1
+    return out
+
+
 def warm_up() -> None:
     """Load the compiled loops: run each once on a tiny image with the argument types of the
     segmenters' calls, so that the first frame does not pay for loading Numba's cached machine code
@@ -111,3 +168,6 @@ def warm_up() -> None:
         colour, colour, np.ones(3, np.float32), np.ones(depth.shape, bool), np.float32(1.0), flags
     )
     region_stats(np.zeros(depth.shape, np.int32), 1)
+    rays = np.zeros(6, np.float32), np.zeros(4, np.float32)
+    strided_points(depth, 2, np.float32(0.1), np.float32(1.0), *rays)
+    plane_moments(np.zeros((3, 3)), np.array([0.0, 0.0, 1.0]), 0.0, 0.01, np.zeros(3, bool))

@@ -20,7 +20,7 @@ import numpy as np
 
 from artclass_core import Intrinsics, Params, param
 
-from ._compiled import region_stats
+from ._compiled import plane_moments, region_stats, strided_points
 
 __all__ = [
     "BackgroundParams",
@@ -225,16 +225,15 @@ def refine_plane(
     (normal (3,), offset_m, inliers (N,) bool), the normal oriented towards the origin (``offset_m`` >= 0)
     """
     normal, offset = np.asarray(normal, dtype=np.float64), float(offset_m)
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    inliers = np.empty(len(points), np.bool_)
     for _ in range(2):  # least-squares refit on the inliers, then re-select them
-        inliers = np.abs(points @ normal + offset) < distance_m
-        if inliers.sum() < 3:
+        n, centre, scatter = plane_moments(points, normal, offset, distance_m, inliers)
+        if n < 3:
             break
-        held = points[inliers]
-        centre = held.mean(axis=0)
-        spread = held - centre
-        normal = np.linalg.eigh(spread.T @ spread)[1][:, 0]  # the direction of least spread
+        normal = np.linalg.eigh(scatter)[1][:, 0]  # the direction of least spread
         offset = -float(normal @ centre)
-    inliers = np.abs(points @ normal + offset) < distance_m
+    plane_moments(points, normal, offset, distance_m, inliers)
     if offset < 0:
         normal, offset = -normal, -offset
     return normal, float(offset), inliers
@@ -271,14 +270,17 @@ def fit_planes(
     list of Plane, oriented towards the camera
     """
     s = params.plane_stride_px
-    d = clean_depth(np.asarray(depth_m)[::s, ::s])
     rx, ry = _rays(
         intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy, intrinsics.width, intrinsics.height
     )
-    valid = (d >= params.near_m) & (d <= params.far_m) & (d > 0)
-    z = d[valid].astype(np.float64)
-    vv, uu = np.nonzero(valid)
-    pts = np.column_stack((rx[0, ::s][uu] * z, ry[::s, 0][vv] * z, z))
+    pts = strided_points(
+        np.ascontiguousarray(depth_m, dtype=np.float32),
+        s,
+        np.float32(params.near_m),
+        np.float32(params.far_m),
+        rx[0],
+        ry[:, 0],
+    )
     total = len(pts)
     rng = None  # made when RANSAC first needs it (a refitted hint draws nothing)
     planes: list[Plane] = []
