@@ -155,6 +155,32 @@ def strided_points(depth, stride, near, far, rx, ry):
     return out
 
 
+@njit(cache=True, nogil=True)
+def border_reach(mask, out):
+    """Mark in ``out`` (bool (H, W), all False) the pixels of ``mask`` (bool (H, W)) connected
+    (8-connected) through ``mask`` to the image border: a flood from the border's pixels, which
+    visits only what it reaches, where labelling every region of the image visits them all."""
+    h, w = mask.shape
+    stack = np.empty(h * w, np.int64)
+    top = 0
+    for v in range(h):
+        for u in range(w):
+            if (v == 0 or v == h - 1 or u == 0 or u == w - 1) and mask[v, u] and not out[v, u]:
+                out[v, u] = True
+                stack[top] = v * w + u
+                top += 1
+    while top:
+        top -= 1
+        v, u = divmod(stack[top], w)
+        for dv in range(-1, 2):
+            for du in range(-1, 2):
+                y, x = v + dv, u + du
+                if 0 <= y < h and 0 <= x < w and mask[y, x] and not out[y, x]:
+                    out[y, x] = True
+                    stack[top] = y * w + x
+                    top += 1
+
+
 def warm_up() -> None:
     """Load the compiled loops: run each once on a tiny image with the argument types of the
     segmenters' calls, so that the first frame does not pay for loading Numba's cached machine code
@@ -168,6 +194,7 @@ def warm_up() -> None:
         colour, colour, np.ones(3, np.float32), np.ones(depth.shape, bool), np.float32(1.0), flags
     )
     region_stats(np.zeros(depth.shape, np.int32), 1)
+    border_reach(flags.copy(), flags)
     rays = np.zeros(6, np.float32), np.zeros(4, np.float32)
     strided_points(depth, 2, np.float32(0.1), np.float32(1.0), *rays)
     plane_moments(np.zeros((3, 3)), np.array([0.0, 0.0, 1.0]), 0.0, 0.01, np.zeros(3, bool))

@@ -66,7 +66,7 @@ import numpy as np
 
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, param
 
-from ._compiled import shadow_kernel, step_kernel
+from ._compiled import border_reach, shadow_kernel, step_kernel
 from .support import DEPTH_STEP_M, Plane, clean_depth, grown_box, label_regions, plane_height_m
 
 __all__ = [
@@ -743,12 +743,9 @@ def own_colour(
 def _edge_gaps(depth_m: np.ndarray, shadow: np.ndarray) -> np.ndarray:
     """The pixels without a reading, other than ``shadow``, connected (8-connected) to the image
     border: where an arm nearer than the sensor's range leaves the picture. bool (H, W)."""
-    n, labels = cv2.connectedComponents(((depth_m == 0) & ~shadow).view(np.uint8), connectivity=8)
-    reach = np.zeros(n, bool)
-    for side in (labels[0], labels[-1], labels[:, 0], labels[:, -1]):
-        reach[side] = True
-    reach[0] = False  # the pixels with a reading, or in a shadow
-    return reach[labels]
+    out = np.zeros(depth_m.shape, bool)
+    border_reach((depth_m == 0) & ~shadow, out)
+    return out
 
 
 def _touches(region: np.ndarray, other: np.ndarray | None) -> bool:
