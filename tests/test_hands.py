@@ -37,6 +37,8 @@ from artclass_plugins.segmenters.hands import (
     parse_hsv,
     projector_shadows,
     skin_mask,
+    surface_m2,
+    surfaces_m2,
 )
 from artclass_plugins.segmenters.selection import mask_iou
 from artclass_plugins.segmenters.support import Plane, background_mask, fit_planes
@@ -678,6 +680,41 @@ def test_a_held_object_of_another_skin_shade_keeps_its_pixels():
         scene[0], sequence=scene
     )
     assert np.count_nonzero(without & wood) > 0.25 * np.count_nonzero(wood)
+
+
+def test_a_carried_object_of_another_skin_shade_is_not_the_hand():
+    """A hand held out by a green sleeve carries a wooden box (skin-coloured, another chromaticity),
+    both 0.45 m from the camera, off the table, with no depth step between them. The box (0.04 m^2
+    seen from the camera) is larger than any hand, so the hand mask stops where the colour changes
+    though the box does not rest on the table, and the box is the object; without the size test
+    (``hand_max_area_m2=0``) the hand takes all of it and no object is left."""
+    box = box_mask(40, 50, 150, 120)
+    hand = hand_shape(215, 120) & ~box
+    depth = table_depth()
+    depth[box | hand] = 0.45
+    rgb, depth = render(box, hand, hand_depth_m=0.45, depth=depth)
+    paint(rgb, box, (205, 160, 100), seed=1)
+    paint(rgb, hand & (np.arange(W)[None, :] > 270), SLEEVE, seed=2)
+    assert skin_mask(rgb)[box].mean() > 0.9
+    scene = Scene([Frame(0, "0", rgb, depth)], name="wooden box carried")
+    seg = DepthThresholdSegmenter()
+    assert mask_iou(seg.hand_mask(scene[0], sequence=scene), hand) > 0.9
+    assert mask_iou(seg.segment(scene[0], sequence=scene), box) > 0.9
+    before = DepthThresholdSegmenter(DepthThresholdParams(hand_max_area_m2=0.0))
+    assert before.hand_mask(scene[0], sequence=scene)[box].mean() > 0.9
+    assert before.segment(scene[0], sequence=scene) is None
+
+
+def test_the_surfaces_of_labelled_regions_are_each_one_s_surface():
+    """``surfaces_m2`` of every region at once equals ``surface_m2`` of each, pixels without a
+    reading included (counted at their region's mean depth)."""
+    rng = np.random.default_rng(0)
+    labels = rng.integers(0, 5, (H, W))
+    depth = rng.uniform(0.3, 1.0, (H, W)).astype(np.float32)
+    depth[rng.random((H, W)) < 0.2] = 0
+    where = rng.random((H, W)) < 0.8
+    each = [surface_m2((labels == q) & where, depth, INTR) for q in range(5)]
+    np.testing.assert_allclose(surfaces_m2(labels, where, 5, depth, INTR), each, rtol=1e-6)
 
 
 def test_the_colour_of_a_hand_is_read_inside_its_outline():

@@ -13,8 +13,9 @@ union of:
   table also reaches the border through pixels without a reading that do, other than projector
   shadows (an arm nearer than the sensor's range). A hand ends where its colour does: the parts
   of its region whose chromaticity (normalised rgb) differs by more than ``hand_chroma`` from the
-  skin where the arm holds it, and that rest on the support plane, are an object held there
-  (a wooden box, a cardboard case touched at the hand's own depth), not the hand (:func:`own_colour`);
+  skin where the arm holds it, and that rest on the support plane or are larger than a hand
+  (``hand_max_area_m2``), are an object held there or carried (a wooden box, a cardboard case
+  touched at the hand's own depth), not the hand (:func:`own_colour`);
 * **arms and sleeves, whatever their colour**: a region standing out of the background that reaches
   the image border (or the pixels without a reading that do: a sleeve too near the sensor to be
   measured but for its rim), is not resting on the support plane (none of its pixels away from
@@ -95,6 +96,7 @@ __all__ = [
     "chromaticity",
     "own_colour",
     "surface_m2",
+    "surfaces_m2",
 ]
 
 # Chai & Ngan (1999): the skin-colour map in YCrCb, 8-bit (OpenCV's YCrCb has the same offsets).
@@ -162,6 +164,15 @@ class HandParams(Params):
         help="Skin- or gripper-coloured regions whose surface (seen from the camera, "
         "measured with depth) is smaller are not a hand: about two fingers, "
         "30 cm^2; patches of skin colour on objects are smaller.",
+    )
+    hand_max_area_m2: float = param(
+        0.03,
+        unit="m^2",
+        bounds=(0.0, 1.0),
+        help="No hand is larger, seen from the camera (an adult's, fingers spread, is "
+        "about 200 cm^2): a part of a skin-coloured region, of another shade than "
+        "where the arm holds it, that is larger, is an object the hand carries, "
+        "even off the table. 0 = only objects resting on the table are told apart.",
     )
     hand_margin_px: int = param(
         2,
@@ -302,6 +313,22 @@ def surface_m2(region: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics) 
     return (float(np.sum(z * z)) + (np.count_nonzero(region) - len(z)) * float(z.mean()) ** 2) / (
         intrinsics.fx * intrinsics.fy
     )
+
+
+def surfaces_m2(
+    labels: np.ndarray, where: np.ndarray, n: int, depth_m: np.ndarray, intrinsics: Intrinsics
+) -> np.ndarray:
+    """:func:`surface_m2` of each region 0 .. n - 1 of ``labels`` (int (H, W)) among the pixels
+    ``where`` (bool (H, W)), all in one pass: float (n,)."""
+    z = depth_m[where].astype(np.float64)
+    of, seen = labels[where], z > 0
+    n_seen = np.bincount(of[seen], minlength=n)
+    mean = np.bincount(of[seen], weights=z[seen], minlength=n) / np.maximum(n_seen, 1)
+    total = (
+        np.bincount(of[seen], weights=z[seen] ** 2, minlength=n)
+        + (np.bincount(of, minlength=n) - n_seen) * mean**2
+    )
+    return total / (intrinsics.fx * intrinsics.fy)
 
 
 def load_hand_mask(folder: Path, frame: Frame) -> np.ndarray:
@@ -451,7 +478,12 @@ def find_hands(
         if params.hand_chroma > 0 and skin.any():
             carriers = (hand & ~kinds[0]) | (_edge_gaps(d, shadow) if edge is None else edge)
             hand = (hand & ~skin) | own_colour(
-                skin, carriers, frame.rgb, tolerance=params.hand_chroma, contact=contact
+                skin,
+                carriers,
+                frame.rgb,
+                tolerance=params.hand_chroma,
+                contact=contact,
+                larger=(d, intrinsics, params.hand_max_area_m2),
             )
     seen = hand & (d > 0)
     if seen.any():
@@ -690,14 +722,17 @@ def own_colour(
     *,
     tolerance: float,
     contact: np.ndarray,
+    larger: tuple[np.ndarray, Intrinsics, float] | None = None,
 ) -> np.ndarray:
-    """``skin`` without what a hand holds on the table: in each connected region (8-connected) of
-    ``skin``, the pixels whose :func:`chromaticity` lies farther than ``tolerance`` from the median of
-    its *seeds* (its pixels near the image border or near ``carriers``: where the arm holds it; more
-    than MIXED_PX inside the region's outline) or that connect to the seeds only through those, form
-    pieces; a piece that rests on the support plane (:func:`rests`) is an object the hand holds
-    there, not the hand, and is removed. A piece that does not is kept (the hand, when the sleeve is
-    skin-coloured too); so is a region without seeds.
+    """``skin`` without what a hand holds on the table or carries: in each connected region
+    (8-connected) of ``skin``, the pixels whose :func:`chromaticity` lies farther than ``tolerance``
+    from the median of its *seeds* (its pixels near the image border or near ``carriers``: where the
+    arm holds it; more than MIXED_PX inside the region's outline) or that connect to the seeds only
+    through those, form pieces; a piece that rests on the support plane (:func:`rests`) is an object
+    the hand holds there, not the hand, and is removed; so is a piece whose :func:`surface_m2` is
+    larger than a hand can be (``larger``: the depth, the intrinsics and that surface), a box the
+    hand carries. A piece that is neither is kept (the hand, when the sleeve is skin-coloured too);
+    so is a region without seeds.
 
     Parameters
     ----------
@@ -707,6 +742,8 @@ def own_colour(
     rgb : ndarray, shape (H, W, 3), uint8, RGB order
     tolerance : distance in normalised rgb; 0 = ``skin`` unchanged
     contact : ndarray of bool, shape (H, W) -- the pixels on the support plane (:func:`on_plane`)
+    larger : (depth_m (H, W), intrinsics, max_area_m2), optional -- a piece whose surface exceeds
+        ``max_area_m2`` (> 0) is removed off the table too
 
     Returns
     -------
@@ -734,9 +771,12 @@ def own_colour(
         _, parts = cv2.connectedComponents(own.view(np.uint8), connectivity=8)
         other = region & ~np.isin(parts, np.unique(parts[own & seeds]))
         m, pieces = cv2.connectedComponents(other.view(np.uint8), connectivity=8)
-        on_table = np.bincount(pieces[other & contact[box]], minlength=m) >= CONTACT_PX  # as rests()
-        on_table[0] = False
-        out[box] &= ~on_table[pieces]
+        gone = np.bincount(pieces[other & contact[box]], minlength=m) >= CONTACT_PX  # as rests()
+        if larger is not None and larger[2] > 0:
+            depth, intrinsics, most = larger
+            gone |= surfaces_m2(pieces, other, m, depth[box], intrinsics) > most
+        gone[0] = False
+        out[box] &= ~gone[pieces]
     return out
 
 
