@@ -21,7 +21,6 @@ from .types import (
     Intrinsics,
     Motion,
     MotionEvidence,
-    PairResult,
     Registration,
     Sequence,
 )
@@ -132,13 +131,6 @@ class DecisionRule(Plugin):
     ) -> RuleDecision:
         """Decide AM / RM / NM (or skipped) for a pair from its registered cells."""
         raise NotImplementedError
-
-    def confirm(self, pairs: list[PairResult]) -> set[int]:
-        """Once every pair of a sequence is decided: the pairs (indices into ``pairs``, in frame
-        order) whose decision the whole sequence turns into AM, e.g. a part too small to count in one
-        pair that several pairs see move the same way. They pass the max-count filter as they are.
-        None by default."""
-        return set()
 
 
 KINDS: dict[str, tuple[str, str]] = {

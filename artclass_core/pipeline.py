@@ -318,9 +318,9 @@ class Pipeline(FrameSteps):
 
 
 def confirmed_pairs(rule, pairs: list[PairResult]) -> set[int]:
-    """The pairs (indices into ``pairs``) that the rule's :meth:`~artclass_core.DecisionRule.confirm`
-    turns into AM once it has seen the whole sequence, marked AM with the reason (none for a rule
-    without the method: subclassing ``DecisionRule`` is optional)."""
+    """The pairs (indices into ``pairs``) whose decision the rule takes back to AM once it has seen the
+    whole sequence (a rule's optional ``confirm(pairs)``: a part too small to count in one pair, seen
+    to move the same way in several), marked AM with the reason; none for a rule without it."""
     confirm = getattr(rule, "confirm", None)
     confirmed = set(confirm(pairs)) if confirm is not None else set()
     for t in confirmed:
