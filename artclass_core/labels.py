@@ -12,14 +12,12 @@ from .types import DECISIONS, FrameResult, PairResult, RunResult
 SEVERITY = {"NM": 0, "RM": 1, "AM": 2}
 
 
-def max_count_filter(decisions: list[str], *, w: int, kept: Iterable[int] = ()) -> list[str]:
+def max_count_filter(decisions: list[str], *, w: int) -> list[str]:
     """Moving max-count (mode) filter with a centred window of ``w`` decisions.
 
     A tie goes to the least severe of the tied (NM < RM < AM), so an isolated AM cannot win a tie,
-    not even in the truncated windows at the ends of the sequence. The decisions at the positions
-    ``kept`` (confirmed by other means than their neighbours) pass unchanged.
+    not even in the truncated windows at the ends of the sequence.
     """
-    kept = set(kept)
     out = []
     before = (w - 1) // 2
     for t in range(len(decisions)):
@@ -27,7 +25,7 @@ def max_count_filter(decisions: list[str], *, w: int, kept: Iterable[int] = ()) 
         counts = Counter(window)
         top = max(counts.values())
         tied = [d for d in counts if counts[d] == top]
-        out.append(decisions[t] if t in kept else min(tied, key=SEVERITY.__getitem__))
+        out.append(min(tied, key=SEVERITY.__getitem__))
     return out
 
 
@@ -66,16 +64,12 @@ def labelled_result(
     params: dict[str, dict],
     plugins: dict[str, str],
     timing: dict[str, float],
-    confirmed: Iterable[int] = (),
 ) -> RunResult:
-    """The :class:`RunResult` of a sequence's pair decisions: filtered with window ``w`` (the pairs
-    ``confirmed``, indices into ``pairs``, pass the filter unchanged), the label and the class
-    fractions, recorded with the ``params`` and ``plugins`` that produced them, the stage ``timing``
-    (s) and the artclass version."""
-    confirmed = set(confirmed)
-    decided_at = [t for t, p in enumerate(pairs) if p.decision != "skipped"]
-    decided = [pairs[t].decision for t in decided_at]
-    filtered = max_count_filter(decided, w=w, kept=[n for n, t in enumerate(decided_at) if t in confirmed])
+    """The :class:`RunResult` of a sequence's pair decisions: filtered with window ``w``, the label and
+    the class fractions, recorded with the ``params`` and ``plugins`` that produced them, the stage
+    ``timing`` (s) and the artclass version."""
+    decided = [p.decision for p in pairs if p.decision != "skipped"]
+    filtered = max_count_filter(decided, w=w)
     return RunResult(
         sequence=sequence,
         label=sequence_label(filtered),

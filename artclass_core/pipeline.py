@@ -304,27 +304,6 @@ class Pipeline(FrameSteps):
         timing: dict[str, float],
     ) -> RunResult:
         plugins, params = self.config.record(self.registry, segmenter=segmenter)
-        confirmed = confirmed_pairs(self.rule, pairs)
         return labelled_result(
-            sequence_info,
-            frames,
-            pairs,
-            w=self.params.w,
-            params=params,
-            plugins=plugins,
-            timing=timing,
-            confirmed=confirmed,
+            sequence_info, frames, pairs, w=self.params.w, params=params, plugins=plugins, timing=timing
         )
-
-
-def confirmed_pairs(rule, pairs: list[PairResult]) -> set[int]:
-    """The pairs (indices into ``pairs``) whose decision the rule takes back to AM once it has seen the
-    whole sequence (a rule's optional ``confirm(pairs)``: a part too small to count in one pair, seen
-    to move the same way in several), marked AM with the reason; none for a rule without it."""
-    confirm = getattr(rule, "confirm", None)
-    confirmed = set(confirm(pairs)) if confirm is not None else set()
-    for t in confirmed:
-        p = pairs[t]
-        p.reason = f"{p.reason}; a small part moving the same way in {len(confirmed)} pairs"
-        p.decision = "AM"
-    return confirmed

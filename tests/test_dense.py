@@ -13,9 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-from artclass_core import Frame, Intrinsics, Motion, MotionEvidence
-from artclass_core.labels import max_count_filter
-from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN, PairResult
+from artclass_core import Frame, Intrinsics, MotionEvidence
+from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
 from artclass_plugins.dense.image import ImagePreprocessor, depth_step, filter_depth
 from artclass_plugins.dense.projective import Target, kabsch, look_all, robust_kabsch
 from artclass_plugins.dense.registrar import DenseRegistrar
@@ -427,56 +426,3 @@ def test_staying_still_needs_fewer_points_than_a_fitted_motion():
     out = DenseRule().decide(still)
     assert out.decision == "AM" and (out.labels[strip] == 1).all(), out.reason
     assert DenseRule().decide(evidence).decision == "RM"
-
-
-def _candidate_pair(i: int, *, k: int, slide_m: np.ndarray, carry: np.ndarray) -> PairResult:
-    """An RM pair (i, i + k) whose object turns by ``carry`` (a rotation vector, per pair) and whose
-    small part slides by ``slide_m`` relative to it, given in frame 0's axes."""
-
-    def turn(steps: float) -> np.ndarray:
-        T = np.eye(4)
-        T[:3, :3] = cv2.Rodrigues(np.asarray(carry, float) * steps)[0]
-        return T
-
-    base = turn(1)
-    to_frame_i = turn(i / k)  # the object's pose in frame i, relative to frame 0
-    slide = np.eye(4)
-    slide[:3, 3] = to_frame_i[:3, :3] @ slide_m
-    points = (to_frame_i[:3, :3] @ np.array([[0.0, 0.0, 0.5], [0.02, 0.0, 0.5], [0.0, 0.02, 0.5]]).T).T
-    info = dict(candidate=dict(T_base=base.tolist(), T_part=(base @ slide).tolist(), points=points.tolist()))
-    return PairResult(i, i + k, "RM", info=info, motions=[Motion(base, "object", 100, 0.02)])
-
-
-@pytest.mark.parametrize(
-    ("slides", "firsts", "confirmed"),
-    [
-        ([[0.02, 0, 0]] * 2, (0, 6), {0, 1}),  # one joint, in pairs that share no frame
-        ([[0.02, 0, 0], [-0.02, 0, 0]], (0, 6), set()),  # opposite ways: no joint
-        ([[0.02, 0, 0], [0, 0.02, 0]], (0, 6), set()),  # across each other: no joint
-        ([[0.02, 0, 0]] * 2, (0, 5), set()),  # they share frame 5: one view seen twice
-    ],
-)
-def test_a_small_part_is_confirmed_by_pairs_that_agree_on_one_joint(slides, firsts, confirmed):
-    """A part too small for min_part_share is confirmed when pairs sharing no frame see it slide the
-    same way relative to its base, in the base's frame: the object turns between them (carried), so
-    the slides agree in its frame, not in the camera's."""
-    k, carry = 5, np.radians([0.0, 25.0, 0.0])  # 30 degrees between frames 0 and 6
-    chosen = {i: slide for i, slide in zip(firsts, slides, strict=True)}
-    pairs = [
-        _candidate_pair(i, k=k, slide_m=np.asarray(chosen[i]), carry=carry)
-        if i in chosen
-        else _candidate_pair(i, k=k, slide_m=np.zeros(3), carry=carry)
-        for i in range(12)
-    ]
-    for q in pairs:
-        if q.i not in chosen:
-            del q.info["candidate"]
-    got = DenseRule().confirm(pairs)
-    assert {pairs[t].i for t in got} == {firsts[t] for t in confirmed}
-    assert DenseRule(DenseRuleParams(joint_min_pairs=0)).confirm(pairs) == set()
-
-
-def test_confirmed_pairs_pass_the_max_count_filter():
-    decisions = ["RM", "AM", "RM", "RM", "RM", "AM", "RM"]
-    assert "AM" not in max_count_filter(decisions, w=3)
-    assert max_count_filter(decisions, w=3, kept=[1, 5]) == decisions

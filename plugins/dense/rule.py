@@ -26,16 +26,6 @@ depth when it misses it by more than ``noise_factor`` sigma plus half a pixel (t
 the nearest pixel, up to half a pixel off the surface where the surface is steep): a still object on
 a shaking camera, half hidden by a moving hand, misses a slide along itself by less. Too few points
 seen in both frames: skipped.
-
-Sequence: a part too small for ``min_part_share`` (a matchbox tray or a case's lid sliding while the
-whole object is carried) is kept as a candidate on its RM pair when it passes every other test. A part
-moves relative to its base along one joint, the same way from pair to pair; two fits of one rigid
-body split it differently in every pair. So once the whole sequence is decided, candidates whose
-relative motions (part relative to base, taken into the base's frame of one of them by chaining the
-object's motions between the pairs) move the part's points the same way, to a cosine of
-``joint_min_cosine``, are confirmed AM when ``joint_min_pairs`` of them share no frame (a fit's
-ambiguity that lasts over one view shows in the overlapping pairs of that view only), and they pass
-the max-count filter as they are.
 """
 
 from __future__ import annotations
@@ -47,7 +37,7 @@ import numpy as np
 
 from artclass_core import DecisionRule, Motion, MotionEvidence, Params, RuleDecision, param
 from artclass_core.geometry import transform
-from artclass_core.types import SURFACE, PairResult
+from artclass_core.types import SURFACE
 
 from .projective import hypothesis_costs
 
@@ -98,21 +88,6 @@ class DenseRuleParams(Params):
         help="A part is a region, not a scatter: its points' image neighbours must be "
         "its own for at least this share on average (and so must those of the "
         "points it explains that no chosen motion does).",
-    )
-    joint_min_pairs: int = param(
-        2,
-        unit="pairs",
-        bounds=(0, 1000),
-        help="A part too small for min_part_share is still taken when the pairs that find it, "
-        "this many of them sharing no frame, see it move the same way relative to its base "
-        "(one joint); 0 = never.",
-    )
-    joint_min_cosine: float = param(
-        0.95,
-        unit="cosine",
-        bounds=(0.0, 1.0),
-        help="Two pairs see a part move the same way when the displacements their relative "
-        "motions give the part's points, in the base's frame, agree to this cosine.",
     )
     min_seen_share: float = param(
         0.3,
@@ -275,57 +250,6 @@ def _displacement(points: np.ndarray, A: np.ndarray, B: np.ndarray) -> float:
     )
 
 
-def _fraction(T: np.ndarray, f: float) -> np.ndarray:
-    """The rigid motion ``f`` of the way along ``T`` (rotation angle and translation scaled by ``f``)."""
-    rvec, _ = cv2.Rodrigues(np.asarray(T[:3, :3], float))
-    out = np.eye(4)
-    out[:3, :3] = cv2.Rodrigues(rvec * f)[0]
-    out[:3, 3] = T[:3, 3] * f
-    return out
-
-
-def base_motion(pairs: dict[int, PairResult], start: int, end: int) -> np.ndarray | None:
-    """The object's motion from frame ``start`` to frame ``end`` (``T_end_from_start``), chained over
-    the pairs that begin at ``start``, at its end and so on (``pairs`` by first frame), the last one
-    taken in part; None where a pair on the way is missing or skipped."""
-    M, f = np.eye(4), start
-    while f < end:
-        q = pairs.get(f)
-        if q is None or q.decision == "skipped":
-            return None
-        span = q.j - q.i
-        step = min(span, end - f)
-        T = q.motions[0].T_target_from_source if q.motions else np.eye(4)
-        M, f = _fraction(T, step / span) @ M, f + step
-    return M
-
-
-def relative_agreement(a: PairResult, b: PairResult, M: np.ndarray) -> float:
-    """Cosine between the displacements that the part's motions relative to its base in pairs ``a``
-    and ``b`` give the part's points of both, in frame ``a.i`` (``M``: the object's motion from frame
-    ``a.i`` to ``b.i``). Moves along one joint give proportional displacements: cosine 1."""
-    ca, cb = a.info["candidate"], b.info["candidate"]
-    D_a = np.linalg.inv(ca["T_base"]) @ np.asarray(ca["T_part"])
-    D_b = np.linalg.inv(M) @ np.linalg.inv(cb["T_base"]) @ np.asarray(cb["T_part"]) @ M
-    X = np.vstack([ca["points"], transform(np.asarray(cb["points"]), np.linalg.inv(M))])
-    u_a, u_b = transform(X, D_a) - X, transform(X, D_b) - X
-    norm = np.sqrt((u_a * u_a).sum() * (u_b * u_b).sum())
-    return float((u_a * u_b).sum() / norm) if norm > 0 else 0.0
-
-
-def _rounded(a: np.ndarray) -> list:
-    return np.round(np.asarray(a, float), 6).tolist()
-
-
-def _stand_ins(points: np.ndarray) -> np.ndarray:
-    """Seven points (7, 3) for a set of points: their centre, and the centre plus and minus one spread
-    along each principal direction."""
-    centre = points.mean(axis=0)
-    values, vectors = np.linalg.eigh(np.cov((points - centre).T))
-    steps = vectors * np.sqrt(np.maximum(values, 0))[None]
-    return np.vstack([centre, centre + steps.T, centre - steps.T])
-
-
 class DenseRule(DecisionRule):
     """Counts the rigid motions the pair's dense evidence needs, by model selection (see module docstring)."""
 
@@ -363,48 +287,39 @@ class DenseRule(DecisionRule):
         )
         return sigma, flow, self.costs(ev, sigma, flow)
 
-    def choose(
-        self, ev: MotionEvidence, costs: np.ndarray, seen: np.ndarray, *, share: float | None = None
-    ) -> list[int]:
-        """The hypotheses selected for the seen points (indices into ``ev.motions``); a further motion
-        must explain ``share`` (default ``min_part_share``) of them."""
+    def choose(self, ev: MotionEvidence, costs: np.ndarray, seen: np.ndarray) -> list[int]:
+        """The hypotheses selected for the seen points (indices into ``ev.motions``)."""
         p = self.params
         n = int(seen.sum())
-        share = p.min_part_share if share is None else share
         return select(
             costs[:, seen],
             _layout(ev)[seen],
             penalty=p.bic_factor * 6 * np.log(max(n, 2)),
             misfit=p.noise_factor**2,
-            min_points=max(p.min_part_points, int(share * n)),
+            min_points=max(p.min_part_points, int(p.min_part_share * n)),
             min_coherence=p.min_coherence,
             stride=int(ev.info.get("stride_px", 1)),
             min_still_points=p.min_part_points,
         )
 
-    def depth_costs(self, ev: MotionEvidence, noise: float) -> np.ndarray:
-        """The costs without flow, a miss counting beyond ``noise_factor`` sigma plus the look-up's
-        half pixel."""
-        return self.costs(ev, noise + ev.pixel_m / 2 / self.params.noise_factor, np.inf)
-
-    def distinct(
-        self,
-        ev: MotionEvidence,
-        costs: np.ndarray,
-        seen: np.ndarray,
-        chosen: list[int],
-        noise: float,
-        *,
-        depth: dict,
-        enough: int,
-    ) -> tuple[list[int], np.ndarray]:
-        """The motions of ``chosen`` after the first (the base) that are parts: they differ from the
-        base, each fails points the other explains (``enough`` of them; staying still needs only
-        ``min_part_points``), and they explain one region of the image; and each point's label among
-        ``chosen`` where one motion explains it clearly best (-3 elsewhere). ``depth`` holds the
-        costs without flow once worked out (key ``"costs"``)."""
+    def decide(self, ev: MotionEvidence, *, source=None, target=None) -> RuleDecision:
         p = self.params
+        seen = (ev.status == SURFACE).any(axis=0)
         forward = ev.forward
+        if not seen.any():
+            return RuleDecision("skipped", [], reason="no point lands on the target surface under any motion")
+        noise, flow_noise, costs = self.noise(ev, seen)
+        first = int(np.argmin(costs.sum(axis=1)))
+        share = float((ev.status[first, forward] == SURFACE).mean()) if forward.any() else 0.0
+        if share < p.min_seen_share:
+            return RuleDecision(
+                "skipped",
+                [],
+                reason=f"only {share:.0%} of the points seen on the target surface "
+                f"(alpha = {p.min_seen_share:g})",
+                info=dict(seen_share=share),
+            )
+        chosen = self.choose(ev, costs, seen)
         labels = np.where(seen, np.asarray(chosen)[np.argmin(costs[chosen], axis=0)], -1)
         threshold = p.noise_factor * noise + ev.pixel_m
         base = chosen[0]
@@ -419,18 +334,21 @@ class DenseRule(DecisionRule):
         )
         layout, stride = _layout(ev), int(ev.info.get("stride_px", 1))
         coherence = label_coherence(decisive, layout, stride)
-        misfit = p.noise_factor**2
+        misfit, enough = p.noise_factor**2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
 
         def least(h: int) -> int:
             """The points motion ``h`` must explain on its own: staying still is no fit."""
             return p.min_part_points if h == 0 else enough
 
+        depth = None  # the costs without flow, worked out when first needed
+
         def needed(a: int, b: int, *, texture: bool = False) -> bool:
             """Whether motion ``a`` explains enough points that ``b`` fails in depth (or, with
-            ``texture``, in depth or optical flow)."""
-            if "costs" not in depth:
-                depth["costs"] = self.depth_costs(ev, noise)
-            failed = costs[b] if texture else depth["costs"][b]
+            ``texture``, in depth or optical flow); staying still needs only ``min_part_points``."""
+            nonlocal depth
+            if depth is None:  # a miss counts beyond noise_factor sigma plus the look-up's half pixel
+                depth = self.costs(ev, noise + ev.pixel_m / 2 / p.noise_factor, np.inf)
+            failed = costs[b] if texture else depth[b]
             return int((seen & (costs[a] < misfit / 2) & (failed >= misfit)).sum()) >= least(a)
 
         for h in chosen[1:]:
@@ -456,53 +374,6 @@ class DenseRule(DecisionRule):
                 and np.nanmean(coherence[decisive == h]) >= p.min_coherence
             ):
                 parts.append(h)
-        return parts, decisive
-
-    def candidate(
-        self, ev: MotionEvidence, costs: np.ndarray, seen: np.ndarray, noise: float, *, depth: dict
-    ) -> dict | None:
-        """A part that passes every test but ``min_part_share``: found again with ``min_part_points``
-        as the only floor. Returns its base's and its own motion and seven points that stand for its
-        decisive points (their centre, and one robust spread either way along each principal
-        direction; source camera frame, metres), JSON-ready; or None."""
-        p = self.params
-        chosen = self.choose(ev, costs, seen, share=0.0)
-        if len(chosen) < 2:
-            return None
-        parts, decisive = self.distinct(ev, costs, seen, chosen, noise, depth=depth, enough=p.min_part_points)
-        points = ev.points[ev.forward & (decisive == parts[0])] if parts else ev.points[:0]
-        if len(points) < 3:
-            return None
-        return dict(
-            T_base=_rounded(ev.motions[chosen[0]]),
-            T_part=_rounded(ev.motions[parts[0]]),
-            points=_rounded(_stand_ins(points)),
-            n_points=int((seen & (decisive == parts[0])).sum()),
-        )
-
-    def decide(self, ev: MotionEvidence, *, source=None, target=None) -> RuleDecision:
-        p = self.params
-        seen = (ev.status == SURFACE).any(axis=0)
-        forward = ev.forward
-        if not seen.any():
-            return RuleDecision("skipped", [], reason="no point lands on the target surface under any motion")
-        noise, flow_noise, costs = self.noise(ev, seen)
-        first = int(np.argmin(costs.sum(axis=1)))
-        share = float((ev.status[first, forward] == SURFACE).mean()) if forward.any() else 0.0
-        if share < p.min_seen_share:
-            return RuleDecision(
-                "skipped",
-                [],
-                reason=f"only {share:.0%} of the points seen on the target surface "
-                f"(alpha = {p.min_seen_share:g})",
-                info=dict(seen_share=share),
-            )
-        chosen = self.choose(ev, costs, seen)
-        depth: dict = {}
-        enough = max(p.min_part_points, int(p.min_part_share * seen.sum()))
-        parts, _ = self.distinct(ev, costs, seen, chosen, noise, depth=depth, enough=enough)
-        base = chosen[0]
-        threshold = p.noise_factor * noise + ev.pixel_m
         kept = [base, *parts]
         labels = np.where(seen, np.asarray(kept)[np.argmin(costs[kept], axis=0)], -1)
         motions = [
@@ -542,19 +413,9 @@ class DenseRule(DecisionRule):
         # ... and, as a part must, it must be needed in depth: staying still (the evidence's first
         # hypothesis, the identity) fails points it explains. A fit that slides along a surface depth
         # cannot fix (a sliver of a still mug beside a moving hand) moves points, but shows no motion.
-        if moved > threshold:
-            if "costs" not in depth:
-                depth["costs"] = self.depth_costs(ev, noise)
-            explained = (
-                seen & (costs[base] < p.noise_factor**2 / 2) & (depth["costs"][0] >= p.noise_factor**2)
-            )
-            if explained.sum() < (enough if base else p.min_part_points):
-                moved, reason = 0.0, reason + ", but staying still explains the depth as well"
+        if moved > threshold and not needed(base, 0):
+            moved, reason = 0.0, reason + ", but staying still explains the depth as well"
         decision = "RM" if moved > threshold else "NM"
-        if decision == "RM" and p.joint_min_pairs:
-            candidate = self.candidate(ev, costs, seen, noise, depth=depth)
-            if candidate is not None:
-                info["candidate"] = candidate
         return RuleDecision(
             decision,
             [],
@@ -563,30 +424,3 @@ class DenseRule(DecisionRule):
             motions=motions,
             labels=labels,
         )
-
-    def confirm(self, pairs: list[PairResult]) -> set[int]:
-        """The pairs (indices into ``pairs``, in frame order) whose part too small for
-        ``min_part_share`` is confirmed by the sequence: the largest set of such pairs that see the
-        part move the same way relative to its base as one of them does (``joint_min_cosine``), when
-        at least ``joint_min_pairs`` of them share no frame."""
-        p = self.params
-        found = [t for t, q in enumerate(pairs) if q.decision == "RM" and "candidate" in q.info]
-        if not p.joint_min_pairs or len(found) < p.joint_min_pairs:
-            return set()
-        by_first = {q.i: q for q in pairs}
-        best: tuple[int, int, list[int]] = (0, 0, [])
-        for a in found:
-            agree = []
-            for b in found:
-                first, then = sorted((a, b), key=lambda t: pairs[t].i)
-                M = base_motion(by_first, pairs[first].i, pairs[then].i)
-                if b == a or (
-                    M is not None and relative_agreement(pairs[first], pairs[then], M) >= p.joint_min_cosine
-                ):
-                    agree.append(b)
-            apart, last = 0, -1
-            for t in agree:  # in frame order: count the pairs that share no frame
-                if pairs[t].i > last:
-                    apart, last = apart + 1, pairs[t].j
-            best = max(best, (apart, len(agree), agree))
-        return set(best[2]) if best[0] >= p.joint_min_pairs else set()
