@@ -93,7 +93,8 @@ class PartsParams(Params):
         bounds=(0.0, 100.0),
         help="Two moving regions that overlap (however little) are one part when their motions "
         "relative to the base move the regions' points alike, one scaled to the other, within this "
-        "many depth-noise levels (and each moves them by more).",
+        "many depth-noise levels of the two pairs together (and each moves them by more than this "
+        "many of its own pair's).",
     )
     min_pairs: int = param(
         2,
@@ -411,9 +412,11 @@ def _linked_by_motion(
     to the base, as one joint does: a one-degree-of-freedom joint moves by ``exp(Δq ξ)``, so the
     velocity fields ``log`` of the two relative motions give at the two regions' points are one
     field scaled by the pairs' Δq. They are when one, scaled to fit the other, misses it by less than
-    ``link_sigmas`` times the pairs' depth noise (median over the points) and each moves the points
-    by more. Best fit first, never two motions of one pair in one track; small parts whose regions in
-    two pairs overlap too little to be joined by :func:`_tracks` are joined here."""
+    ``link_sigmas`` times the depth noise of the two pairs together (the root sum of squares: the
+    miss is a difference of their fields; median over the points), and each moves the points by
+    more than ``link_sigmas`` times its own pair's depth noise (a field is one pair's measurement).
+    Best fit first, never two motions of one pair in one track; small parts whose regions in two
+    pairs overlap too little to be joined by :func:`_tracks` are joined here."""
     moving = _moving_nodes(result, observations, track, base, base_poses)
     links = []
     for (a, va), (b, vb) in itertools.combinations(moving.items(), 2):
@@ -421,10 +424,14 @@ def _linked_by_motion(
             continue
         field_a, field_b = va[1](np.vstack([va[0], vb[0]])), vb[1](np.vstack([va[0], vb[0]]))
         scale = float(np.sum(field_a * field_b)) / max(float(np.sum(field_b * field_b)), 1e-18)
-        noise = float(np.hypot(result.pairs[a[0]].evidence.noise_m, result.pairs[b[0]].evidence.noise_m))
-        moved = min(np.median(np.linalg.norm(f, axis=1)) for f in (field_a, field_b))
+        noise_a, noise_b = result.pairs[a[0]].evidence.noise_m, result.pairs[b[0]].evidence.noise_m
+        noise = float(np.hypot(noise_a, noise_b))  # of a difference of the two pairs' fields
+        moves = all(
+            np.median(np.linalg.norm(f, axis=1)) > link_sigmas * n
+            for f, n in ((field_a, noise_a), (field_b, noise_b))
+        )
         miss = float(np.median(np.linalg.norm(field_a - scale * field_b, axis=1)))
-        if moved > link_sigmas * noise and miss < link_sigmas * noise:
+        if moves and miss < link_sigmas * noise:
             links.append((miss / noise, track[a], track[b]))
     pairs: dict[int, set[int]] = {}
     for node, t in track.items():

@@ -393,6 +393,25 @@ def test_a_part_whose_regions_overlap_little_is_linked_by_its_motion(bic):
     _check_hinge(art)
 
 
+def test_a_part_that_moves_little_is_linked_against_its_own_pairs_noise(bic):
+    """Each motion's velocity field is one pair's measurement: it must move the points by more than
+    link_sigmas of that pair's depth noise, not of the two pairs' noise together (which only the
+    difference of the two fields carries). A flap moving its points by 6 noise levels a pair (4.2 of
+    the two pairs' together) is linked into one part with every pair's evidence."""
+    run = run_result(carried=True)
+    pair = run.pairs[0]
+    field = parts._twist_log(
+        np.linalg.inv(pair.motions[0].T_target_from_source) @ pair.motions[1].T_target_from_source
+    )
+    moved_m = np.median(np.linalg.norm(np.cross(field[0], LID) + field[1], axis=1))
+    for p in run.pairs:
+        p.evidence.noise_m = moved_m / 6.0
+    art = find_articulation(run, estimator=bic, params=PartsParams(min_overlap=0.955, link_sigmas=5.0))
+    (joint,) = art.joints
+    assert joint.n_pairs == len(run.pairs)
+    _check_hinge(art)
+
+
 def test_labels_become_part_images(bic):
     art = find_articulation(run_result(), estimator=bic)
     cloud, part = _cloud(5, False)
