@@ -1,7 +1,7 @@
 """The compiled (Numba) per-pixel loops of the segmenters, one pass over an image where numpy makes
 several full-image temporaries or OpenCV a slow generic pass: the projector's shadows (a scan of
-each row), the colour difference of the thin-object search, the statistics of labelled regions and
-the least-squares refit of a plane."""
+each row), the colour difference of the thin-object search, the statistics of labelled regions, the
+plane search's points and their least-squares refit, and a flood from the image's border."""
 
 from __future__ import annotations
 
