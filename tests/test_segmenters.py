@@ -12,6 +12,7 @@ masks cannot reach 1.
 from __future__ import annotations
 
 import dataclasses
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -640,6 +641,19 @@ def test_depth_threshold_masks_do_not_depend_on_the_order_frames_are_asked_in():
     seg = DepthThresholdSegmenter()
     backward = [seg.segment(seq[i], sequence=seq) for i in reversed(range(8))][::-1]
     assert all(np.array_equal(a, b) for a, b in zip(forward, backward))
+
+
+def test_depth_threshold_masks_are_the_same_when_threads_segment_frames_at_once():
+    """The pipeline's workers segment frames at once: each frame's instances and hands are worked out
+    outside the segmenter's lock, each thread with its own last scene, and only the choice, which
+    follows the frames in order, under it. The masks are those of one thread asking in order."""
+    seq, _ = box_sequence(8, moving="b", step_px=3)
+    one = DepthThresholdSegmenter()
+    serial = [one.segment(seq[i], sequence=seq) for i in range(len(seq))]
+    shared = DepthThresholdSegmenter()
+    with ThreadPoolExecutor(4) as pool:
+        parallel = list(pool.map(lambda i: shared.segment(seq[i], sequence=seq), range(len(seq))))
+    assert all(np.array_equal(a, b) for a, b in zip(serial, parallel))
 
 
 def test_depth_threshold_static_scene_gives_the_fallback_consistently():

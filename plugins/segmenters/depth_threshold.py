@@ -24,6 +24,7 @@ it in two). The shared selection (:mod:`.selection`) picks the one being manipul
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -522,32 +523,34 @@ class MaskFreeSegmenter(InstanceSegmenter):
     from depth, and the hands (:mod:`.hands`) to leave out. ``Params`` include BackgroundParams and
     HandParams."""
 
+    def __init__(self, params: SelectionParams | None = None):
+        super().__init__(params)
+        self._last = threading.local()  # each thread's last scene
+
     def scene(self, frame: Frame, *, sequence: Sequence) -> Scene:
         """The background planes of ``frame``, its background mask, its pixels with a reading (see
-        :func:`.support.background_mask`), its clean depth and each plane's height above it; the last
-        frame's are kept, as hands and instances both need them. The planes are sought first where they lie in the sequence's first frame (see
-        ``hints`` in :func:`.support.fit_planes`), so the result of a frame does not depend on which
-        frames were segmented before it."""
+        :func:`.support.background_mask`), its clean depth and each plane's height above it; each
+        thread keeps its last frame's, as hands and instances both need them. The planes are sought
+        first where they lie in the sequence's first frame (see ``hints`` in
+        :func:`.support.fit_planes`), so the result of a frame does not depend on which frames were
+        segmented before it, nor on which thread segments it."""
         key = (str(sequence.path), sequence.name, frame.index)
-        with self._lock:
-            last = getattr(self, "_last_scene", None)
-            if last is None or last[0] != key:
-                planes = fit_planes(
-                    frame.depth_m,
-                    sequence.intrinsics,
-                    params=self.params,
-                    hints=self._first_planes(frame, sequence) if frame.index else None,
-                )
-                depth = clean_depth(frame.depth_m)
-                heights = [plane_height_m(depth, sequence.intrinsics, plane) for plane in planes]
-                background, valid = background_mask(
-                    depth, sequence.intrinsics, planes, params=self.params, heights=heights
-                )
-                last = self._last_scene = (key, Scene(planes, background, valid, depth, heights))
-            return last[1]
+        last = getattr(self._last, "scene", None)
+        if last is None or last[0] != key:
+            with self._lock:
+                hints = self._first_planes(frame, sequence) if frame.index else None
+            planes = fit_planes(frame.depth_m, sequence.intrinsics, params=self.params, hints=hints)
+            depth = clean_depth(frame.depth_m)
+            heights = [plane_height_m(depth, sequence.intrinsics, plane) for plane in planes]
+            background, valid = background_mask(
+                depth, sequence.intrinsics, planes, params=self.params, heights=heights
+            )
+            last = self._last.scene = (key, Scene(planes, background, valid, depth, heights))
+        return last[1]
 
     def _first_planes(self, frame: Frame, sequence: Sequence) -> list[Plane]:
-        """The background planes of the sequence's first frame (kept for the last sequence)."""
+        """The background planes of the sequence's first frame (kept for the last sequence; call it
+        with the lock held)."""
         key = (str(sequence.path), sequence.name)
         first = getattr(self, "_first_scene", None)
         if first is None or first[0] != key:

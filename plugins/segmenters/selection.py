@@ -389,6 +389,7 @@ class InstanceSegmenter(Segmenter):
     # -- the segmenter API ----------------------------------------------------------------------
     def segment(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
         """The mask of the manipulated instance in ``frame`` (None when the frame has no instance)."""
+        self._prepare(frame, sequence)
         with self._lock:
             mask = self._chosen(frame, sequence)
         return None if mask.empty else mask.unpack()
@@ -408,10 +409,12 @@ class InstanceSegmenter(Segmenter):
         """``hands`` of a frame, computed once per frame and sequence (None: no hand search)."""
         with self._lock:
             state = self._state(sequence)
-            if frame.index not in state.hands:
-                hand = self.hands(frame, sequence=sequence)
-                state.hands[frame.index] = None if hand is None else PackedMask.pack(hand)
-            packed = state.hands[frame.index]
+            known = frame.index in state.hands
+        if not known:  # worked out outside the lock: a pure function of the frame
+            hand = self.hands(frame, sequence=sequence)
+            with self._lock:
+                state.hands.setdefault(frame.index, None if hand is None else PackedMask.pack(hand))
+        packed = state.hands[frame.index]
         return None if packed is None else packed.unpack()
 
     # -- internals -------------------------------------------------------------------------------
@@ -426,13 +429,27 @@ class InstanceSegmenter(Segmenter):
         return state
 
     def _instances(self, sequence: Sequence, i: int, frame: Frame | None = None) -> list[PackedMask]:
-        state = self._state(sequence)
-        if i not in state.instances:
+        with self._lock:
+            state = self._state(sequence)
+            found = state.instances.get(i)
+        if found is None:  # worked out outside the lock (unless the caller holds it): a pure function
             frame = frame if frame is not None and frame.index == i else sequence[i]
-            state.instances[i] = [
-                PackedMask.pack(m) for m in self.instances(frame, sequence=sequence) if np.any(m)
-            ]
-        return state.instances[i]
+            found = [PackedMask.pack(m) for m in self.instances(frame, sequence=sequence) if np.any(m)]
+            with self._lock:
+                found = state.instances.setdefault(i, found)
+        return found
+
+    def _prepare(self, frame: Frame, sequence: Sequence) -> None:
+        """The instances of ``frame`` and of the frame it is compared with, worked out before the lock
+        is taken, so that threads segmenting other frames work at the same time; the choice, which
+        follows the frames in order, is made under the lock from them. Not with a disk cache (the
+        chosen mask may be on the disk)."""
+        if self._disk is not None:
+            return
+        j, n, k = frame.index, len(sequence), self.params.neighbour_frames
+        for i in (j, j + k if j + k < n else j - k):
+            if 0 <= i < n:
+                self._instances(sequence, i, frame)
 
     def _chosen(self, frame: Frame, sequence: Sequence) -> PackedMask:
         state = self._state(sequence)
