@@ -738,7 +738,8 @@ def estimate_joint(estimator: JointEstimator, poses: np.ndarray, **evidence: Any
     ``reach_m``) that an estimator written before they existed does not take."""
     parameters = inspect.signature(estimator.estimate).parameters.values()
     if not any(p.kind is p.VAR_KEYWORD for p in parameters):
-        evidence = {k: v for k, v in evidence.items() if k in {p.name for p in parameters}}
+        taken = {p.name for p in parameters}
+        evidence = {k: v for k, v in evidence.items() if k in taken}
     return estimator.estimate(poses, **evidence)
 
 

@@ -446,10 +446,15 @@ class InstanceSegmenter(Segmenter):
         chosen mask may be on the disk)."""
         if self._disk is not None:
             return
-        j, n, k = frame.index, len(sequence), self.params.neighbour_frames
-        for i in (j, j + k if j + k < n else j - k):
-            if 0 <= i < n:
+        for i in (frame.index, self._neighbour(frame.index, len(sequence))):
+            if 0 <= i < len(sequence):
                 self._instances(sequence, i, frame)
+
+    def _neighbour(self, j: int, n: int) -> int:
+        """The frame that frame ``j`` of ``n`` is compared with: ``neighbour_frames`` after it, or
+        before it near the end (outside 0 .. n - 1 when the sequence is too short)."""
+        k = self.params.neighbour_frames
+        return j + k if j + k < n else j - k
 
     def _chosen(self, frame: Frame, sequence: Sequence) -> PackedMask:
         state = self._state(sequence)
@@ -471,7 +476,7 @@ class InstanceSegmenter(Segmenter):
                 return
         p = self.params
         n = len(sequence)
-        nb = j + p.neighbour_frames if j + p.neighbour_frames < n else j - p.neighbour_frames
+        nb = self._neighbour(j, n)
         mine = [m.unpack() for m in self._instances(sequence, j, frame)]
         depth = (frame if frame is not None else sequence[j]).depth_m
         if 0 <= nb < n and nb != j:
