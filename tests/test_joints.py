@@ -457,3 +457,45 @@ def test_a_part_moving_freely_gets_no_joint():
     est = fit_joint(poses)
     assert est.type == "free" and est.axis_direction is None and np.isnan(est.states).all()
     assert est.summary(up=UP).startswith("free motion: no single joint explains the part's motion")
+
+
+@pytest.mark.parametrize("kind", ["revolute", "prismatic", "screw", "small turn"])
+def test_compiled_prediction_is_the_twist_arithmetic(kind):
+    """The compiled loop of a fit predicts each pose as exp(q ξ) P0: poses on the joint's path get
+    back their own states with zero residual, and any pose the state its twist relative to P0 projects
+    onto ξ, the pose twist_exp gives at that state, and that pose's error against the observed one."""
+    from artclass_plugins.joints import models
+
+    rng = np.random.default_rng(3)
+    xi = {
+        "revolute": np.r_[0.0, 0.6, 0.8, np.cross([0.1, 0.0, 0.2], [0.0, 0.6, 0.8])],
+        "prismatic": np.r_[0.0, 0.0, 0.0, 0.6, 0.0, 0.8],
+        "screw": np.r_[0.0, 0.6, 0.8, 0.05, 0.02, 0.1],
+        "small turn": np.r_[1e-6, 0.0, 0.0, 0.0, 0.3, 0.0],
+    }[kind]
+    R0, t0 = Rotation.from_rotvec([0.2, -0.1, 0.3]).as_quat(), np.array([0.1, 0.2, 0.6])
+    states = rng.uniform(-1.0, 1.0, 20)
+    R_m, t_m = models.twist_exp(xi, states)
+    on_path = models._Poses(models._quat_mul(R_m, R0), models._quat_apply(R_m, t0) + t_m, NOISE_M, NOISE_RAD)
+    q, R_hat, t_hat = models._predict(on_path, xi, R0, t0)
+    np.testing.assert_allclose(q, states, atol=1e-9)
+    np.testing.assert_allclose(on_path.residuals(R_hat, t_hat), 0.0, atol=1e-6)
+
+    off = models._Poses(
+        Rotation.random(20, random_state=4).as_quat(), rng.normal(0.0, 0.2, (20, 3)), NOISE_M, NOISE_RAD
+    )
+    q, R_hat, t_hat = models._predict(off, xi, R0, t0)
+    logs = models.twist_log(models._quat_mul(off.R, models._quat_inv(R0)), off.t - t0)
+    centred = (
+        np.r_[xi[:3], xi[3:] + np.cross(xi[:3], t0)] * np.r_[[(NOISE_M / NOISE_RAD) ** 2] * 3, [1.0] * 3]
+    )
+    np.testing.assert_allclose(q, logs @ centred / (centred @ np.r_[xi[:3], xi[3:] + np.cross(xi[:3], t0)]))
+    R_m, t_m = models.twist_exp(xi, q)
+    np.testing.assert_allclose(R_hat, models._quat_mul(R_m, R0), atol=1e-12)
+    np.testing.assert_allclose(t_hat, models._quat_apply(R_m, t0) + t_m, atol=1e-12)
+    error = Rotation.from_quat(off.R).inv() * Rotation.from_quat(R_hat)
+    np.testing.assert_allclose(
+        off.residuals(R_hat, t_hat),
+        np.c_[(t_hat - off.t) / NOISE_M, error.as_rotvec() / NOISE_RAD],
+        atol=1e-6,
+    )

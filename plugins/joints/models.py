@@ -28,6 +28,8 @@ from artclass_core import InputError, Params, param
 from artclass_core.interfaces import JointEstimate
 from artclass_core.parts import chain_pair_motions  # noqa: F401  (part of this module's API)
 
+from . import _compiled
+
 MODELS = ("fixed", "prismatic", "revolute", "screw")
 
 #: Residual evaluations a least-squares fit may take (a revolute model of a straight path drifts its
@@ -304,20 +306,16 @@ class _Poses:
     def residuals(self, R_hat: np.ndarray, t_hat: np.ndarray) -> np.ndarray:
         """Normalised residuals (..., N, 6) of predicted poses (..., N, 4) and (..., N, 3): origin
         displacement, then rotation vector."""
-        rot = _quat_to_rotvec(_quat_mul(_quat_inv(self.R), R_hat))
-        return np.concatenate([(t_hat - self.t) / self.sigma_m, rot / self.sigma_rad], axis=-1)
-
-    def project(self, xi: np.ndarray, R0: np.ndarray, t0: np.ndarray) -> np.ndarray:
-        """States (..., N) of the poses along twists ξ (..., 6) from the poses (R0, t0) (..., 4) and
-        (..., 3): the twist of each relative motion, about the part's origin t0, projected on ξ
-        (about the same point), positions and angles weighed by their noise; exact for poses on the
-        joint's path, 0 for a zero twist."""
-        # the relative motions in coordinates centred on t0
-        logs = twist_log(_quat_mul(self.R, _quat_inv(R0)[..., None, :]), self.t - t0[..., None, :])
-        xi_centred = np.concatenate([xi[..., :3], xi[..., 3:] + _cross(xi[..., :3], t0)], axis=-1)
-        weighted = np.array([(self.sigma_m / self.sigma_rad) ** 2] * 3 + [1.0] * 3) * xi_centred
-        norm = np.sum(xi_centred * weighted, axis=-1, keepdims=True)
-        return np.einsum("...nk,...k->...n", logs, weighted) / np.where(norm > 0, norm, np.inf)
+        lead = R_hat.shape[:-2]
+        out = _compiled.residuals(
+            _rows(self.R),
+            _rows(self.t),
+            _rows(R_hat.reshape(-1, *R_hat.shape[-2:])),
+            _rows(t_hat.reshape(-1, *t_hat.shape[-2:])),
+            self.sigma_m,
+            self.sigma_rad,
+        )
+        return out.reshape(lead + out.shape[1:])
 
     def state_std(self, xi: np.ndarray, t_hat: np.ndarray) -> np.ndarray:
         """One standard deviation (N,) of each projected state: the noise over the speed of the pose
@@ -391,10 +389,29 @@ class _Fit:
 def _predict(poses: _Poses, xi: np.ndarray, R0: np.ndarray, t0: np.ndarray):
     """States (..., N) of the poses along twists ξ (..., 6) from poses at state 0 (R0 (..., 4), t0
     (..., 3)), and the poses the joint predicts at those states: rotations (..., N, 4), origins
-    (..., N, 3)."""
-    q = poses.project(xi, R0, t0)
-    R_m, t_m = twist_exp(xi, q)
-    return q, _quat_mul(R_m, R0[..., None, :]), _quat_apply(R_m, t0[..., None, :]) + t_m
+    (..., N, 3).
+
+    A pose's state is the twist of its motion relative to the pose at state 0, about the part's
+    origin t0, projected on ξ (about the same point), positions and angles weighed by their noise:
+    exact for poses on the joint's path, 0 for a zero twist."""
+    lead = xi.shape[:-1]
+    q, R_hat, t_hat = _compiled.predict(
+        _rows(xi.reshape(-1, 6)),
+        _rows(np.broadcast_to(R0, lead + (4,)).reshape(-1, 4)),
+        _rows(np.broadcast_to(t0, lead + (3,)).reshape(-1, 3)),
+        _rows(poses.R),
+        _rows(poses.t),
+        poses.sigma_m,
+        poses.sigma_rad,
+    )
+    n = len(poses.t)
+    return q.reshape(lead + (n,)), R_hat.reshape(lead + (n, 4)), t_hat.reshape(lead + (n, 3))
+
+
+def _rows(a: np.ndarray) -> np.ndarray:
+    """``a`` as a writeable C-contiguous float array, the one type the compiled loops are compiled for
+    (a read-only view, such as a broadcast, is copied)."""
+    return np.require(a, dtype=float, requirements=["C", "W"])
 
 
 def _best_start(name: str, poses: _Poses, pairs: np.ndarray) -> _Fit | None:
@@ -667,7 +684,7 @@ def _shows_itself(fit: _Fit, poses: _Poses, factor: float) -> bool:
     if fit.shape.name == "fixed":
         return True
     xi, R0, t0 = fit.unpack()
-    q = poses.project(xi, R0, t0)
+    q = _predict(poses, xi, R0, t0)[0]
     span = float(np.ptp(q)) if len(q) else 0.0
     w = np.linalg.norm(xi[:3])
     turn, slide = span * w, span * (abs(float(xi[:3] @ xi[3:])) / w if w > 0 else np.linalg.norm(xi[3:]))
