@@ -48,7 +48,9 @@ those per-pair segments through the frames into parts, and grows the tree of joi
    not from one pair's labels (which may be wrong near a seam, or missing where no pair separated
    the parts): each object point, moved by each part's motion to the frames where the parts' motions
    differ most, takes the part that puts it on the surface seen there, as multi-body trackers keep
-   their segmentation consistent. In a frame where no pair gave a part's state, the state is found
+   their segmentation consistent. Where the depth cannot tell (a part sliding along a surface puts
+   the surface's points on it too), the texture can: the point takes the part whose motion leaves its
+   intensity as it was. In a frame where no pair gave a part's state, the state is found
    first by looking the part's points up in the frame at each state of its joint. Where too few of
    them are found there (the part hidden, or turned away), the state is the one between the nearest
    frames that gave one (held at the ends of the video), and where no pair separated the parts
@@ -59,6 +61,7 @@ those per-pair segments through the frames into parts, and grows the tree of joi
 
 from __future__ import annotations
 
+import functools
 import inspect
 import itertools
 from dataclasses import dataclass, field
@@ -116,7 +119,9 @@ class PartsParams(Params):
         bounds=(0.0, 100.0),
         help="An object point takes the part whose motion puts it nearest a surface seen in the "
         "other frames when the next part's puts it farther by more than this many depth-noise "
-        "levels; otherwise it takes the part of the nearest point that was decided.",
+        "levels; else the part whose motion changes its intensity least, when the next part's "
+        "changes it more by over this many intensity-noise levels; otherwise the part of the "
+        "nearest point that was decided.",
     )
     n_views: int = param(
         4,
@@ -279,6 +284,22 @@ class _Observation:
     labels: np.ndarray
     forward: bool
 
+    @functools.cached_property
+    def counts(self) -> np.ndarray:
+        """How many points each motion (by number) labels."""
+        return np.bincount(self.labels[self.labels >= 0])
+
+    @property
+    def motions(self) -> np.ndarray:
+        """The motions (numbers) that label some of the points."""
+        return np.flatnonzero(self.counts)
+
+    @functools.cached_property
+    def keys(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each point's pixel as one number, and the order that sorts them (to find shared pixels)."""
+        keys = self.pixels[:, 1].astype(np.int64) * 1_000_000 + self.pixels[:, 0]
+        return keys, np.argsort(keys)
+
 
 def _observations(result: RunResult) -> list[_Observation]:
     """Each labelled pair's labelling of its source frame and of its target frame."""
@@ -309,8 +330,7 @@ def _overlaps(a: _Observation, b: _Observation, same_cloud: bool) -> list[tuple[
     if same_cloud and len(a.labels) == len(b.labels):
         la, lb = a.labels, b.labels
     else:
-        key_a, key_b = _pixel_keys(a.pixels), _pixel_keys(b.pixels)
-        order = np.argsort(key_b)
+        (key_a, _), (key_b, order) = a.keys, b.keys
         at = np.clip(np.searchsorted(key_b, key_a, sorter=order), 0, len(key_b) - 1)
         hit = key_b[order[at]] == key_a
         la, lb = a.labels[hit], b.labels[order[at[hit]]]
@@ -324,10 +344,6 @@ def _overlaps(a: _Observation, b: _Observation, same_cloud: bool) -> list[tuple[
         (float(table[m, n] / (in_a[m] + in_b[n] - table[m, n])), (a.pair, int(m)), (b.pair, int(n)))
         for m, n in zip(*np.nonzero(table))
     ]
-
-
-def _pixel_keys(pixels: np.ndarray) -> np.ndarray:
-    return pixels[:, 1].astype(np.int64) * 1_000_000 + pixels[:, 0]
 
 
 class _Groups:
@@ -354,7 +370,7 @@ class _Groups:
 def _tracks(observations: list[_Observation], *, min_overlap: float) -> dict[tuple, int]:
     """Track number of every node (pair, motion): greedy merging by overlap, largest first, never two
     motions of one pair in one track."""
-    nodes = {(o.pair, int(m)) for o in observations for m in np.unique(o.labels[o.labels >= 0])}
+    nodes = {(o.pair, int(m)) for o in observations for m in o.motions}
     by_frame: dict[int, list[_Observation]] = {}
     for o in observations:
         by_frame.setdefault(o.frame, []).append(o)
@@ -381,7 +397,7 @@ def _tracks(observations: list[_Observation], *, min_overlap: float) -> dict[tup
     # a part hidden for a while: the track that ends before another begins, on the frames either side
     frames: dict[tuple, set] = {}
     for o in observations:
-        for m in np.unique(o.labels[o.labels >= 0]):
+        for m in o.motions:
             frames.setdefault(root((o.pair, int(m))), set()).add(o.frame)
     gaps = []
     for ra, fa in frames.items():
@@ -787,11 +803,7 @@ def find_articulation(
     if result.label == "articulated":
         track = _tracks(observations, min_overlap=params.min_overlap)
     else:  # one body: each pair's first motion is the object's
-        track = {
-            (o.pair, int(m)): 0 if m == 0 else 1
-            for o in observations
-            for m in np.unique(o.labels[o.labels >= 0])
-        }
+        track = {(o.pair, int(m)): 0 if m == 0 else 1 for o in observations for m in o.motions}
     size = _track_sizes(observations, track)
     base = _still_track(result, track, size, min_pairs=params.min_pairs)
     track = _one_body_pairs_on(base, result, track)
@@ -837,10 +849,9 @@ def _track_sizes(observations: list[_Observation], track: dict[tuple, int]) -> d
     """Labelled points of each track over all frames."""
     size: dict[int, int] = {}
     for o in observations:
-        counts = np.bincount(o.labels[o.labels >= 0])
-        for m in np.flatnonzero(counts):
+        for m in o.motions:
             t = track[(o.pair, int(m))]
-            size[t] = size.get(t, 0) + int(counts[m])
+            size[t] = size.get(t, 0) + int(o.counts[m])
     return size
 
 
@@ -1154,8 +1165,9 @@ def _relabelled(
     parts' motions move them most differently and looked up in those frames' depth images
     (:func:`_look`); each point takes the part that puts it nearest the surface seen there (the
     nearer of those frames, so that a point hidden in one is judged by the other). A point that two
-    parts explain about as well (within ``ambiguity_sigmas`` depth-noise levels) is left unlabelled:
-    the part image gives its pixel the part of the nearest labelled point. A frame where no point is
+    parts explain about as well (within ``ambiguity_sigmas`` depth-noise levels) is judged by its
+    intensity there (:func:`_by_shade`), and where that cannot tell either, left unlabelled: the part
+    image gives its pixel the part of the nearest labelled point. A frame where no point is
     decided keeps its pair's labels. This is done first in the frames where every part's pose is
     known from the pairs, then, once each part's state is found in the others
     (:func:`_track_states`), in every frame where the parts are placed. A frame where a state could
@@ -1173,6 +1185,8 @@ def _relabelled(
     )
     clouds = _frame_clouds(result, observations)
     images = {f: result.frames[f].cloud.view for f in clouds if _has_depth(result, f)}
+    # a part's motion is known to about a pixel: intensities are compared smoothed over a pixel's neighbours
+    shades = {f: cv2.GaussianBlur(v.gray, (3, 3), 0) for f, v in images.items()}
     noise, spacing = _noise(result), _spacing(result)
     reach = spacing + params.reach_sigmas * noise
     prior = {f: views[f][1] if f in views else np.full(len(clouds[f][1]), -1) for f in clouds}
@@ -1192,24 +1206,44 @@ def _relabelled(
             return {}
         views_of = _most_apart(poses, frames, others, clouds, n=params.n_views)
         points = {f: clouds[f][1][::_LABELLED_EVERY] for f in frames}
+        shade = {
+            f: shades[f][clouds[f][0][::_LABELLED_EVERY, 1], clouds[f][0][::_LABELLED_EVERY, 0]]
+            for f in frames
+        }
         residual = {f: np.full((len(tracks), len(points[f])), np.nan) for f in frames}
+        # per part and point: the summed change of intensity where the motion lands it on a surface, and
+        # in how many of the frames looked in it did
+        change = {f: np.zeros((len(tracks), len(points[f]))) for f in frames}
+        landings = {f: np.zeros((len(tracks), len(points[f]))) for f in frames}
         for g in sorted({g for f in frames for g in views_of[f]}):  # one look-up per frame looked in
             seen_from = [f for f in frames if g in views_of[f]]
             moved = [_moved(poses[:, g] @ np.linalg.inv(poses[:, f]), points[f]) for f in seen_from]
-            found = _look_up(np.concatenate(moved, axis=1), images[g], reach_m=reach)
-            for f, part in zip(
-                seen_from, np.split(found, np.cumsum([m.shape[1] for m in moved])[:-1], axis=1)
+            found, landed = _look_up(np.concatenate(moved, axis=1), images[g], reach_m=reach, gray=shades[g])
+            cuts = np.cumsum([m.shape[1] for m in moved])[:-1]
+            for f, part, there in zip(
+                seen_from, np.split(found, cuts, axis=1), np.split(landed, cuts, axis=1)
             ):
                 residual[f] = np.fmin(residual[f], part)
-        out = {}
+                on = part < reach
+                change[f] += np.where(on, np.abs(there - shade[f]), 0.0)
+                landings[f] += on
+        decided = {}
         for f in frames:
             cost = _cost(residual[f], reach_m=reach)
             nearest = np.sort(cost, axis=0)
-            with np.errstate(invalid="ignore"):
+            with np.errstate(invalid="ignore", divide="ignore"):
                 decisive = nearest[1] - nearest[0] > params.ambiguity_sigmas * noise
-            best = tracks[np.argmin(cost, axis=0)]
+                mean_change = np.where(landings[f] > 0, change[f] / landings[f], np.inf)
+            plausible = cost <= nearest[0] + params.ambiguity_sigmas * noise
+            decided[f] = (np.argmin(cost, axis=0), decisive, plausible, mean_change)
+        shade_noise = _shade_noise(decided.values())
+        out = {}
+        for f, (best, decisive, plausible, mean_change) in decided.items():
+            best, decisive = _by_shade(
+                best, decisive, plausible, mean_change, limit=params.ambiguity_sigmas * shade_noise
+            )
             sure[f] = np.full(len(clouds[f][1]), -1)
-            sure[f][::_LABELLED_EVERY] = np.where(decisive, best, -1)
+            sure[f][::_LABELLED_EVERY] = np.where(decisive, tracks[best], -1)
             out[f] = sure[f] if decisive.any() else prior[f]
         return out
 
@@ -1254,8 +1288,10 @@ def _moved(motions: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ motions[:, :3, :3].transpose(0, 2, 1) + motions[:, None, :3, 3]
 
 
-def _look_up(moved: np.ndarray, view, *, reach_m: float) -> np.ndarray:
-    """:func:`_look` of points already moved, (..., 3) in the camera frame of ``view``: (...)."""
+def _look_up(moved: np.ndarray, view, *, reach_m: float, gray: np.ndarray | None = None):
+    """:func:`_look` of points already moved, (..., 3) in the camera frame of ``view``: (...). With an
+    intensity image ``gray`` of the view, also its intensity at the pixel each point lands on (...),
+    NaN outside the image."""
     k = view.intrinsics
     z = moved[..., 2]
     depth = view.scene_depth_m if view.scene_depth_m is not None else view.depth_m
@@ -1263,12 +1299,17 @@ def _look_up(moved: np.ndarray, view, *, reach_m: float) -> np.ndarray:
         u = k.fx * moved[..., 0] / z + (k.cx + 0.5)  # + 0.5: the nearest pixel, by truncation
         v = k.fy * moved[..., 1] / z + (k.cy + 0.5)
     inside = (z > 0) & (u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])
+    at = v[inside].astype(np.intp) * depth.shape[1] + u[inside].astype(np.intp)  # flat pixel index
     surface = np.zeros(z.shape)
-    surface[inside] = depth[v[inside].astype(np.intp), u[inside].astype(np.intp)]
+    surface[inside] = depth.ravel()[at]
     out = np.abs(z - surface)
     out[surface <= 0] = np.inf
     out[~inside | ((surface > 0) & (surface < z - reach_m))] = np.nan
-    return out
+    if gray is None:
+        return out
+    landed = np.full(z.shape, np.nan)
+    landed[inside] = gray.ravel()[at]
+    return out, landed
 
 
 def _cost(residual_m: np.ndarray, *, reach_m: float) -> np.ndarray:
@@ -1278,6 +1319,32 @@ def _cost(residual_m: np.ndarray, *, reach_m: float) -> np.ndarray:
     no object), ``reach_m`` when it is hidden (no evidence: better than landing off the surface,
     worse than landing on it)."""
     return np.where(np.isnan(residual_m), reach_m, np.where(residual_m < reach_m, residual_m, np.inf))
+
+
+def _shade_noise(decided) -> float:
+    """The noise of a point's intensity from one frame to another (grey levels, at least one): the
+    robust standard deviation of the change that the part the depth chose gives each point it chose
+    decisively (``decided``: best part, decisive, plausible parts and mean change per frame)."""
+    changes = np.concatenate(
+        [change[best[sure], np.flatnonzero(sure)] for best, sure, _, change in decided] or [np.zeros(0)]
+    )
+    changes = changes[np.isfinite(changes)]
+    return max(1.4826 * float(np.median(changes)), 1.0) if len(changes) else np.inf
+
+
+def _by_shade(
+    best: np.ndarray, decisive: np.ndarray, plausible: np.ndarray, change: np.ndarray, *, limit: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Points the depth leaves undecided (a part sliding along a surface puts them on it as well as
+    the surface's own part does) decided by their texture: the part, among those that put a point on
+    a surface about as well (``plausible`` (parts, N)), whose motion changes its intensity least
+    (``change``, the mean over the frames looked in), when the next one changes it by more than
+    ``limit`` grey levels more. Returns the best part and whether it is decided, (N,) each."""
+    change = np.where(plausible, change, np.inf)
+    lowest = np.sort(change, axis=0)
+    with np.errstate(invalid="ignore"):
+        by_shade = ~decisive & (lowest[1] - lowest[0] > limit)
+    return np.where(by_shade, np.argmin(change, axis=0), best), decisive | by_shade
 
 
 def _most_apart(
