@@ -1205,28 +1205,27 @@ def _relabelled(
         if len(others) < 2 or not frames:
             return {}
         views_of = _most_apart(poses, frames, others, clouds, n=params.n_views)
-        points = {f: clouds[f][1][::_LABELLED_EVERY] for f in frames}
-        shade = {
-            f: shades[f][clouds[f][0][::_LABELLED_EVERY, 1], clouds[f][0][::_LABELLED_EVERY, 0]]
-            for f in frames
-        }
+        points = {f: np.ascontiguousarray(clouds[f][1][::_LABELLED_EVERY]) for f in frames}
+        shade = {f: shades[f][tuple(clouds[f][0][::_LABELLED_EVERY, ::-1].T)].astype(float) for f in frames}
         residual = {f: np.full((len(tracks), len(points[f])), np.nan) for f in frames}
         # per part and point: the summed change of intensity where the motion lands it on a surface, and
         # in how many of the frames looked in it did
         change = {f: np.zeros((len(tracks), len(points[f]))) for f in frames}
         landings = {f: np.zeros((len(tracks), len(points[f]))) for f in frames}
-        for g in sorted({g for f in frames for g in views_of[f]}):  # one look-up per frame looked in
-            seen_from = [f for f in frames if g in views_of[f]]
-            moved = [_moved(poses[:, g] @ np.linalg.inv(poses[:, f]), points[f]) for f in seen_from]
-            found, landed = _look_up(np.concatenate(moved, axis=1), images[g], reach_m=reach, gray=shades[g])
-            cuts = np.cumsum([m.shape[1] for m in moved])[:-1]
-            for f, part, there in zip(
-                seen_from, np.split(found, cuts, axis=1), np.split(landed, cuts, axis=1)
-            ):
-                residual[f] = np.fmin(residual[f], part)
-                on = part < reach
-                change[f] += np.where(on, np.abs(there - shade[f]), 0.0)
-                landings[f] += on
+        for f in frames:
+            back = np.linalg.inv(poses[:, f])  # each part's frame-f points in its own coordinates
+            for g in views_of[f]:
+                _look_into(
+                    images[g],
+                    points[f],
+                    poses[:, g] @ back,
+                    reach_m=reach,
+                    out=residual[f],
+                    gray=shades[g],
+                    shade=shade[f],
+                    change=change[f],
+                    landings=landings[f],
+                )
         decided = {}
         for f in frames:
             cost = _cost(residual[f], reach_m=reach)
@@ -1280,36 +1279,47 @@ def _look(motions: np.ndarray, points: np.ndarray, view, *, reach_m: float) -> n
     (H, N); inf where the camera measured nothing there, NaN where the surface is more than
     ``reach_m`` in front of the point (it hides the point) or the point leaves the image: no
     evidence. A surface far behind the point means the camera sees past it: evidence against."""
-    return _look_up(_moved(motions, points), view, reach_m=reach_m)
+    out = np.full((len(motions), len(points)), np.nan)
+    _look_into(view, np.ascontiguousarray(points, dtype=float), motions, reach_m=reach_m, out=out)
+    return out
 
 
-def _moved(motions: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Points (N, 3) moved by each motion (H, 4, 4): (H, N, 3)."""
-    return points @ motions[:, :3, :3].transpose(0, 2, 1) + motions[:, None, :3, 3]
+def _look_into(
+    view,
+    points: np.ndarray,
+    motions: np.ndarray,
+    *,
+    reach_m: float,
+    out: np.ndarray,
+    gray: np.ndarray | None = None,
+    shade: np.ndarray | None = None,
+    change: np.ndarray | None = None,
+    landings: np.ndarray | None = None,
+) -> None:
+    """:func:`_look` into ``out`` (H, N), keeping each point's nearest yet. With the view's intensities
+    ``gray`` and the points' own ``shade`` (N,): where a point lands on the surface, ``change`` (H, N)
+    += its change of intensity and ``landings`` += 1."""
+    from ._looks import look_kernel  # Numba, loaded on first use
 
-
-def _look_up(moved: np.ndarray, view, *, reach_m: float, gray: np.ndarray | None = None):
-    """:func:`_look` of points already moved, (..., 3) in the camera frame of ``view``: (...). With an
-    intensity image ``gray`` of the view, also its intensity at the pixel each point lands on (...),
-    NaN outside the image."""
     k = view.intrinsics
-    z = moved[..., 2]
     depth = view.scene_depth_m if view.scene_depth_m is not None else view.depth_m
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u = k.fx * moved[..., 0] / z + (k.cx + 0.5)  # + 0.5: the nearest pixel, by truncation
-        v = k.fy * moved[..., 1] / z + (k.cy + 0.5)
-    inside = (z > 0) & (u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])
-    at = v[inside].astype(np.intp) * depth.shape[1] + u[inside].astype(np.intp)  # flat pixel index
-    surface = np.zeros(z.shape)
-    surface[inside] = depth.ravel()[at]
-    out = np.abs(z - surface)
-    out[surface <= 0] = np.inf
-    out[~inside | ((surface > 0) & (surface < z - reach_m))] = np.nan
-    if gray is None:
-        return out
-    landed = np.full(z.shape, np.nan)
-    landed[inside] = gray.ravel()[at]
-    return out, landed
+    unused = np.zeros((0, 0))
+    look_kernel(
+        points,
+        np.ascontiguousarray(motions, dtype=float),
+        depth,
+        _NO_IMAGE if gray is None else gray,
+        np.array([k.fx, k.fy, k.cx, k.cy], float),
+        float(reach_m),
+        np.zeros(0) if shade is None else shade,
+        out,
+        unused if change is None else change,
+        unused if landings is None else landings,
+    )
+
+
+#: An intensity image to look nothing up in.
+_NO_IMAGE = np.zeros((0, 0), np.uint8)
 
 
 def _cost(residual_m: np.ndarray, *, reach_m: float) -> np.ndarray:

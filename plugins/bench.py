@@ -189,8 +189,8 @@ def _run_kwargs(pipeline, spec: dict) -> dict:
 
 def start_up() -> float:
     """Load what is only loaded when first used (the PNG decoder's, the dense registrar's, the
-    segmenters' and the joint fit's compiled loops: Numba and its cached machine code), which the
-    timed runs leave out as start-up; returns its seconds."""
+    segmenters', the joint fit's and the parts' compiled loops: Numba and its cached machine code),
+    which the timed runs leave out as start-up; returns its seconds."""
     import importlib
 
     t0 = time.perf_counter()
@@ -199,6 +199,7 @@ def start_up() -> float:
         "artclass_plugins.dense.projective",
         "artclass_plugins.segmenters._compiled",
         "artclass_plugins.joints._compiled",
+        "artclass_core._looks",
     ):
         try:
             warm_up = importlib.import_module(module).warm_up

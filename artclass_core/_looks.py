@@ -1,0 +1,69 @@
+"""The compiled (Numba) loop of the parts' look-ups: object points moved by each part's motion into
+another frame and looked up in its depth (and intensity) image, one pass over the points where numpy
+makes a dozen temporary arrays. Imported when first needed, so that importing :mod:`artclass_core`
+does not load Numba."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def look_kernel(points, motions, depth, gray, camera, reach_m, shade, residual, change, landings):
+    """Move each point (N, 3) by each motion (H, 4, 4), project it with ``camera`` (fx, fy, cx, cy)
+    to its nearest pixel of ``depth`` (metres, 0 = no reading) and update, per motion and point:
+
+    - ``residual`` (H, N), the nearest yet: the distance along the ray to the surface seen there;
+      inf where the camera measured nothing; NaN (no evidence) where the surface is more than
+      ``reach_m`` in front of the point (it hides the point) or the point leaves the image;
+    - where it lands on the surface (within ``reach_m``) and ``gray`` (the view's intensities) is not
+      empty: ``change`` (H, N) += the intensity's change from the point's own ``shade`` (N,), and
+      ``landings`` (H, N) += 1.
+    """
+    rows, cols = depth.shape
+    fx, fy, cx, cy = camera[0], camera[1], camera[2], camera[3]
+    shaded = gray.shape[0] > 0
+    for h in range(motions.shape[0]):
+        T = motions[h]
+        for n in range(points.shape[0]):
+            p0, p1, p2 = points[n, 0], points[n, 1], points[n, 2]
+            x = T[0, 0] * p0 + T[0, 1] * p1 + T[0, 2] * p2 + T[0, 3]
+            y = T[1, 0] * p0 + T[1, 1] * p1 + T[1, 2] * p2 + T[1, 3]
+            z = T[2, 0] * p0 + T[2, 1] * p1 + T[2, 2] * p2 + T[2, 3]
+            found = math.nan
+            if z > 0:
+                u = fx * x / z + cx + 0.5  # + 0.5: the nearest pixel, by truncation
+                v = fy * y / z + cy + 0.5
+                if u >= 0 and u < cols and v >= 0 and v < rows:
+                    iu, iv = int(u), int(v)
+                    surface = depth[iv, iu]
+                    if surface <= 0:
+                        found = math.inf
+                    elif surface >= z - reach_m:
+                        found = abs(z - surface)
+                        if shaded and found < reach_m:
+                            change[h, n] += abs(np.float64(gray[iv, iu]) - shade[n])
+                            landings[h, n] += 1
+            if math.isnan(residual[h, n]) or found < residual[h, n]:
+                residual[h, n] = found
+
+
+def warm_up() -> None:
+    """Load the compiled loop (Numba's cached machine code, or compile it) with the argument types of
+    the parts' calls."""
+    none = np.zeros((1, 1))
+    look_kernel(
+        np.zeros((1, 3)),
+        np.eye(4)[None],
+        np.zeros((1, 1), np.float32),
+        np.zeros((1, 1), np.uint8),
+        np.ones(4),
+        0.01,
+        np.zeros(1),
+        none.copy(),
+        none.copy(),
+        none.copy(),
+    )
