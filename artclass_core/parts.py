@@ -538,8 +538,8 @@ def chain_pair_motions(n_frames: int, pairs, *, origin_m: np.ndarray) -> np.ndar
 
 def _V(w: np.ndarray) -> np.ndarray:
     """The matrix (3, 3) by which exp of the twist (w, v) moves the origin: V(w) v."""
-    theta = np.linalg.norm(w)
-    K = np.cross(np.eye(3), w)
+    theta = float(np.sqrt(w @ w))
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])  # K v = w x v
     if theta < 1e-9:
         return np.eye(3) + K / 2
     return np.eye(3) + (1 - np.cos(theta)) / theta**2 * K + (theta - np.sin(theta)) / theta**3 * (K @ K)
