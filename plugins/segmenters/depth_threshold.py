@@ -47,9 +47,11 @@ from .support import (
     clean_depth,
     fit_planes,
     grown_box,
+    label_box,
     label_regions,
     plane_height_m,
     range_mask,
+    region_mask,
 )
 
 __all__ = [
@@ -147,9 +149,11 @@ def grow(instances: list[np.ndarray], low: np.ndarray) -> list[np.ndarray]:
     """Hysteresis: each instance with the ``low`` pixels connected (8-connected) to it; instances the low
     pixels connect become one. Largest first; low pixels that touch no instance are dropped."""
     seeds = np.logical_or.reduce(instances)
-    _, labels, stats = label_regions(seeds | low)
-    keep = sorted(np.flatnonzero(np.bincount(labels[seeds])), key=lambda k: (-stats[k, cv2.CC_STAT_AREA], k))
-    return [labels == k for k in keep]
+    _, labels, stats, box = label_box(seeds | low)
+    keep = sorted(
+        np.flatnonzero(np.bincount(labels[seeds[box]])), key=lambda k: (-stats[k, cv2.CC_STAT_AREA], k)
+    )
+    return [region_mask(k, labels, stats, box, seeds.shape) for k in keep]
 
 
 def join_touching(
@@ -159,11 +163,7 @@ def join_touching(
     ``join_m`` of each other, directly or through others, made one. Largest first."""
     if len(instances) < 2 or join_m <= 0:
         return instances
-    kernel = np.ones((3, 3), np.uint8)
-    rims = [
-        intrinsics.backproject(depth_m, m & ~(cv2.erode(m.astype(np.uint8), kernel) > 0) & (depth_m > 0))
-        for m in instances
-    ]
+    rims = [_rim_points(m, depth_m, intrinsics) for m in instances]
     group = list(range(len(instances)))
     for a in range(len(instances)):
         if not len(rims[a]):
@@ -177,6 +177,16 @@ def join_touching(
         np.logical_or.reduce([m for m, g in zip(instances, group) if g == k]) for k in sorted(set(group))
     ]
     return sorted(joined, key=lambda m: -int(m.sum()))
+
+
+def _rim_points(mask: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """The 3-D points (N, 3), metres, of the pixels of ``mask`` (bool (H, W), not empty) with a reading
+    (``depth_m`` > 0, no NaN) that a 3x3 erosion removes: its boundary. Worked out on the mask's
+    bounding box grown by a pixel, where the erosion gives what it gives on the whole image."""
+    box = grown_box(mask, 1)
+    m = mask[box]
+    rim = m & ~(cv2.erode(m.view(np.uint8), np.ones((3, 3), np.uint8)) > 0) & (depth_m[box] > 0)
+    return _points(depth_m, rim, (box[0].start, box[1].start), intrinsics)
 
 
 def join_hidden(
@@ -481,17 +491,11 @@ def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> l
     if open_px:
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * open_px + 1, 2 * open_px + 1))
         m = cv2.morphologyEx(m, cv2.MORPH_OPEN, kernel)
-    n, labels, stats = label_regions(m)
+    _, labels, stats, box = label_box(m)
     min_area = max(1, int(np.ceil(min_area_fraction * m.size)))
-    keep = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= min_area]
-    keep.sort(key=lambda k: (-stats[k, cv2.CC_STAT_AREA], k))
-    out = []
-    for k in keep:
-        x, y, w, h = stats[k, :4]
-        full = np.zeros(m.shape, dtype=bool)
-        full[y : y + h, x : x + w] = labels[y : y + h, x : x + w] == k
-        out.append(full)
-    return out
+    keep = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
+    keep = keep[np.argsort(-stats[keep, cv2.CC_STAT_AREA], kind="stable")]  # ties: the lower label first
+    return [region_mask(k, labels, stats, box, m.shape) for k in keep]
 
 
 # Thin objects lying flat are sought in the height above the plane averaged over squares of this many

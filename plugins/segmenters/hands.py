@@ -68,7 +68,7 @@ import numpy as np
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, param
 
 from ._compiled import border_reach, shadow_kernel, step_kernel
-from .support import DEPTH_STEP_M, Plane, clean_depth, grown_box, label_regions, plane_height_m
+from .support import DEPTH_STEP_M, Plane, clean_depth, grown_box, label_box, plane_height_m, region_mask
 
 __all__ = [
     "HandParams",
@@ -280,10 +280,9 @@ def hand_regions(
     -------
     ndarray of bool, shape (H, W)
     """
-    n, labels, stats = label_regions(_open(candidates))
+    n, labels, stats, (rows, cols) = label_box(_open(candidates))
     if n < 2:
         return np.zeros(candidates.shape, bool)
-    x, y, bw, bh = (stats[1:, k] for k in range(4))
     reach = _at_border(stats, candidates.shape)
     kept = np.flatnonzero(reach if border else np.ones(n - 1, bool)) + 1
     if not len(kept):
@@ -295,8 +294,10 @@ def hand_regions(
     kept = kept[stats[kept, cv2.CC_STAT_AREA] >= least_px]
     out = np.zeros(candidates.shape, bool)
     for k in kept:
-        box = np.s_[y[k - 1] : y[k - 1] + bh[k - 1], x[k - 1] : x[k - 1] + bw[k - 1]]
-        region = labels[box] == k
+        x, y, w, h = stats[k, :4]
+        box = np.s_[y : y + h, x : x + w]
+        # the labels are those of the mask's bounding box, which starts at (rows.start, cols.start)
+        region = labels[y - rows.start : y - rows.start + h, x - cols.start : x - cols.start + w] == k
         if surface_m2(region, d[box], intrinsics) >= min_area_m2:
             out[box] |= region
     return out
@@ -611,11 +612,11 @@ def arms(
     out = np.zeros(foreground.shape, bool)
     if not hands.any():
         return out
-    n, labels, stats = label_regions(_open(foreground))
+    n, labels, stats, box = label_box(_open(foreground))
     reach = _at_border(stats, foreground.shape)
     if edge is not None:
-        reach |= np.bincount(labels[widen(edge, 1)], minlength=n)[1:] > 0
-    regions = [labels == k for k in np.flatnonzero(reach) + 1]
+        reach |= np.bincount(labels[widen(edge, 1)[box]], minlength=n)[1:] > 0
+    regions = [region_mask(k, labels, stats, box, foreground.shape) for k in np.flatnonzero(reach) + 1]
     for region, touches in zip(regions, _touching(regions, hands, depth_m, intrinsics, touch_m=touch_m)):
         if touches and not rests(region, contact):
             out |= region
@@ -662,8 +663,8 @@ def fingers(
 
 def _regions(mask: np.ndarray) -> list[np.ndarray]:
     """The connected regions (8-connected) of ``mask``: list of bool (H, W)."""
-    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    return [labels == k for k in range(1, n)]
+    n, labels, stats, box = label_box(mask)
+    return [region_mask(k, labels, stats, box, mask.shape) for k in range(1, n)]
 
 
 def _touching(
