@@ -48,6 +48,7 @@ from artclass_plugins.segmenters.depth_threshold import (
 from artclass_plugins.segmenters.selection import (
     change_scores,
     choose_instance,
+    depth_edges,
     fallback_index,
     mask_iou,
     match_instances,
@@ -55,6 +56,7 @@ from artclass_plugins.segmenters.selection import (
 )
 from artclass_plugins.segmenters.support import (
     BackgroundParams,
+    Plane,
     above_planes,
     background_mask,
     fit_planes,
@@ -605,6 +607,36 @@ def test_compiled_colour_difference_matches_numpy():
     distinct_kernel(colour, around, scale, where, least_sq, out)
     assert np.array_equal(out, where & (np.einsum("ijk,ijk->ij", diff, diff) >= least_sq))
     assert 0 < out.sum() < where.sum()
+
+
+def _random_depth(rng: np.random.Generator) -> np.ndarray:
+    """A small depth image, metres rounded to 1-3 decimals (ties in the 3x3 ranges), a share without
+    a reading."""
+    h, w = rng.integers(1, 30, 2)
+    d = np.round(rng.random((h, w)) * 2.5, rng.integers(1, 4)).astype(np.float32)
+    d[rng.random((h, w)) < rng.random()] = 0
+    return d
+
+
+def test_compiled_depth_passes_match_numpy():
+    """The compiled per-pixel passes give numpy's and OpenCV's values bit for bit: the heights above a
+    plane (float32 broadcasting), the range masks and the steady pixels (a morphological gradient)."""
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        d = _random_depth(rng)
+        h, w = d.shape
+        intr = Intrinsics(fx=150.0, fy=151.0, cx=w / 2 - 0.5, cy=h / 2 + 0.3, width=w, height=h)
+        normal = rng.normal(size=3)
+        plane = Plane(tuple(normal / np.linalg.norm(normal)), float(rng.random()), 0.5)
+        rx = ((np.arange(w, dtype=np.float32) - intr.cx) / intr.fx)[None, :]
+        ry = ((np.arange(h, dtype=np.float32) - intr.cy) / intr.fy)[:, None]
+        nx, ny, nz = (np.float32(v) for v in plane.normal)
+        expected = d * (nx * rx + ny * ry + nz) + np.float32(plane.offset_m)
+        assert np.array_equal(plane_height_m(d, intr, plane), expected)
+        near, far = sorted(rng.choice([0.2, 0.5, 1.0, 1.2, 2.0], 2, replace=False))
+        assert np.array_equal(range_mask(d, near_m=near, far_m=far), (d >= near) & (d <= far) & (d > 0))
+        step = float(rng.choice([0.01, 0.1, 0.5]))
+        assert np.array_equal(steady_pixels(d, change_m=step), (d > 0) & ~depth_edges(d, step))
 
 
 # -- the depth_threshold segmenter on an in-memory sequence ----------------------------------------

@@ -1,7 +1,8 @@
 """The compiled (Numba) per-pixel loops of the segmenters, one pass over an image where numpy makes
 several full-image temporaries or OpenCV a slow generic pass: the projector's shadows (a scan of
 each row), the colour difference of the thin-object search, the statistics of labelled regions, the
-plane search's points and their least-squares refit, and a flood from the image's border."""
+plane search's points and their least-squares refit, a flood from the image's border, and the
+depth's heights above the planes and its range masks."""
 
 from __future__ import annotations
 
@@ -51,6 +52,50 @@ def step_kernel(depth, step, out):
             lo = min(min(near[a, u], near[v, u]), near[b, u])
             hi = max(max(far[a, u], far[v, u]), far[b, u])
             out[v, u] = hi - lo > step
+
+
+@njit(inline="always")
+def _lesser(a, b):
+    return a if a < b else b  # a compare and a select, which vectorise (no NaN here)
+
+
+@njit(inline="always")
+def _greater(a, b):
+    return a if a > b else b
+
+
+@njit(cache=True, nogil=True)
+def _row_range(row, near, far):
+    """The nearest and farthest of each pixel of ``row`` and its left and right neighbours (those in
+    the row) into ``near`` and ``far``."""
+    w = row.shape[0]
+    near[0] = far[0] = row[0]
+    if w > 1:
+        near[0], far[0] = _lesser(row[0], row[1]), _greater(row[0], row[1])
+        near[w - 1], far[w - 1] = _lesser(row[w - 2], row[w - 1]), _greater(row[w - 2], row[w - 1])
+    for u in range(1, w - 1):
+        a, b, c = row[u - 1], row[u], row[u + 1]
+        near[u] = _lesser(_lesser(a, b), c)
+        far[u] = _greater(_greater(a, b), c)
+
+
+@njit(cache=True, nogil=True)
+def steady_kernel(depth, step, out):
+    """Mark in ``out`` (bool (H, W)) the pixels with a reading (``depth`` > 0, float32 (H, W), no NaN)
+    whose 3x3 neighbourhood (within the image, pixels without a reading as 0) spans at most ``step``
+    (float32): farthest minus nearest, as OpenCV's morphological gradient computes it; over each
+    row's three pixels first, then over three rows."""
+    h, w = depth.shape
+    near = np.empty((h, w), np.float32)
+    far = np.empty((h, w), np.float32)
+    for v in range(h):
+        _row_range(depth[v], near[v], far[v])
+    for v in range(h):
+        a, b = max(v - 1, 0), min(v + 1, h - 1)
+        for u in range(w):
+            lo = _lesser(_lesser(near[a, u], near[v, u]), near[b, u])
+            hi = _greater(_greater(far[a, u], far[v, u]), far[b, u])
+            out[v, u] = (depth[v, u] > 0) & (hi - lo <= step)
 
 
 @njit(cache=True, nogil=True)
@@ -181,6 +226,34 @@ def border_reach(mask, out):
                     top += 1
 
 
+@njit(cache=True, nogil=True)
+def height_kernel(depth, ray_x, ray_y, nz, offset, out):
+    """Write to ``out`` (float32 (H, W)) each pixel's signed distance to the plane ``n . p + offset =
+    0`` of its back-projected ``depth`` (float32 (H, W)): ``depth * ((ray_x[u] + ray_y[v]) + nz) +
+    offset``, where ``ray_x`` (W,) and ``ray_y`` (H,) are the pixels' ray slopes times the normal's x
+    and y (float32), all in float32, as numpy's broadcasting computes it, in one pass."""
+    h, w = depth.shape
+    for v in range(h):
+        for u in range(w):
+            out[v, u] = depth[v, u] * ((ray_x[u] + ray_y[v]) + nz) + offset
+
+
+@njit(cache=True, nogil=True)
+def range_kernel(depth, near, far, valid, inside, outside):
+    """Mark, per pixel of ``depth`` (float32 (H, W), 0 = no reading), in ``valid`` a reading, in
+    ``inside`` a reading in [``near``, ``far``], in ``outside`` a reading out of it (float32 bounds;
+    bool (H, W) outputs), in one pass."""
+    h, w = depth.shape
+    for v in range(h):
+        for u in range(w):
+            z = depth[v, u]
+            seen = z > 0
+            within = z >= near and z <= far
+            valid[v, u] = seen
+            inside[v, u] = seen and within
+            outside[v, u] = seen and not within
+
+
 def warm_up() -> None:
     """Load the compiled loops: run each once on a tiny image with the argument types of the
     segmenters' calls, so that the first frame does not pay for loading Numba's cached machine code
@@ -189,11 +262,15 @@ def warm_up() -> None:
     flags = np.zeros(depth.shape, bool)
     shadow_kernel(depth, np.float32(0.01), flags)
     step_kernel(depth, np.float32(0.01), flags)
+    steady_kernel(depth, np.float32(0.01), flags)
     colour = np.zeros(depth.shape + (3,), np.float32)
     distinct_kernel(
         colour, colour, np.ones(3, np.float32), np.ones(depth.shape, bool), np.float32(1.0), flags
     )
     region_stats(np.zeros(depth.shape, np.int32), 1)
+    one = np.float32(1.0)
+    height_kernel(depth, np.zeros(6, np.float32), np.zeros(4, np.float32), one, one, depth.copy())
+    range_kernel(depth, np.float32(0.1), one, flags.copy(), flags.copy(), flags.copy())
     border_reach(flags.copy(), flags)
     rays = np.zeros(6, np.float32), np.zeros(4, np.float32)
     strided_points(depth, 2, np.float32(0.1), np.float32(1.0), *rays)

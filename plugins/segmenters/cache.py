@@ -26,11 +26,11 @@ class PackedMask:
 
     @classmethod
     def pack(cls, mask: np.ndarray) -> PackedMask:
-        mask = np.asarray(mask, dtype=bool)
-        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-        if len(rows) == 0:
+        mask = np.ascontiguousarray(mask, dtype=bool)
+        x0, y0, w, h = cv2.boundingRect(mask.view(np.uint8))
+        if not w:
             return cls(mask.shape, (0, 0, 0, 0), b"")
-        y0, y1, x0, x1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+        y1, x1 = y0 + h, x0 + w
         return cls(mask.shape, (y0, x0, y1, x1), np.packbits(mask[y0:y1, x0:x1]).tobytes())
 
     @property

@@ -131,12 +131,10 @@ def fill_dropouts(instances: list[np.ndarray], valid: np.ndarray, *, fill_px: in
     if not fill_px:
         return instances
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * fill_px + 1, 2 * fill_px + 1))
-    h, w = valid.shape
     out = []
     for mask in instances:
-        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-        y0, y1 = max(rows[0] - fill_px, 0), min(rows[-1] + fill_px + 1, h)
-        x0, x1 = max(cols[0] - fill_px, 0), min(cols[-1] + fill_px + 1, w)
+        rows, cols = grown_box(mask, fill_px)
+        y0, y1, x0, x1 = rows.start, rows.stop, cols.start, cols.stop
         crop = np.pad(mask[y0:y1, x0:x1].astype(np.uint8), fill_px)
         closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, kernel)[fill_px:-fill_px, fill_px:-fill_px] > 0
         filled = mask.copy()
@@ -236,8 +234,7 @@ def fill_floors(
     kernel = np.ones((3, 3), np.uint8)
     out = []
     for mask in instances:
-        rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-        box = np.s_[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]
+        box = grown_box(mask, 0)
         m = mask[box]
         holes = _holes(m)
         n, labels = cv2.connectedComponents(holes.astype(np.uint8), connectivity=8)
@@ -250,7 +247,7 @@ def fill_floors(
         if not rim.any() or not around.any():
             out.append(mask)
             continue
-        corner = (rows[0], cols[0])
+        corner = (box[0].start, box[1].start)
         gaps = cKDTree(_points(depth_m, around, corner, intrinsics)).query(
             _points(depth_m, rim, corner, intrinsics)
         )[0]

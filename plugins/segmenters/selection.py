@@ -61,9 +61,10 @@ import numpy as np
 
 from artclass_core import Frame, Params, Segmenter, Sequence, param
 
+from ._compiled import steady_kernel
 from .cache import DiskMaskCache, PackedMask
 from .hands import HOLD_LINE_M, HandParams, held, widen
-from .support import clean_depth
+from .support import as_numpy_compares, clean_depth
 
 __all__ = [
     "Choice",
@@ -141,10 +142,8 @@ class Choice:
 
 
 def _box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    if len(rows) == 0:
-        return None
-    return int(rows[0]), int(cols[0]), int(rows[-1]) + 1, int(cols[-1]) + 1
+    x, y, w, h = cv2.boundingRect(np.ascontiguousarray(mask, dtype=bool).view(np.uint8))
+    return (y, x, y + h, x + w) if w else None
 
 
 def _iou_boxed(a, box_a, b, box_b) -> float:
@@ -200,7 +199,10 @@ def steady_pixels(depth_m: np.ndarray, *, change_m: float) -> np.ndarray:
     """The pixels of a depth image with a reading, away from depth edges (their 3x3 neighbourhood
     spans at most ``change_m`` of depth and has no missing reading): bool (H, W)."""
     d = clean_depth(depth_m)
-    return (d > 0) & ~depth_edges(d, change_m)
+    out = np.empty(d.shape, bool)
+    # (d > 0) & ~depth_edges(d, change_m) in one compiled pass
+    steady_kernel(np.ascontiguousarray(d), as_numpy_compares(d, change_m), out)
+    return out
 
 
 def change_scores(
@@ -240,8 +242,8 @@ def change_scores(
     stable = steady[0] & steady[1]
     if ignore is not None:
         stable &= ~ignore
-    diff = np.abs(d - od)
-    sample = diff[::2, ::2][stable[::2, ::2]]  # a quarter of the pixels is plenty for a median
+    quarter = np.s_[::2, ::2]  # a quarter of the pixels is plenty for a median
+    sample = np.abs(d[quarter] - od[quarter])[stable[quarter]]
     sigma = 1.4826 * float(np.median(sample)) if sample.size else 0.0
     tau = max(change_m, 4.0 * sigma)
     scores = []
@@ -255,7 +257,8 @@ def change_scores(
         region = mask[y0:y1, x0:x1] if j is None else mask[y0:y1, x0:x1] | others[j][y0:y1, x0:x1]
         region = region & stable[y0:y1, x0:x1]  # a new array: the instances are not modified
         n = np.count_nonzero(region)
-        scores.append(np.count_nonzero(region & (diff[y0:y1, x0:x1] > tau)) / n if n else 0.0)
+        changed = np.abs(d[y0:y1, x0:x1] - od[y0:y1, x0:x1]) > tau
+        scores.append(np.count_nonzero(region & changed) / n if n else 0.0)
     return scores, matches, tau
 
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from artclass_core import Intrinsics, Params, param
 
-from ._compiled import plane_moments, region_stats, strided_points
+from ._compiled import height_kernel, plane_moments, range_kernel, region_stats, strided_points
 
 __all__ = [
     "BackgroundParams",
@@ -29,6 +29,7 @@ __all__ = [
     "background_mask",
     "above_planes",
     "range_mask",
+    "as_numpy_compares",
     "ransac_plane",
     "refine_plane",
     "clean_depth",
@@ -203,8 +204,29 @@ def _rays(
 
 def range_mask(depth_m: np.ndarray, *, near_m: float, far_m: float) -> np.ndarray:
     """Pixels with a depth reading inside ``[near_m, far_m]``: ndarray of bool, shape (H, W)."""
-    d = clean_depth(depth_m)
-    return (d >= near_m) & (d <= far_m) & (d > 0)
+    return _range_masks(clean_depth(depth_m), near_m=near_m, far_m=far_m)[1]
+
+
+def _range_masks(d: np.ndarray, *, near_m: float, far_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels of the clean depth ``d`` with a reading, with one inside ``[near_m, far_m]`` and with
+    one outside it: bool (H, W) x 3."""
+    valid, inside, outside = (np.empty(d.shape, bool) for _ in range(3))
+    range_kernel(
+        np.ascontiguousarray(d),
+        as_numpy_compares(d, near_m),
+        as_numpy_compares(d, far_m),
+        valid,
+        inside,
+        outside,
+    )
+    return valid, inside, outside
+
+
+def as_numpy_compares(image: np.ndarray, value: float) -> np.generic:
+    """``value`` of the type numpy compares ``image`` (an array) with it: the image's float32 for a
+    Python number, float64 for a numpy float64 (NEP 50). A compiled pass given it compares as numpy
+    does."""
+    return np.result_type(image, value).type(value)
 
 
 def ransac_plane(
@@ -356,7 +378,12 @@ def fit_planes(
 def _signed(d: np.ndarray, rays: tuple[np.ndarray, np.ndarray], plane: Plane) -> np.ndarray:
     """Per-pixel signed distance (m) of the back-projected depth ``d`` to ``plane`` (> 0 in front)."""
     nx, ny, nz = (np.float32(v) for v in plane.normal)
-    return d * (nx * rays[0] + ny * rays[1] + nz) + np.float32(plane.offset_m)
+    out = np.empty(d.shape, np.float32)
+    # d * (nx * rays[0] + ny * rays[1] + nz) + offset, the same float32 operations in one pass
+    height_kernel(
+        np.ascontiguousarray(d), nx * rays[0][0], ny * rays[1][:, 0], nz, np.float32(plane.offset_m), out
+    )
+    return out
 
 
 def plane_height_m(depth_m: np.ndarray, intrinsics: Intrinsics, plane: Plane) -> np.ndarray:
@@ -395,8 +422,7 @@ def background_mask(
         pixels with a depth reading (> 0, finite)
     """
     d = clean_depth(depth_m)
-    valid = d > 0
-    background = valid & ((d < params.near_m) | (d > params.far_m))
+    valid, _, background = _range_masks(d, near_m=params.near_m, far_m=params.far_m)
     for height in _heights(d, intrinsics, planes, heights):
         background |= valid & (height < params.plane_distance_m)
     return background, valid
