@@ -26,7 +26,9 @@ from artclass_plugins.segmenters.depth_threshold import (
 from artclass_plugins.segmenters.hands import (
     HandParams,
     _depth_range,
+    _squared_norms,
     arms,
+    chromaticity,
     depth_steps,
     find_hands,
     hand_regions,
@@ -767,3 +769,18 @@ def test_a_hand_grasping_on_the_table_is_found_though_its_fingertips_touch_it():
     scene = Scene([Frame(0, "0", rgb, depth.astype(np.float32))], name="grasping on the table")
     found = DepthThresholdSegmenter().hand_mask(scene[0], sequence=scene)
     assert mask_iou(found, hand) > 0.9
+
+
+def test_chromaticity_and_colour_distances_as_numpy_reductions():
+    """The chromaticity's sums and the squared colour distances taken column by column give the bits
+    of numpy's reductions over the short axis (``sum(axis=1)``)."""
+    rng = np.random.default_rng(8)
+    rgb = rng.integers(0, 256, (20, 30, 3), dtype=np.uint8)
+    where = rng.random((20, 30)) < 0.6
+    c = cv2.blur(rgb, (3, 3))[where].astype(np.float32)
+    assert np.array_equal(
+        chromaticity(rgb, where), c / np.maximum(c.sum(axis=1, keepdims=True), np.float32(1))
+    )
+    for n in (1, 7, 1000):
+        v = (rng.normal(size=(n, 3)) * rng.random((n, 1))).astype(np.float32)
+        assert np.array_equal(_squared_norms(v), np.sum(v**2, axis=1))

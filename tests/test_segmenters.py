@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 import pytest
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from artclass_core import (
     Config,
@@ -38,6 +39,7 @@ from artclass_plugins.segmenters.depth_threshold import (
     DepthThresholdSegmenter,
     SampledColours,
     _holes,
+    _tree,
     colour_patches,
     components,
     fill_dropouts,
@@ -569,6 +571,17 @@ def test_enclosed_holes_match_scipy_fill_holes():
     for _ in range(100):
         mask = rng.random(tuple(rng.integers(1, 40, 2))) < rng.random()
         assert np.array_equal(_holes(mask), ndimage.binary_fill_holes(mask) & ~mask)
+
+
+def test_unbalanced_tree_finds_the_same_nearest_distances():
+    """The k-d tree built without balancing gives the nearest distances of scipy's default tree."""
+    rng = np.random.default_rng(6)
+    for _ in range(20):
+        points = np.round(rng.random((int(rng.integers(1, 3000)), 3)), 3)  # ties among distances
+        queries = np.round(rng.random((50, 3)), 3)
+        assert np.array_equal(_tree(points).query(queries)[0], cKDTree(points).query(queries)[0])
+        bounded = [t.query(queries, distance_upper_bound=0.05)[0] for t in (_tree(points), cKDTree(points))]
+        assert np.array_equal(*bounded)
 
 
 def test_label_regions_match_opencv_components_with_stats():

@@ -166,7 +166,7 @@ def join_touching(
     for a in range(len(instances)):
         if not len(rims[a]):
             continue
-        tree = cKDTree(rims[a])
+        tree = _tree(rims[a])
         for b in range(a + 1, len(instances)):
             if len(rims[b]) and np.isfinite(tree.query(rims[b], distance_upper_bound=join_m)[0]).any():
                 old, new = group[b], group[a]
@@ -248,16 +248,25 @@ def fill_floors(
             out.append(mask)
             continue
         corner = (box[0].start, box[1].start)
-        gaps = cKDTree(_points(depth_m, around, corner, intrinsics)).query(
+        gaps = _tree(_points(depth_m, around, corner, intrinsics)).query(
             _points(depth_m, rim, corner, intrinsics)
         )[0]
         which, holes_k = labels[rim], np.arange(1, n)  # _points' order is row-major, as this
         has_rim = np.bincount(which, minlength=n)[1:] > 0
         good = holes_k[has_rim & (np.asarray(ndimage.median(gaps, which, holes_k)) <= gap_m)]
         filled = mask.copy()
-        filled[box] |= np.isin(labels, good)
+        chosen = np.zeros(n, bool)
+        chosen[good] = True
+        filled[box] |= chosen[labels]
         out.append(filled)
     return out
+
+
+def _tree(points: np.ndarray) -> cKDTree:
+    """A k-d tree of ``points`` (N, 3) for nearest-neighbour distances, built without balancing or
+    compacting its nodes: a query finds the same nearest distances, and the tree of a few thousand
+    points is built in half the time."""
+    return cKDTree(points, balanced_tree=False, compact_nodes=False)
 
 
 def _holes(mask: np.ndarray) -> np.ndarray:
