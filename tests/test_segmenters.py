@@ -61,6 +61,7 @@ from artclass_plugins.segmenters.support import (
     Plane,
     above_planes,
     background_mask,
+    clean_depth,
     fit_planes,
     label_regions,
     plane_height_m,
@@ -571,6 +572,20 @@ def test_enclosed_holes_match_scipy_fill_holes():
     for _ in range(100):
         mask = rng.random(tuple(rng.integers(1, 40, 2))) < rng.random()
         assert np.array_equal(_holes(mask), ndimage.binary_fill_holes(mask) & ~mask)
+
+
+def test_clean_depth_replaces_every_kind_of_missing_value():
+    """NaN and both infinities anywhere (the compiled check finds each) become 0; a clean float32
+    image is returned as it is."""
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        d = rng.random(tuple(rng.integers(1, 40, 2))).astype(np.float32)
+        for _ in range(rng.integers(0, 3)):
+            d[rng.integers(d.shape[0]), rng.integers(d.shape[1])] = rng.choice([np.nan, np.inf, -np.inf])
+        for image in (d, d[:, ::2]):
+            clean = clean_depth(image)
+            assert np.array_equal(clean, np.where(np.isfinite(image), image, 0))
+            assert (clean is image) == bool(np.isfinite(image).all())
 
 
 def test_unbalanced_tree_finds_the_same_nearest_distances():

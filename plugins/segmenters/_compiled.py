@@ -114,6 +114,22 @@ def distinct_kernel(colour, around, scale, where, least_sq, out):
                 out[v, u] = d0 * d0 + d1 * d1 + d2 * d2 >= least_sq
 
 
+@njit(cache=True, nogil=True, fastmath={"reassoc"})
+def all_finite(values):
+    """Whether every value of ``values`` (float32 (H, W)) is finite: a row's values times 0 sum to 0
+    when they are, to NaN when one is NaN or infinite, in whatever order they are added (which lets
+    the sum vectorise)."""
+    h, w = values.shape
+    zero = np.float32(0)
+    for v in range(h):
+        total = zero
+        for u in range(w):
+            total += values[v, u] * zero
+        if total != zero:
+            return False
+    return True
+
+
 @njit(cache=True, nogil=True)
 def region_stats(labels, n):
     """OpenCV's component statistics (left, top, width, height, area; int32 (n, 5)) of the labels
@@ -268,6 +284,7 @@ def warm_up() -> None:
         colour, colour, np.ones(3, np.float32), np.ones(depth.shape, bool), np.float32(1.0), flags
     )
     region_stats(np.zeros(depth.shape, np.int32), 1)
+    all_finite(depth)
     one = np.float32(1.0)
     height_kernel(depth, np.zeros(6, np.float32), np.zeros(4, np.float32), one, one, depth.copy())
     range_kernel(depth, np.float32(0.1), one, flags.copy(), flags.copy(), flags.copy())

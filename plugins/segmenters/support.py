@@ -20,7 +20,7 @@ import numpy as np
 
 from artclass_core import Intrinsics, Params, param
 
-from ._compiled import height_kernel, plane_moments, range_kernel, region_stats, strided_points
+from ._compiled import all_finite, height_kernel, plane_moments, range_kernel, region_stats, strided_points
 
 __all__ = [
     "BackgroundParams",
@@ -126,6 +126,8 @@ class BackgroundParams(Params):
 def clean_depth(depth_m: np.ndarray) -> np.ndarray:
     """Depth as float32 with NaN and infinities replaced by 0 (no reading); no copy when already clean."""
     d = np.asarray(depth_m, dtype=np.float32)
+    if d.ndim == 2 and all_finite(d):  # a compiled check, at a third of the cost of isfinite
+        return d
     bad = ~np.isfinite(d)
     if bad.any():
         d = np.where(bad, np.float32(0), d)
