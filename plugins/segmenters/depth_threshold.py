@@ -43,6 +43,7 @@ from .support import (
     BackgroundParams,
     Plane,
     above_planes,
+    as_uint8,
     background_mask,
     clean_depth,
     fit_planes,
@@ -237,13 +238,13 @@ def fill_floors(
         box = grown_box(mask, 0)
         m = mask[box]
         holes = _holes(m)
-        n, labels = cv2.connectedComponents(holes.astype(np.uint8), connectivity=8)
+        n, labels = cv2.connectedComponents(as_uint8(holes), connectivity=8)
         if n < 2:
             out.append(mask)
             continue
         seen = depth_m[box] > 0
-        around = m & (cv2.dilate(holes.astype(np.uint8), kernel) > 0) & seen
-        rim = holes & (cv2.dilate(m.astype(np.uint8), kernel) > 0) & seen
+        around = m & (cv2.dilate(as_uint8(holes), kernel) > 0) & seen
+        rim = holes & (cv2.dilate(as_uint8(m), kernel) > 0) & seen
         if not rim.any() or not around.any():
             out.append(mask)
             continue
@@ -311,14 +312,14 @@ def thin_objects(
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
     out = []
     for m in found:  # each in its bounding box, grown by the ring
-        x, y, bw, bh = cv2.boundingRect(m.astype(np.uint8))
+        x, y, bw, bh = cv2.boundingRect(as_uint8(m))
         box = np.s_[max(y - ring_px, 0) : y + bh + ring_px, max(x - ring_px, 0) : x + bw + ring_px]
         lab = cv2.cvtColor(np.ascontiguousarray(rgb[box], dtype=np.uint8), cv2.COLOR_RGB2Lab).astype(
             np.float32
         )
         lab[..., 0] *= 100.0 / 255.0  # OpenCV's 8-bit Lab: L scaled by 255/100, a and b offset by 128
         inside = m[box]
-        ring = (cv2.dilate(inside.astype(np.uint8), disc) > 0) & ~low[box]
+        ring = (cv2.dilate(as_uint8(inside), disc) > 0) & ~low[box]
         if ring.any() and np.linalg.norm(lab[inside].mean(axis=0) - lab[ring].mean(axis=0)) >= contrast:
             out.append(m)
     return out
@@ -443,7 +444,19 @@ class SampledColours:
                 np.minimum((np.arange(b.start, b.stop) + s // 2) // s, n_samples - 1)
                 for b, n_samples in zip(box, labels.shape)
             )
-            out.append((box, labels[rows[:, None], cols[None, :]] == k))
+            # labels[rows[:, None], cols[None, :]] == k, each sample's row and column repeated as
+            # often as it is the nearest (rows and cols do not decrease)
+            mine = labels[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1] == k
+            out.append(
+                (
+                    box,
+                    np.repeat(
+                        np.repeat(mine, np.bincount(rows - rows[0]), axis=0),
+                        np.bincount(cols - cols[0]),
+                        axis=1,
+                    ),
+                )
+            )
         return out
 
     def pixels_distinct(
@@ -493,7 +506,7 @@ def components(mask: np.ndarray, *, open_px: int, min_area_fraction: float) -> l
     -------
     list of ndarray of bool, shape (H, W)
     """
-    m = np.asarray(mask, dtype=np.uint8)
+    m = as_uint8(mask)
     if open_px:
         kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * open_px + 1, 2 * open_px + 1))
         m = cv2.morphologyEx(m, cv2.MORPH_OPEN, kernel)
@@ -604,7 +617,7 @@ def without_arm(instances: list[np.ndarray], hand: np.ndarray, *, share: float) 
     beside = widen(hand, BORDER_PX)
     out = []
     for mask in instances:
-        outline = mask & ~(cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0) & ~border
+        outline = mask & ~(cv2.erode(as_uint8(mask), np.ones((3, 3), np.uint8)) > 0) & ~border
         if not (mask & border).any() or (outline & beside).sum() < share * max(outline.sum(), 1):
             out.append(mask)
     return out

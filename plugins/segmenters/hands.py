@@ -68,7 +68,16 @@ import numpy as np
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, param
 
 from ._compiled import border_reach, shadow_kernel, step_kernel
-from .support import DEPTH_STEP_M, Plane, clean_depth, grown_box, label_box, plane_height_m, region_mask
+from .support import (
+    DEPTH_STEP_M,
+    Plane,
+    as_uint8,
+    clean_depth,
+    grown_box,
+    label_box,
+    plane_height_m,
+    region_mask,
+)
 
 __all__ = [
     "HandParams",
@@ -227,7 +236,7 @@ class HandParams(Params):
 
 def _open(mask: np.ndarray) -> np.ndarray:
     """Opening with a 3x3 square: single-pixel specks and one-pixel bridges removed."""
-    return cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+    return cv2.morphologyEx(as_uint8(mask), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
 
 
 def skin_mask(rgb: np.ndarray) -> np.ndarray:
@@ -280,26 +289,39 @@ def hand_regions(
     -------
     ndarray of bool, shape (H, W)
     """
+    out = np.zeros(candidates.shape, bool)
+    for region in _hand_regions(candidates, depth_m, intrinsics, min_area_m2=min_area_m2, border=border):
+        out |= region
+    return out
+
+
+def _hand_regions(
+    candidates: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, *, min_area_m2: float, border: bool
+) -> list[np.ndarray]:
+    """:func:`hand_regions`, each region apart (the connected regions of their union): list of bool
+    (H, W)."""
     n, labels, stats, (rows, cols) = label_box(_open(candidates))
     if n < 2:
-        return np.zeros(candidates.shape, bool)
+        return []
     reach = _at_border(stats, candidates.shape)
     kept = np.flatnonzero(reach if border else np.ones(n - 1, bool)) + 1
     if not len(kept):
-        return np.zeros(candidates.shape, bool)
+        return []
     d = clean_depth(depth_m)
     # a region of n pixels covers at most n (z_max / fx) (z_max / fy), with a margin for rounding: the
     # smaller ones (specks of skin colour) need no surface
     least_px = min_area_m2 * intrinsics.fx * intrinsics.fy / (1.001 * max(float(d.max()), 1e-9) ** 2)
     kept = kept[stats[kept, cv2.CC_STAT_AREA] >= least_px]
-    out = np.zeros(candidates.shape, bool)
+    out = []
     for k in kept:
         x, y, w, h = stats[k, :4]
         box = np.s_[y : y + h, x : x + w]
         # the labels are those of the mask's bounding box, which starts at (rows.start, cols.start)
         region = labels[y - rows.start : y - rows.start + h, x - cols.start : x - cols.start + w] == k
         if surface_m2(region, d[box], intrinsics) >= min_area_m2:
-            out[box] |= region
+            full = np.zeros(candidates.shape, bool)
+            full[box] = region
+            out.append(full)
     return out
 
 
@@ -407,8 +429,8 @@ def find_hands(
     step = depth_steps(d, step_m=touch)
     shadow = projector_shadows(d, step_m=touch)
     apart = candidates & ~step
-    found = [
-        hand_regions(
+    found = [  # each kind's regions
+        _hand_regions(
             kind & (apart & ~shadow if k else apart),
             d,
             intrinsics,
@@ -418,9 +440,11 @@ def find_hands(
         for k, kind in enumerate(kinds)
     ]
     if support is None:
-        hand = np.logical_or.reduce(found)
+        hand = np.zeros(d.shape, bool)
+        for region in (r for regions in found for r in regions):
+            hand |= region
     else:
-        regions = [(k, r) for k, kind in enumerate(found) for r in _regions(kind)]  # k: 0 skin, 1 gripper
+        regions = [(k, r) for k, kind in enumerate(found) for r in kind]  # k: 0 skin, 1 gripper
         contact = (
             on_plane(
                 d,
@@ -836,7 +860,7 @@ def close_gaps(mask: np.ndarray, radius_px: int) -> np.ndarray:
     if not radius_px or not mask.any():
         return mask
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
-    return cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, disc) > 0
+    return cv2.morphologyEx(as_uint8(mask), cv2.MORPH_CLOSE, disc) > 0
 
 
 def widen(mask: np.ndarray, radius_px: int) -> np.ndarray:
@@ -844,7 +868,7 @@ def widen(mask: np.ndarray, radius_px: int) -> np.ndarray:
     if not radius_px or not mask.any():
         return mask
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius_px + 1, 2 * radius_px + 1))
-    return cv2.dilate(mask.astype(np.uint8), disc) > 0
+    return cv2.dilate(as_uint8(mask), disc) > 0
 
 
 def held(

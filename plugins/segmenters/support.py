@@ -36,6 +36,7 @@ __all__ = [
     "plane_height_m",
     "DEPTH_STEP_M",
     "label_regions",
+    "as_uint8",
     "label_box",
     "region_mask",
     "grown_box",
@@ -134,6 +135,13 @@ def clean_depth(depth_m: np.ndarray) -> np.ndarray:
     return d
 
 
+def as_uint8(mask: np.ndarray) -> np.ndarray:
+    """``mask`` as uint8 for OpenCV: a bool array's own bytes (0 or 1, no copy), anything else
+    converted."""
+    m = np.asarray(mask)
+    return m.view(np.uint8) if m.dtype == bool else m.astype(np.uint8)
+
+
 def label_regions(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
     """``cv2.connectedComponentsWithStats(mask, connectivity=8)``, computed on the bounding box of
     the mask's pixels only: the same (count, labels (H, W) int32, stats (count, 5)) in a fraction
@@ -150,7 +158,7 @@ def label_box(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, tuple[slic
     """:func:`label_regions` without the labels outside the bounding box of the mask's pixels (all 0):
     (count, labels of the box (h, w) int32, stats (count, 5) in image coordinates, the box as (rows,
     columns) slices; empty for an empty mask)."""
-    m = np.asarray(mask, dtype=np.uint8)
+    m = as_uint8(mask)
     x, y, w, h = cv2.boundingRect(m)
     box = (slice(y, y + h), slice(x, x + w))
     if not w:
@@ -468,7 +476,7 @@ def above_planes(
         inside = range_mask(d, near_m=params.near_m, far_m=params.far_m)
     if window_px > 1:
         size = (window_px, window_px)
-        out = cv2.erode(inside.astype(np.uint8), np.ones(size, np.uint8), borderValue=0) > 0
+        out = cv2.erode(as_uint8(inside), np.ones(size, np.uint8), borderValue=0) > 0
     else:
         out = inside.copy()  # a given ``inside`` is left as it was
     for plane, height in zip(planes, _heights(d, intrinsics, planes, heights)):
