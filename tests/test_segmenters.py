@@ -66,6 +66,7 @@ from artclass_plugins.segmenters.support import (
     label_regions,
     plane_height_m,
     range_mask,
+    rows_for_opencv,
 )
 
 YCBV = (Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "ycbv").resolve()
@@ -586,6 +587,17 @@ def test_clean_depth_replaces_every_kind_of_missing_value():
             clean = clean_depth(image)
             assert np.array_equal(clean, np.where(np.isfinite(image), image, 0))
             assert (clean is image) == bool(np.isfinite(image).all())
+
+
+def test_crops_go_to_opencv_without_a_copy_and_filter_as_copies():
+    """A crop of an image reaches OpenCV as it is (its rows stepped over) and is filtered as a copy
+    of it would be; an image with reversed channels is copied."""
+    rgb = np.random.default_rng(9).integers(0, 256, (30, 40, 3), dtype=np.uint8)
+    crop = rgb[5:20, 7:31]
+    assert np.shares_memory(rows_for_opencv(crop), rgb)
+    assert np.array_equal(cv2.blur(rows_for_opencv(crop), (3, 3)), cv2.blur(crop.copy(), (3, 3)))
+    flipped = rows_for_opencv(rgb[..., ::-1])
+    assert flipped.flags.c_contiguous and np.array_equal(flipped, rgb[..., ::-1])
 
 
 def test_unbalanced_tree_finds_the_same_nearest_distances():

@@ -53,6 +53,7 @@ from .support import (
     plane_height_m,
     range_mask,
     region_mask,
+    rows_for_opencv,
 )
 
 __all__ = [
@@ -314,9 +315,7 @@ def thin_objects(
     for m in found:  # each in its bounding box, grown by the ring
         x, y, bw, bh = cv2.boundingRect(as_uint8(m))
         box = np.s_[max(y - ring_px, 0) : y + bh + ring_px, max(x - ring_px, 0) : x + bw + ring_px]
-        lab = cv2.cvtColor(np.ascontiguousarray(rgb[box], dtype=np.uint8), cv2.COLOR_RGB2Lab).astype(
-            np.float32
-        )
+        lab = cv2.cvtColor(rows_for_opencv(rgb[box]), cv2.COLOR_RGB2Lab).astype(np.float32)
         lab[..., 0] *= 100.0 / 255.0  # OpenCV's 8-bit Lab: L scaled by 255/100, a and b offset by 128
         inside = m[box]
         ring = (cv2.dilate(as_uint8(inside), disc) > 0) & ~low[box]
@@ -403,7 +402,7 @@ class SampledColours:
 
     def __init__(self, rgb: np.ndarray, *, window_px: int):
         s = COLOUR_STRIDE_PX
-        mean = cv2.blur(np.ascontiguousarray(rgb, dtype=np.uint8), (THIN_WINDOW_PX, THIN_WINDOW_PX))
+        mean = cv2.blur(rows_for_opencv(rgb), (THIN_WINDOW_PX, THIN_WINDOW_PX))
         # OpenCV's 8-bit CIE Lab: its steps (0.4 in L, 1 in a and b) lie far below the contrasts sought;
         # it costs a tenth of the float conversion, and the window's means are integer sums (float
         # output), in 8-bit units until the difference is scaled to CIE units
@@ -465,7 +464,7 @@ class SampledColours:
         """The test for each pixel of ``rgb``, the crop ``within`` of the image (H', W', 3): its own
         colour, averaged over THIN_WINDOW_PX squared pixels (the crop's edge repeated), against the
         window's mean, interpolated between the samples. bool (H', W')."""
-        lab = cv2.cvtColor(np.ascontiguousarray(rgb, dtype=np.uint8), cv2.COLOR_RGB2Lab)
+        lab = cv2.cvtColor(rows_for_opencv(rgb), cv2.COLOR_RGB2Lab)
         lab = cv2.boxFilter(lab, cv2.CV_32F, (THIN_WINDOW_PX, THIN_WINDOW_PX))
         # sample i lies at pixel COLOUR_STRIDE_PX * i: the crop's pixel (x, y) at sample
         # ((x + first column) / stride, (y + first row) / stride), linearly interpolated

@@ -77,6 +77,7 @@ from .support import (
     label_box,
     plane_height_m,
     region_mask,
+    rows_for_opencv,
 )
 
 __all__ = [
@@ -729,7 +730,7 @@ def chromaticity(rgb: np.ndarray, where: np.ndarray) -> np.ndarray:
     image (H, W, 3), each averaged over its 3x3 neighbourhood first (the camera's noise divided by
     3): float32 (N, 3), in row-major order. Shading scales r, g and b alike and leaves it unchanged;
     a change of material does not."""
-    c = cv2.blur(np.ascontiguousarray(rgb, dtype=np.uint8), (3, 3))[where].astype(np.float32)
+    c = cv2.blur(rows_for_opencv(rgb), (3, 3))[where].astype(np.float32)
     total = c[:, 0] + c[:, 1] + c[:, 2]  # whole numbers: exact
     return c / np.maximum(total, np.float32(1.0))[:, None]
 

@@ -37,6 +37,7 @@ __all__ = [
     "DEPTH_STEP_M",
     "label_regions",
     "as_uint8",
+    "rows_for_opencv",
     "label_box",
     "region_mask",
     "grown_box",
@@ -140,6 +141,13 @@ def as_uint8(mask: np.ndarray) -> np.ndarray:
     converted."""
     m = np.asarray(mask)
     return m.view(np.uint8) if m.dtype == bool else m.astype(np.uint8)
+
+
+def rows_for_opencv(image: np.ndarray) -> np.ndarray:
+    """An 8-bit image (H, W[, C]) as OpenCV takes it without a copy: as it is when each of its rows
+    is contiguous (a crop of a larger image, whose rows OpenCV steps over), else a contiguous copy."""
+    a = np.asarray(image, dtype=np.uint8)
+    return a if a.ndim >= 2 and a.strides[0] > 0 and a[0].flags.c_contiguous else np.ascontiguousarray(a)
 
 
 def label_regions(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
