@@ -303,13 +303,16 @@ class _Poses:
     sigma_m: float
     sigma_rad: float
 
+    def __post_init__(self):
+        self.R, self.t = _rows(self.R), _rows(self.t)  # once, not at every evaluation
+
     def residuals(self, R_hat: np.ndarray, t_hat: np.ndarray) -> np.ndarray:
         """Normalised residuals (..., N, 6) of predicted poses (..., N, 4) and (..., N, 3): origin
         displacement, then rotation vector."""
         lead = R_hat.shape[:-2]
         out = _compiled.residuals(
-            _rows(self.R),
-            _rows(self.t),
+            self.R,
+            self.t,
             _rows(R_hat.reshape(-1, *R_hat.shape[-2:])),
             _rows(t_hat.reshape(-1, *t_hat.shape[-2:])),
             self.sigma_m,
@@ -399,8 +402,8 @@ def _predict(poses: _Poses, xi: np.ndarray, R0: np.ndarray, t0: np.ndarray):
         _rows(xi.reshape(-1, 6)),
         _rows(np.broadcast_to(R0, lead + (4,)).reshape(-1, 4)),
         _rows(np.broadcast_to(t0, lead + (3,)).reshape(-1, 3)),
-        _rows(poses.R),
-        _rows(poses.t),
+        poses.R,
+        poses.t,
         poses.sigma_m,
         poses.sigma_rad,
     )

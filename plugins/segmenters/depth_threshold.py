@@ -313,8 +313,7 @@ def thin_objects(
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
     out = []
     for m in found:  # each in its bounding box, grown by the ring
-        x, y, bw, bh = cv2.boundingRect(as_uint8(m))
-        box = np.s_[max(y - ring_px, 0) : y + bh + ring_px, max(x - ring_px, 0) : x + bw + ring_px]
+        box = grown_box(m, ring_px)
         lab = cv2.cvtColor(rows_for_opencv(rgb[box]), cv2.COLOR_RGB2Lab).astype(np.float32)
         lab[..., 0] *= 100.0 / 255.0  # OpenCV's 8-bit Lab: L scaled by 255/100, a and b offset by 128
         inside = m[box]
