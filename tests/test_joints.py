@@ -499,3 +499,35 @@ def test_compiled_prediction_is_the_twist_arithmetic(kind):
         np.c_[(t_hat - off.t) / NOISE_M, error.as_rotvec() / NOISE_RAD],
         atol=1e-6,
     )
+
+
+@pytest.mark.parametrize("name", ["fixed", "prismatic", "revolute", "screw"])
+def test_compiled_fit_residuals_are_the_poses_and_the_gauge(name):
+    """The one compiled pass that least squares calls gives each model's pose residuals (the numpy
+    steps: the twist of the steps, the corrected pose at state 0, the predicted poses) followed by its
+    gauge rows: the slide of the pose at state 0 along the start's twist in noise sigmas, and for the
+    screw its twist's scale."""
+    from artclass_plugins.joints import models
+
+    rng = np.random.default_rng(5)
+    poses = models._Poses(
+        Rotation.random(12, random_state=6).as_quat(), rng.normal(0.0, 0.2, (12, 3)), NOISE_M, NOISE_RAD
+    )
+    start = {
+        "fixed": np.zeros(6),
+        "prismatic": np.r_[0.0, 0.0, 0.0, 0.6, 0.0, 0.8],
+        "revolute": np.r_[0.0, 0.6, 0.8, np.cross([0.1, 0.0, 0.2], [0.0, 0.6, 0.8])],
+        "screw": np.r_[0.0, 0.6, 0.8, 0.05, 0.02, 0.1] / np.linalg.norm([0.0, 0.6, 0.8, 0.05, 0.02, 0.1]),
+    }[name]
+    shape = models._Shape(name, start, anchor=np.array([0.3, -0.1, 0.5]) if name == "revolute" else None)
+    fit = models._Fit(
+        shape, np.zeros(shape.n_joint + 6), Rotation.random(random_state=7).as_quat(), np.r_[0.1, 0.2, 0.6]
+    )
+    x = rng.normal(0.0, 0.05, (3, shape.n_joint + 6))
+    pose = fit.pose_residuals(x, poses).reshape(3, -1)
+    along = np.r_[start[:3] / NOISE_RAD, (np.cross(start[:3], fit.t0) + start[3:]) / NOISE_M]
+    gauge = np.zeros((3, 0)) if name == "fixed" else (x[:, shape.n_joint :] @ along)[:, None]
+    if name == "screw":
+        gauge = np.c_[gauge, x[:, :6] @ start * np.linalg.norm(along)]
+    np.testing.assert_allclose(fit.residuals(x, poses), np.c_[pose, gauge], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(fit.residuals(x[1], poses), np.r_[pose[1], gauge[1]], rtol=1e-9, atol=1e-9)

@@ -262,6 +262,15 @@ class _Shape:
         c = _cross(w0, v0)
         return c if self.anchor is None else c + w0 * float((self.anchor - c) @ w0)
 
+    @functools.cached_property
+    def compiled(self) -> tuple:
+        """The model as :func:`._compiled.fit_residuals` takes it: its number, starting twist, step
+        directions and axis point."""
+        model = ("fixed", "prismatic", "revolute", "screw").index(self.name)
+        basis = self._basis if self.name in ("prismatic", "revolute") else np.zeros((2, 3))
+        point = self._axis_point if self.name == "revolute" else np.zeros(3)
+        return model, _rows(self.start), _rows(basis), _rows(point)
+
     def twist(self, g: np.ndarray) -> np.ndarray:
         """The twists (..., 6) of steps g (..., n_joint)."""
         if self.name == "fixed":
@@ -338,6 +347,9 @@ class _Fit:
     chi2: float = np.inf
     jac: np.ndarray | None = None
 
+    def __post_init__(self):
+        self.R0, self.t0 = _rows(self.R0), _rows(self.t0)
+
     def unpack(self, x: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(twist, R0, t0) from parameter vectors (..., n_joint + 6)."""
         x = self.x if x is None else x
@@ -358,9 +370,27 @@ class _Fit:
         return poses.residuals(R_hat, t_hat)
 
     def residuals(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
-        """What least squares minimises (..., M): the pose residuals, flattened, and the gauge residuals."""
-        pose = self.pose_residuals(x, poses)
-        return np.concatenate([pose.reshape(pose.shape[:-2] + (-1,)), self._gauge(x, poses)], axis=-1)
+        """What least squares minimises (..., M), in one compiled pass: the pose residuals, flattened
+        (:meth:`pose_residuals`), then the gauge residuals. These are zero along the directions no
+        pose can see, so that least squares has a unique optimum: the slide of the pose at state 0
+        along the joint, ``x[n_joint:] · (ω / σ_rad, (ω × t0 + v) / σ_m)`` for the start's twist
+        (ω, v), and the screw twist's scale, ``x[:n_joint] · start`` times that direction's length.
+
+        The slide is measured in noise sigmas, as the pose residuals are, and the scale as stiffly:
+        a gauge that costs as little as a step in the parameters' own units (radians, metres) is so
+        soft next to the poses that the trust-region fit of the robust loss wanders along it for
+        dozens of steps, dragging the poses' states with it."""
+        out = _compiled.fit_residuals(
+            _rows(x.reshape(-1, x.shape[-1])),
+            *self.shape.compiled,
+            self.R0,
+            self.t0,
+            poses.R,
+            poses.t,
+            poses.sigma_m,
+            poses.sigma_rad,
+        )
+        return out.reshape(x.shape[:-1] + out.shape[-1:])
 
     def jacobian(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
         """The Jacobian (M, P) of :meth:`residuals` at x (P,) by forward differences, all P steps in
@@ -369,24 +399,6 @@ class _Fit:
         step = (x + step) - x
         f = self.residuals(x + np.vstack([np.zeros_like(x), np.diag(step)]), poses)  # x, then the steps
         return ((f[1:] - f[0]) / step[:, None]).T
-
-    def _gauge(self, x: np.ndarray, poses: _Poses) -> np.ndarray:
-        """Residuals (..., 1 or 2) that are zero along the directions no pose can see (sliding the pose
-        at state 0 along the joint; the screw twist's scale), so least squares has a unique optimum.
-
-        The slide is measured in noise sigmas, as the pose residuals are, and the scale as stiffly:
-        a gauge that costs as little as a step in the parameters' own units (radians, metres) is so
-        soft next to the poses that the trust-region fit of the robust loss wanders along it for
-        dozens of steps, dragging the poses' states with it."""
-        n = self.shape.n_joint
-        if self.shape.name == "fixed":
-            return np.zeros(x.shape[:-1] + (0,))
-        w, v = self.shape.start[:3], self.shape.start[3:]
-        along = np.concatenate([w / poses.sigma_rad, (_cross(w, self.t0) + v) / poses.sigma_m])
-        rows = [x[..., n : n + 6] @ along]
-        if self.shape.name == "screw":
-            rows.append(x[..., :n] @ self.shape.start * np.linalg.norm(along))
-        return np.stack(rows, axis=-1)
 
 
 def _predict(poses: _Poses, xi: np.ndarray, R0: np.ndarray, t0: np.ndarray):
