@@ -1,7 +1,7 @@
-"""The compiled (Numba) loop of the parts' look-ups: object points moved by each part's motion into
-another frame and looked up in its depth (and intensity) image, one pass over the points where numpy
-makes a dozen temporary arrays. Imported when first needed, so that importing :mod:`artclass_core`
-does not load Numba."""
+"""The compiled (Numba) loops of finding parts, one pass over the points where numpy makes a dozen
+temporary arrays: the parts' look-ups (object points moved by each part's motion into another frame
+and looked up in its depth and intensity images) and the overlaps of two pairs' labellings. Imported
+when first needed, so that importing :mod:`artclass_core` does not load Numba."""
 
 from __future__ import annotations
 
@@ -51,10 +51,31 @@ def look_kernel(points, motions, depth, gray, camera, reach_m, shade, residual, 
                 residual[h, n] = found
 
 
+@njit(cache=True, nogil=True)
+def contingency(keys_a, order_a, labels_a, keys_b, order_b, labels_b):
+    """The contingency table (A + 2, B + 2) of two labellings (labels >= -1, -1: no motion) over the
+    pixels both label: entry (m + 1, n + 1) counts the pixels labelled m in the first and n in the
+    second. A labelling's pixels are given as unique keys with the order that sorts them."""
+    table = np.zeros((labels_a.max() + 2, labels_b.max() + 2), np.int64)
+    i = j = 0
+    while i < len(order_a) and j < len(order_b):
+        a, b = order_a[i], order_b[j]
+        if keys_a[a] < keys_b[b]:
+            i += 1
+        elif keys_b[b] < keys_a[a]:
+            j += 1
+        else:
+            table[labels_a[a] + 1, labels_b[b] + 1] += 1
+            i += 1
+            j += 1
+    return table
+
+
 def warm_up() -> None:
-    """Load the compiled loop (Numba's cached machine code, or compile it) with the argument types of
-    the parts' calls."""
-    none = np.zeros((1, 1))
+    """Load the compiled loops (Numba's cached machine code, or compile them) with the argument types
+    of the parts' calls."""
+    none, one = np.zeros((1, 1)), np.zeros(1, np.int64)
+    contingency(one, one, one, one, one, one)
     look_kernel(
         np.zeros((1, 3)),
         np.eye(4)[None],

@@ -325,25 +325,19 @@ def _observations(result: RunResult) -> list[_Observation]:
 # -- 1. tracks: which motions of which pairs are one part -------------------------------------------------
 
 
-def _overlaps(a: _Observation, b: _Observation, same_cloud: bool) -> list[tuple[float, tuple, tuple]]:
-    """(IoU, node a, node b) of every pair of motions of two labellings of one or neighbouring frames."""
-    if same_cloud and len(a.labels) == len(b.labels):
-        la, lb = a.labels, b.labels
-    else:
-        (key_a, _), (key_b, order) = a.keys, b.keys
-        at = np.clip(np.searchsorted(key_b, key_a, sorter=order), 0, len(key_b) - 1)
-        hit = key_b[order[at]] == key_a
-        la, lb = a.labels[hit], b.labels[order[at[hit]]]
-    # the contingency table of the two labellings (row and column 0: no motion)
-    n_b = int(lb.max(initial=-1)) + 2
-    table = np.bincount((la + 1) * n_b + lb + 1, minlength=(int(la.max(initial=-1)) + 2) * n_b)
-    table = table.reshape(-1, n_b)
-    in_a, in_b = table.sum(axis=1)[1:], table.sum(axis=0)[1:]
+def _overlaps(a: _Observation, b: _Observation) -> list[tuple[float, tuple, tuple]]:
+    """(IoU, node a, node b) of every pair of motions of two labellings of one or neighbouring frames,
+    over the pixels both label."""
+    from ._looks import contingency  # Numba, loaded on first use
+
+    if not len(a.labels) or not len(b.labels):
+        return []
+    table = contingency(*a.keys, np.asarray(a.labels, np.int64), *b.keys, np.asarray(b.labels, np.int64))
+    in_a, in_b = table.sum(axis=1)[1:], table.sum(axis=0)[1:]  # row and column 0: no motion
     table = table[1:, 1:]
-    return [
-        (float(table[m, n] / (in_a[m] + in_b[n] - table[m, n])), (a.pair, int(m)), (b.pair, int(n)))
-        for m, n in zip(*np.nonzero(table))
-    ]
+    m, n = np.nonzero(table)
+    iou = table[m, n] / (in_a[m] + in_b[n] - table[m, n])
+    return [(float(x), (a.pair, int(i)), (b.pair, int(j))) for x, i, j in zip(iou, m, n)]
 
 
 class _Groups:
@@ -379,11 +373,11 @@ def _tracks(observations: list[_Observation], *, min_overlap: float) -> dict[tup
         for x in range(len(here)):
             for y in range(x + 1, len(here)):
                 if here[x].pair != here[y].pair:
-                    edges += _overlaps(here[x], here[y], same_cloud=True)
+                    edges += _overlaps(here[x], here[y])
         for other in by_frame.get(f + 1, []):
             for o in here:
                 if o.pair != other.pair:
-                    edges += _overlaps(o, other, same_cloud=False)
+                    edges += _overlaps(o, other)
     groups = _Groups({n: {n[0]} for n in nodes})
     root = groups.root
 
@@ -407,7 +401,7 @@ def _tracks(observations: list[_Observation], *, min_overlap: float) -> dict[tup
                     e
                     for x in by_frame[max(fa)]
                     for y in by_frame[min(fb)]
-                    for e in _overlaps(x, y, same_cloud=False)
+                    for e in _overlaps(x, y)
                     if root(e[1]) == ra and root(e[2]) == rb
                 ]
     merge(gaps)

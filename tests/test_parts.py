@@ -787,3 +787,27 @@ def test_evaluation_reports_parts_and_joints():
     assert "| median part IoU, every frame (0 where none was found) | 0.35 |" in text
     assert "| articulated sequences with a moving part found | 2 / 3 |" in text
     assert "| rigid or static sequences with a joint | 1 / 2 |" in text
+
+
+def test_overlaps_count_the_pixels_both_labellings_label():
+    """Two labellings of neighbouring frames are compared on the pixels both label, whatever order their
+    points come in: each pair of motions gets the IoU of its pixels there, counted by hand."""
+    rng = np.random.default_rng(2)
+    grid = np.stack(np.meshgrid(np.arange(40), np.arange(30)), -1).reshape(-1, 2)
+    first, second = rng.choice(len(grid), 900, replace=False), rng.choice(len(grid), 700, replace=False)
+    labels = {"a": rng.integers(-1, 3, len(grid)), "b": rng.integers(-1, 2, len(grid))}
+
+    def observation(pair, pick, name):
+        return parts._Observation(pair, 0, grid[pick], np.zeros((len(pick), 3)), labels[name][pick], True)
+
+    found = parts._overlaps(observation(0, first, "a"), observation(1, second, "b"))
+    shared = np.intersect1d(first, second)
+    expected = {}
+    for m in range(3):
+        for n in range(2):
+            in_a, in_b = (labels["a"][shared] == m).sum(), (labels["b"][shared] == n).sum()
+            both = ((labels["a"][shared] == m) & (labels["b"][shared] == n)).sum()
+            if both:
+                expected[(m, n)] = both / (in_a + in_b - both)
+    assert len(expected) == 6 and {(a[1], b[1]): iou for iou, a, b in found} == pytest.approx(expected)
+    assert all(a[0] == 0 and b[0] == 1 for _, a, b in found)
