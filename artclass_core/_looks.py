@@ -12,6 +12,36 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
+def _mirrored(i, n):
+    """Index i mirrored into 0 .. n - 1 about the edge pixels (OpenCV's default border)."""
+    i = -i if i < 0 else i
+    i = 2 * n - 2 - i if i >= n else i
+    return min(max(i, 0), n - 1)
+
+
+@njit(cache=True, nogil=True)
+def _smoothed(gray, row, col):
+    """The intensity at (row, col) smoothed over its 3 x 3 neighbours, weighed (1, 2, 1) x (1, 2, 1) /
+    16, the image's edges mirrored: ``cv2.GaussianBlur(gray, (3, 3), 0)`` there, to the bit."""
+    rows, cols = gray.shape
+    total = 0
+    for dr in range(-1, 2):
+        r = _mirrored(row + dr, rows)
+        for dc in range(-1, 2):
+            total += (2 - abs(dr)) * (2 - abs(dc)) * np.int64(gray[r, _mirrored(col + dc, cols)])
+    return (total + 8) >> 4
+
+
+@njit(cache=True, nogil=True)
+def smoothed_at(gray, pixels):
+    """The smoothed intensities (N,) of :func:`_smoothed` at pixels (N, 2), (column, row) each."""
+    out = np.empty(pixels.shape[0])
+    for n in range(pixels.shape[0]):
+        out[n] = _smoothed(gray, pixels[n, 1], pixels[n, 0])
+    return out
+
+
+@njit(cache=True, nogil=True)
 def look_kernel(points, motions, depth, gray, camera, reach_m, shade, residual, change, landings):
     """Move each point (N, 3) by each motion (H, 4, 4), project it with ``camera`` (fx, fy, cx, cy)
     to its nearest pixel of ``depth`` (metres, 0 = no reading) and update, per motion and point:
@@ -20,8 +50,9 @@ def look_kernel(points, motions, depth, gray, camera, reach_m, shade, residual, 
       inf where the camera measured nothing; NaN (no evidence) where the surface is more than
       ``reach_m`` in front of the point (it hides the point) or the point leaves the image;
     - where it lands on the surface (within ``reach_m``) and ``gray`` (the view's intensities) is not
-      empty: ``change`` (H, N) += the intensity's change from the point's own ``shade`` (N,), and
-      ``landings`` (H, N) += 1.
+      empty: ``change`` (H, N) += the change of the intensity there (smoothed over the pixel's
+      neighbours, :func:`_smoothed`) from the point's own ``shade`` (N,), and ``landings`` (H, N)
+      += 1.
     """
     rows, cols = depth.shape
     fx, fy, cx, cy = camera[0], camera[1], camera[2], camera[3]
@@ -45,7 +76,7 @@ def look_kernel(points, motions, depth, gray, camera, reach_m, shade, residual, 
                     elif surface >= z - reach_m:
                         found = abs(z - surface)
                         if shaded and found < reach_m:
-                            change[h, n] += abs(np.float64(gray[iv, iu]) - shade[n])
+                            change[h, n] += abs(np.float64(_smoothed(gray, iv, iu)) - shade[n])
                             landings[h, n] += 1
             if math.isnan(residual[h, n]) or found < residual[h, n]:
                 residual[h, n] = found
@@ -76,6 +107,7 @@ def warm_up() -> None:
     of the parts' calls."""
     none, one = np.zeros((1, 1)), np.zeros(1, np.int64)
     contingency(one, one, one, one, one, one)
+    smoothed_at(np.zeros((1, 1), np.uint8), np.zeros((1, 2), np.int64))
     look_kernel(
         np.zeros((1, 3)),
         np.eye(4)[None],

@@ -1168,6 +1168,8 @@ def _relabelled(
     only be guessed is not judged so (nor judges others): where a pair separated the parts it keeps
     that pair's labels, elsewhere its points take the nearest part placed at the guessed states
     (:func:`_nearest_part_labels`)."""
+    from ._looks import smoothed_at  # Numba, loaded on first use
+
     tracks = np.asarray(list(tree))
     # the base's pose where no pair reached: between the frames that have one (a guess, as below)
     reached = np.isfinite(base_poses).all(axis=(1, 2))
@@ -1179,8 +1181,6 @@ def _relabelled(
     )
     clouds = _frame_clouds(result, observations)
     images = {f: result.frames[f].cloud.view for f in clouds if _has_depth(result, f)}
-    # a part's motion is known to about a pixel: intensities are compared smoothed over a pixel's neighbours
-    shades = {f: cv2.GaussianBlur(v.gray, (3, 3), 0) for f, v in images.items()}
     noise, spacing = _noise(result), _spacing(result)
     reach = spacing + params.reach_sigmas * noise
     prior = {f: views[f][1] if f in views else np.full(len(clouds[f][1]), -1) for f in clouds}
@@ -1200,7 +1200,9 @@ def _relabelled(
             return {}
         views_of = _most_apart(poses, frames, others, clouds, n=params.n_views)
         points = {f: np.ascontiguousarray(clouds[f][1][::_LABELLED_EVERY]) for f in frames}
-        shade = {f: shades[f][tuple(clouds[f][0][::_LABELLED_EVERY, ::-1].T)].astype(float) for f in frames}
+        # a part's motion is known to about a pixel: intensities are compared smoothed over a pixel's
+        # neighbours, here and where the points land
+        shade = {f: smoothed_at(images[f].gray, clouds[f][0][::_LABELLED_EVERY].copy()) for f in frames}
         residual = {f: np.full((len(tracks), len(points[f])), np.nan) for f in frames}
         # per part and point: the summed change of intensity where the motion lands it on a surface, and
         # in how many of the frames looked in it did
@@ -1215,7 +1217,7 @@ def _relabelled(
                     poses[:, g] @ back,
                     reach_m=reach,
                     out=residual[f],
-                    gray=shades[g],
+                    gray=images[g].gray,
                     shade=shade[f],
                     change=change[f],
                     landings=landings[f],

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import cv2
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -811,3 +812,15 @@ def test_overlaps_count_the_pixels_both_labellings_label():
                 expected[(m, n)] = both / (in_a + in_b - both)
     assert len(expected) == 6 and {(a[1], b[1]): iou for iou, a, b in found} == pytest.approx(expected)
     assert all(a[0] == 0 and b[0] == 1 for _, a, b in found)
+
+
+@pytest.mark.parametrize("shape", [(48, 64), (2, 3), (1, 1)])
+def test_intensities_where_points_land_are_smoothed_as_opencv_smooths(shape):
+    """The part images compare intensities smoothed over a pixel's neighbours, computed only at the
+    pixels looked at: the same values as blurring the whole image with OpenCV, edges included."""
+    from artclass_core._looks import smoothed_at
+
+    gray = np.random.default_rng(4).integers(0, 256, shape).astype(np.uint8)
+    pixels = np.stack(np.meshgrid(np.arange(shape[1]), np.arange(shape[0])), -1).reshape(-1, 2)
+    blurred = cv2.GaussianBlur(gray, (3, 3), 0)
+    np.testing.assert_array_equal(smoothed_at(gray, pixels), blurred[pixels[:, 1], pixels[:, 0]])
