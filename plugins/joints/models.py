@@ -523,7 +523,7 @@ def _subset(poses: _Poses, keep: np.ndarray, sigma_m: float, sigma_rad: float) -
 
 def _draw_pairs(n: int, count: int, rng: np.random.Generator) -> np.ndarray:
     """``count`` distinct pose pairs (a, b), a != b, or all of them when there are fewer."""
-    all_pairs = np.array([(a, b) for a in range(n) for b in range(n) if a != b])
+    all_pairs = np.argwhere(~np.eye(n, dtype=bool))  # (a, b) in row order
     if len(all_pairs) <= count:
         return all_pairs
     return all_pairs[np.sort(rng.choice(len(all_pairs), count, replace=False))]
