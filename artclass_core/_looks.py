@@ -102,12 +102,63 @@ def contingency(keys_a, order_a, labels_a, keys_b, order_b, labels_b):
     return table
 
 
+@njit(cache=True, nogil=True)
+def by_depth(residual, change, landings, reach_m, margin):
+    """Each point's part by depth, from the nearest each part's motion puts it to a surface seen
+    (``residual`` (H, N), as :func:`look_kernel` leaves it): a part pays that distance when the point
+    lands on the surface, infinitely when it lands off it (the camera sees past it, or no object),
+    ``reach_m`` when it is hidden (no evidence: better than landing off the surface, worse than
+    landing on it). Returns the cheapest part (N,); whether the next costs more than ``margin`` more
+    (N,); and the mean change of intensity (H, N) where the parts that cost within ``margin`` of the
+    cheapest landed the point (inf for the other parts, and where a part never landed it)."""
+    H, N = residual.shape
+    best, decisive, candidate = np.empty(N, np.int64), np.empty(N, np.bool_), np.empty((H, N))
+    cost = np.empty(H)
+    for n in range(N):
+        first = 0
+        for h in range(H):
+            r = residual[h, n]
+            cost[h] = reach_m if math.isnan(r) else (r if r < reach_m else math.inf)
+            first = h if cost[h] < cost[first] else first
+        second = math.inf
+        for h in range(H):
+            if h != first and cost[h] < second:
+                second = cost[h]
+        best[n] = first
+        decisive[n] = second - cost[first] > margin  # never where both are infinite
+        for h in range(H):
+            landed = cost[h] <= cost[first] + margin and landings[h, n] > 0
+            candidate[h, n] = change[h, n] / landings[h, n] if landed else math.inf
+    return best, decisive, candidate
+
+
+@njit(cache=True, nogil=True)
+def by_shade(best, decisive, change, limit):
+    """Points ``decisive`` leaves undecided take the part with the lowest ``change`` (H, N) when the
+    next is higher by more than ``limit``; returns the parts and whether each is decided, (N,) each."""
+    best, decisive = best.copy(), decisive.copy()
+    for n in range(len(best)):
+        if decisive[n]:
+            continue
+        first, second = 0, math.inf
+        for h in range(1, change.shape[0]):
+            first = h if change[h, n] < change[first, n] else first
+        for h in range(change.shape[0]):
+            if h != first and change[h, n] < second:
+                second = change[h, n]
+        if second - change[first, n] > limit:
+            best[n], decisive[n] = first, True
+    return best, decisive
+
+
 def warm_up() -> None:
     """Load the compiled loops (Numba's cached machine code, or compile them) with the argument types
     of the parts' calls."""
     none, one = np.zeros((1, 1)), np.zeros(1, np.int64)
     contingency(one, one, one, one, one, one)
     smoothed_at(np.zeros((1, 1), np.uint8), np.zeros((1, 2), np.int64))
+    best, decisive, candidate = by_depth(none.copy(), none.copy(), none.copy(), 0.01, 0.001)
+    by_shade(best, decisive, candidate, 1.0)
     look_kernel(
         np.zeros((1, 3)),
         np.eye(4)[None],

@@ -1168,7 +1168,7 @@ def _relabelled(
     only be guessed is not judged so (nor judges others): where a pair separated the parts it keeps
     that pair's labels, elsewhere its points take the nearest part placed at the guessed states
     (:func:`_nearest_part_labels`)."""
-    from ._looks import smoothed_at  # Numba, loaded on first use
+    from ._looks import by_depth, smoothed_at  # Numba, loaded on first use
 
     tracks = np.asarray(list(tree))
     # the base's pose where no pair reached: between the frames that have one (a guess, as below)
@@ -1222,20 +1222,13 @@ def _relabelled(
                     change=change[f],
                     landings=landings[f],
                 )
-        decided = {}
-        for f in frames:
-            cost = _cost(residual[f], reach_m=reach)
-            nearest = np.sort(cost, axis=0)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                decisive = nearest[1] - nearest[0] > params.ambiguity_sigmas * noise
-                mean_change = np.where(landings[f] > 0, change[f] / landings[f], np.inf)
-            plausible = cost <= nearest[0] + params.ambiguity_sigmas * noise
-            decided[f] = (np.argmin(cost, axis=0), decisive, plausible, mean_change)
+        margin = params.ambiguity_sigmas * noise
+        decided = {f: by_depth(residual[f], change[f], landings[f], reach, margin) for f in frames}
         shade_noise = _shade_noise(decided.values())
         out = {}
-        for f, (best, decisive, plausible, mean_change) in decided.items():
+        for f, (best, decisive, change_by_part) in decided.items():
             best, decisive = _by_shade(
-                best, decisive, plausible, mean_change, limit=params.ambiguity_sigmas * shade_noise
+                best, decisive, change_by_part, limit=params.ambiguity_sigmas * shade_noise
             )
             sure[f] = np.full(len(clouds[f][1]), -1)
             sure[f][::_LABELLED_EVERY] = np.where(decisive, tracks[best], -1)
@@ -1318,39 +1311,29 @@ def _look_into(
 _NO_IMAGE = np.zeros((0, 0), np.uint8)
 
 
-def _cost(residual_m: np.ndarray, *, reach_m: float) -> np.ndarray:
-    """What explaining a point costs a part (parts, N), from the nearest its motion puts the point to a
-    surface seen in the frames looked at (``residual_m``, NaN where hidden in all of them): that
-    distance when it lands on the surface, infinite when it lands off it (the camera sees past it, or
-    no object), ``reach_m`` when it is hidden (no evidence: better than landing off the surface,
-    worse than landing on it)."""
-    return np.where(np.isnan(residual_m), reach_m, np.where(residual_m < reach_m, residual_m, np.inf))
-
-
 def _shade_noise(decided) -> float:
     """The noise of a point's intensity from one frame to another (grey levels, at least one): the
     robust standard deviation of the change that the part the depth chose gives each point it chose
-    decisively (``decided``: best part, decisive, plausible parts and mean change per frame)."""
+    decisively (``decided``: per frame, the best part, whether decisive, and the mean change by part,
+    as :func:`._looks.by_depth` gives them)."""
     changes = np.concatenate(
-        [change[best[sure], np.flatnonzero(sure)] for best, sure, _, change in decided] or [np.zeros(0)]
+        [change[best[sure], np.flatnonzero(sure)] for best, sure, change in decided] or [np.zeros(0)]
     )
     changes = changes[np.isfinite(changes)]
     return max(1.4826 * float(np.median(changes)), 1.0) if len(changes) else np.inf
 
 
 def _by_shade(
-    best: np.ndarray, decisive: np.ndarray, plausible: np.ndarray, change: np.ndarray, *, limit: float
+    best: np.ndarray, decisive: np.ndarray, change: np.ndarray, *, limit: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Points the depth leaves undecided (a part sliding along a surface puts them on it as well as
     the surface's own part does) decided by their texture: the part, among those that put a point on
-    a surface about as well (``plausible`` (parts, N)), whose motion changes its intensity least
-    (``change``, the mean over the frames looked in), when the next one changes it by more than
+    a surface about as well (the others' ``change`` (parts, N) is infinite), whose motion changes its
+    intensity least (the mean over the frames looked in), when the next one changes it by more than
     ``limit`` grey levels more. Returns the best part and whether it is decided, (N,) each."""
-    change = np.where(plausible, change, np.inf)
-    lowest = np.sort(change, axis=0)
-    with np.errstate(invalid="ignore"):
-        by_shade = ~decisive & (lowest[1] - lowest[0] > limit)
-    return np.where(by_shade, np.argmin(change, axis=0), best), decisive | by_shade
+    from ._looks import by_shade  # Numba, loaded on first use
+
+    return by_shade(best, decisive, change, limit)
 
 
 def _most_apart(

@@ -18,7 +18,6 @@ from artclass_core.joint_metrics import axis_direction_error_rad, axis_position_
 from artclass_core.parts import (
     PartsParams,
     _base_motions,
-    _cost,
     _look,
     _one_body_pairs_on,
     _still_track,
@@ -521,7 +520,10 @@ def test_a_chain_is_followed_into_frames_no_pair_separates(bic):
 def test_a_moved_point_is_looked_up_where_it_projects():
     """On the surface, or in front of it (the camera sees past it): its distance along the ray; behind
     it, or out of the picture: no evidence (NaN). A part pays that distance, or infinitely when it is
-    beyond reach, and the reach when there is no evidence."""
+    beyond reach, and the reach when there is no evidence: the unmoved points go to the part that
+    stays, by more than the reach against one beyond reach, by less against one without evidence."""
+    from artclass_core._looks import by_depth
+
     cloud, _ = _cloud(0, False)
     points = cloud.points[:: len(cloud.points) // 50]
     moves = np.stack([_T(t=(0.0, 0.0, dz)) for dz in (0.0, 0.002, -0.05, 0.05)] + [_T(t=(5.0, 0.0, 0.0))])
@@ -530,9 +532,43 @@ def test_a_moved_point_is_looked_up_where_it_projects():
     assert np.abs(found[1] - 0.002).max() < 0.002
     assert (found[2] > 0.045).all()  # 5 cm (or, near the edge, no surface at all: inf)
     assert np.isnan(found[3]).all() and np.isnan(found[4]).all()
-    np.testing.assert_array_equal(
-        _cost(found, reach_m=0.01)[2:], [[np.inf] * len(points), [0.01] * len(points), [0.01] * len(points)]
-    )
+    none = np.zeros((2, len(points)))
+    for moved, decisive in ((2, True), (3, False), (4, False)):
+        best, sure, _ = by_depth(found[[moved, 0]].copy(), none, none, 0.01, 0.01)
+        assert (best == 1).all() and (sure == decisive).all()
+
+
+def test_points_go_to_the_part_that_explains_them_by_depth_then_by_texture():
+    """The compiled choice does what its numpy expression does: each part pays the distance to the
+    surface where it lands the point (inf off the surface, the reach where hidden), the cheapest wins
+    when the next costs more than the margin more, and a point left open goes to the part (among
+    those within the margin) that changes its intensity least, when the next changes it by more than
+    the limit more."""
+    from artclass_core._looks import by_depth, by_shade
+
+    rng = np.random.default_rng(8)
+    residual = rng.choice([np.nan, np.inf, 0.001, 0.004, 0.006, 0.02], (3, 400))
+    landings = rng.integers(0, 3, (3, 400)).astype(float)
+    change = rng.uniform(0, 30, (3, 400)) * landings
+    reach, margin, limit = 0.01, 0.003, 8.0
+    cost = np.where(np.isnan(residual), reach, np.where(residual < reach, residual, np.inf))
+    nearest = np.sort(cost, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        decisive = nearest[1] - nearest[0] > margin
+        mean = np.where(landings > 0, change / landings, np.inf)
+    mean = np.where(cost <= nearest[0] + margin, mean, np.inf)
+    best, sure, found = by_depth(residual, change, landings, reach, margin)
+    np.testing.assert_array_equal(best, np.argmin(cost, axis=0))
+    np.testing.assert_array_equal(sure, decisive)
+    np.testing.assert_array_equal(found, mean)
+    assert 0 < decisive.sum() < 400 and np.isinf(mean).any()
+    lowest = np.sort(mean, axis=0)
+    with np.errstate(invalid="ignore"):
+        shade = ~decisive & (lowest[1] - lowest[0] > limit)
+    best, sure = by_shade(best, sure, found, limit)
+    np.testing.assert_array_equal(best, np.where(shade, np.argmin(mean, axis=0), np.argmin(cost, axis=0)))
+    np.testing.assert_array_equal(sure, decisive | shade)
+    assert shade.any()
 
 
 def test_a_rigid_sequence_gets_no_joint(bic):
