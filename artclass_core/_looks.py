@@ -1,7 +1,8 @@
 """The compiled (Numba) loops of finding parts, one pass over the points where numpy makes a dozen
 temporary arrays: the parts' look-ups (object points moved by each part's motion into another frame
-and looked up in its depth and intensity images) and the overlaps of two pairs' labellings. Imported
-when first needed, so that importing :mod:`artclass_core` does not load Numba."""
+and looked up in its depth and intensity images), the choice of each point's part from them, the
+overlaps of two pairs' labellings, and how far a part reaches. Imported when first needed, so that
+importing :mod:`artclass_core` does not load Numba."""
 
 from __future__ import annotations
 
@@ -151,6 +152,16 @@ def by_shade(best, decisive, change, limit):
     return best, decisive
 
 
+@njit(cache=True, nogil=True)
+def farthest(points, centre):
+    """The largest distance of the points (N, 3) from ``centre`` (3,); 0 for none."""
+    most = 0.0
+    for n in range(points.shape[0]):
+        d0, d1, d2 = points[n, 0] - centre[0], points[n, 1] - centre[1], points[n, 2] - centre[2]
+        most = max(most, d0 * d0 + d1 * d1 + d2 * d2)
+    return math.sqrt(most)
+
+
 def warm_up() -> None:
     """Load the compiled loops (Numba's cached machine code, or compile them) with the argument types
     of the parts' calls."""
@@ -159,6 +170,7 @@ def warm_up() -> None:
     smoothed_at(np.zeros((1, 1), np.uint8), np.zeros((1, 2), np.int64))
     best, decisive, candidate = by_depth(none.copy(), none.copy(), none.copy(), 0.01, 0.001)
     by_shade(best, decisive, candidate, 1.0)
+    farthest(np.zeros((1, 3)), np.zeros(3))
     look_kernel(
         np.zeros((1, 3)),
         np.eye(4)[None],

@@ -1084,8 +1084,13 @@ def _reach(
 ) -> float:
     """How far (metres) a part's points ``own_m`` (as :func:`_placed` gives them) and its parent's
     points, placed the same way, reach from ``centre_m``."""
-    clouds = [own_m, _placed(parent, placement)] if parent else [own_m]
-    return float(np.linalg.norm(np.concatenate(clouds) - centre_m, axis=1).max())
+    from ._looks import farthest  # Numba, loaded on first use
+
+    placed = [f for f in parent if np.isfinite(placement[f]).all()]
+    # a rigid motion keeps distances: a frame's parent points are measured from the centre placed there
+    parent_from = [(parent[f], placement[f][:3, :3] @ centre_m + placement[f][:3, 3]) for f in placed]
+    clouds = [(own_m, centre_m)] + (parent_from or [(points, centre_m) for points in parent.values()])
+    return max(farthest(np.ascontiguousarray(points), centre) for points, centre in clouds)
 
 
 def _relative_motions(

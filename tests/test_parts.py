@@ -860,3 +860,23 @@ def test_intensities_where_points_land_are_smoothed_as_opencv_smooths(shape):
     pixels = np.stack(np.meshgrid(np.arange(shape[1]), np.arange(shape[0])), -1).reshape(-1, 2)
     blurred = cv2.GaussianBlur(gray, (3, 3), 0)
     np.testing.assert_array_equal(smoothed_at(gray, pixels), blurred[pixels[:, 1], pixels[:, 0]])
+
+
+def test_reach_measures_the_parent_points_placed_at_state_0():
+    """How far a part and its parent reach from the part's centre: the parent's points of each frame
+    with its placement undone, or as they are when it is placed in no frame."""
+    rng = np.random.default_rng(9)
+    own, centre = rng.normal(0, 0.05, (200, 3)), np.array([0.01, 0.0, 0.5])
+    parent = {f: rng.normal(0, 0.1, (150, 3)) + [0.0, 0.0, 0.5] for f in range(4)}
+    placement = np.stack(
+        [_T(Rotation.from_rotvec([0.0, 0.3 * f, 0.0]).as_matrix(), (0.05 * f, 0, 0)) for f in range(4)]
+    )
+    placement[3] = np.nan
+    placed = np.concatenate([own] + [transform(parent[f], np.linalg.inv(placement[f])) for f in range(3)])
+    assert parts._reach(own, parent, placement, centre) == pytest.approx(
+        np.linalg.norm(placed - centre, axis=1).max()
+    )
+    unplaced = np.concatenate([own, *parent.values()])
+    assert parts._reach(own, parent, np.full_like(placement, np.nan), centre) == pytest.approx(
+        np.linalg.norm(unplaced - centre, axis=1).max()
+    )
