@@ -27,6 +27,7 @@ from artclass_plugins.segmenters.hands import (
     HandParams,
     _depth_range,
     _squared_norms,
+    arm_pieces,
     arms,
     chromaticity,
     depth_steps,
@@ -784,3 +785,73 @@ def test_chromaticity_and_colour_distances_as_numpy_reductions():
     for n in (1, 7, 1000):
         v = (rng.normal(size=(n, 3)) * rng.random((n, 1))).astype(np.float32)
         assert np.array_equal(_squared_norms(v), np.sum(v**2, axis=1))
+
+
+def lit_sleeve_scene(n: int = 6) -> tuple[Scene, np.ndarray, list[np.ndarray], list[np.ndarray]]:
+    """A still box and a hand waving over it, in a dark red sleeve that passes for skin, with a lit
+    facet of the sleeve (the same red, twice as bright) that passes for neither skin nor sleeve: the
+    box, the hands with their sleeves, the facets."""
+    box = box_mask(130, 130)
+    frames, hands, facets = [], [], []
+    columns = np.arange(W)[None, :]
+    for i in range(n):
+        hand = hand_shape(200 - 6 * i, 110 + 4 * (i % 3))
+        sleeve = hand & (columns > 240 - 6 * i)
+        inner = cv2.erode(sleeve.astype(np.uint8), np.ones((13, 13), np.uint8)) > 0
+        facet = inner & (columns < W - 12)  # enclosed by the sleeve's dark faces
+        rgb, depth = render(box, hand, hand_depth_m=0.55, skin=DARK_SKIN, seed=i)
+        paint(rgb, sleeve & ~facet, RED_SLEEVE, seed=100 + i)
+        paint(rgb, facet, LIT_RED_SLEEVE, seed=200 + i)
+        frames.append(Frame(i, f"{i:06d}", rgb, depth))
+        hands.append(hand)
+        facets.append(facet)
+    return Scene(frames, name=f"lit-sleeve-{n}"), box, hands, facets
+
+
+RED_SLEEVE, LIT_RED_SLEEVE = (110, 50, 45), (220, 100, 90)
+
+
+def test_a_lit_facet_of_a_sleeve_cut_off_by_colour_joins_the_hand_by_depth():
+    """The sleeve's dark faces pass for skin and its lit facet for neither: the facet does not reach
+    the border and is no arm by colour, but its depth continues the sleeve's all round (one surface),
+    so it joins the hand mask (measured: all of it; bound 0.9) and the still box is chosen in every
+    frame. With ``arm_outline_share`` 0 the facet stays out of the hand mask."""
+    one = np.zeros((1, 2, 3), np.uint8)
+    one[0, 0], one[0, 1] = RED_SLEEVE, LIT_RED_SLEEVE
+    assert skin_mask(one).tolist() == [[True, False]]  # the premise: the facet is not skin coloured
+    scene, box, hands, facets = lit_sleeve_scene()
+    seg = DepthThresholdSegmenter()
+    off = DepthThresholdSegmenter(DepthThresholdParams(arm_outline_share=0.0))
+    for i in range(len(scene)):
+        found = seg.hand_mask(scene[i], sequence=scene)
+        assert np.count_nonzero(found & facets[i]) > 0.9 * np.count_nonzero(facets[i]), i
+        assert mask_iou(found, hands[i]) > 0.9, i
+        mask = seg.segment(scene[i], sequence=scene)
+        assert mask_iou(mask, box & ~hands[i]) > 0.85, i
+        assert np.count_nonzero(off.hand_mask(scene[i], sequence=scene) & facets[i]) < 0.1 * np.count_nonzero(
+            facets[i]
+        ), i
+
+
+def test_arm_pieces_continue_the_arm_s_surface_all_round():
+    """A piece enclosed by the arm at its depth is arm; the same piece 3 cm nearer (a box held over the
+    forearm: a depth step all round), one on the table, and one touching the arm's end along one side
+    only (an object in the hand at its depth) are not."""
+    table = Plane(normal=tuple(float(v) for v in UP), offset_m=0.5, inlier_fraction=0.6, noise_m=0.001)
+    arm = np.zeros((H, W), bool)
+    arm[100:130, 150:] = True
+    piece = np.zeros((H, W), bool)
+    piece[106:124, 220:270] = True
+    arm &= ~piece
+
+    def pieces_of(region: np.ndarray, height: np.ndarray) -> np.ndarray:
+        depth = table_depth(height).astype(np.float32)
+        contact = on_plane(depth, INTR, table, step=np.zeros((H, W), bool), plane_distance_m=0.012)
+        return arm_pieces(region, arm, depth, contact=contact, touch_m=0.02, share=0.5)
+
+    assert mask_iou(pieces_of(piece, np.where(arm | piece, 0.10, 0.0)), piece) > 0.97
+    assert not pieces_of(piece, np.where(arm, 0.10, 0.0) + np.where(piece, 0.13, 0.0)).any()
+    assert not pieces_of(piece, np.where(arm, 0.10, 0.0)).any()
+    beyond = np.zeros((H, W), bool)  # beyond the arm's end at x = 150, touching it along one side
+    beyond[95:135, 110:150] = True
+    assert not pieces_of(beyond, np.where(arm | beyond, 0.10, 0.0)).any()

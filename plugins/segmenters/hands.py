@@ -24,6 +24,12 @@ union of:
   hand-sized skin region in 3-D (a sleeve, a glove's cuff, the forearm of a robot arm), is an arm:
   it is removed with the hand, and the hand it holds reaches the border through it. An object that
   reaches the border while it lies on the table is kept;
+* **pieces of the arm's surface that colour cut off**: a region standing out of the background, of
+  neither colour, not resting on the support plane, whose outline runs next to the arm with no depth
+  step (within ``hand_touch_m``) along at least ``arm_outline_share`` of its length, is the same
+  surface as the arm (a lit facet of a sleeve whose shaded faces pass for skin) and joins it
+  (:func:`arm_pieces`). The hand's pieces of another shade than its own, which may be an object it
+  holds (a mug whose body passes for skin), are no arm to continue;
 * **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``, or, when
   that is not set, the box the sequence's own settings give as ``gripper_hsv`` (a robot rig knows
   its gripper: the native folder format reads it from ``meta.json``); its regions are found apart
@@ -101,6 +107,7 @@ __all__ = [
     "rests",
     "stands_on",
     "fingers",
+    "arm_pieces",
     "pixels_across",
     "projector_shadows",
     "chromaticity",
@@ -501,15 +508,26 @@ def find_hands(
                 max_area_m2=params.hand_min_area_m2,
             )
         skin = hand & kinds[0]
+        doubtful = None  # pieces of the hand of another shade than its own: maybe an object it holds
         if params.hand_chroma > 0 and skin.any():
             carriers = (hand & ~kinds[0]) | (_edge_gaps(d, shadow) if edge is None else edge)
-            hand = (hand & ~skin) | own_colour(
+            own, doubtful = _own_colour(
                 skin,
                 carriers,
                 frame.rgb,
                 tolerance=params.hand_chroma,
                 contact=contact,
                 larger=(d, intrinsics, params.hand_max_area_m2),
+            )
+            hand = (hand & ~skin) | own
+        if params.arm_outline_share > 0 and hand.any() and contact is not None:
+            hand |= arm_pieces(
+                ~background & ~candidates & ~step & (d > 0) & ~hand,
+                hand if doubtful is None else hand & ~doubtful,
+                d,
+                contact=contact,
+                touch_m=touch,
+                share=params.arm_outline_share,
             )
     seen = hand & (d > 0)
     if seen.any():
@@ -648,6 +666,71 @@ def arms(
     return out
 
 
+def arm_pieces(
+    pieces: np.ndarray,
+    arm: np.ndarray,
+    depth_m: np.ndarray,
+    *,
+    contact: np.ndarray,
+    touch_m: float,
+    share: float,
+) -> np.ndarray:
+    """The pieces of the arm's surface that the colour rules cut off from it (a lit facet of a sleeve
+    whose colour is neither the sleeve's nor skin): the regions of ``pieces`` (8-connected, after a
+    3x3 opening) that do not rest on the support plane and whose outline is continuous with ``arm``
+    along at least ``share`` of its length: an outline pixel next to (8-connected) a pixel of the
+    arm, within ``touch_m`` in depth of the arm's readings there (no depth step between them: one
+    surface). The pieces taken are arm too, for the pieces beside them (until none is added).
+
+    Parameters
+    ----------
+    pieces : ndarray of bool, shape (H, W) -- pixels standing out of the background, away from depth
+        steps, not hand or gripper coloured, not yet in the hand mask
+    arm : ndarray of bool, shape (H, W) -- the hand mask found so far, without its pieces of another
+        shade than the hand's own (:func:`own_colour`: they may be an object the hand holds)
+    depth_m : ndarray, shape (H, W), metres, 0 = no reading
+    contact : ndarray of bool, shape (H, W) -- the pixels on the support plane (:func:`on_plane`)
+    touch_m : metres -- the largest depth difference across the shared outline
+    share : fraction of a piece's outline that must be continuous with the arm
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+
+    Notes
+    -----
+    An arm is one connected surface; a held object is another body, seen beside the hand across a
+    depth step (the fingers lie on it) or meeting it along a line of contact, not along most of its
+    outline. Only the pixels next to the arm count, not those a couple of pixels away: an object's
+    outline runs that close to the hand where the fingers hold it.
+    """
+    out = np.zeros(pieces.shape, bool)
+    opened = _open(pieces)
+    if not opened.any() or not arm.any():
+        return out
+    box = grown_box(opened, 1)  # every outline pixel's neighbours lie inside it
+    n, labels = cv2.connectedComponents(opened[box].view(np.uint8), connectivity=8)
+    inside = labels > 0
+    # 8-connected regions never touch each other: the union's outline is each region's outline
+    outline = inside & ~(cv2.erode(inside.view(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    d, grown = depth_m[box], arm[box].copy()
+    length = np.bincount(labels[outline], minlength=n)
+    free = np.bincount(labels[inside & contact[box]], minlength=n) < CONTACT_PX  # as rests()
+    free[0] = False
+    taken = np.zeros(n, bool)
+    while True:  # the pieces taken are arm too: a facet may continue one taken before
+        near, far = _depth_range(d, grown, 1)
+        joined = outline & (far > 0) & (d >= near - touch_m) & (d <= far + touch_m)
+        along = np.bincount(labels[joined], minlength=n)
+        new = free & ~taken & (along > 0) & (along >= share * length)
+        if not new.any():
+            break
+        taken |= new
+        grown |= new[labels]
+    out[box] = taken[labels]
+    return out
+
+
 def fingers(
     pieces: np.ndarray,
     gripper: np.ndarray,
@@ -776,8 +859,24 @@ def own_colour(
     -------
     ndarray of bool, shape (H, W)
     """
+    return _own_colour(skin, carriers, rgb, tolerance=tolerance, contact=contact, larger=larger)[0]
+
+
+def _own_colour(
+    skin: np.ndarray,
+    carriers: np.ndarray,
+    rgb: np.ndarray,
+    *,
+    tolerance: float,
+    contact: np.ndarray,
+    larger: tuple[np.ndarray, Intrinsics, float] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`own_colour`, and the pieces of another shade than their seeds that it keeps (the hand
+    of a skin-coloured sleeve, or an object the hand carries: which, colour cannot tell): bool (H, W)
+    each."""
+    kept_other = np.zeros(skin.shape, bool)
     if tolerance <= 0 or not skin.any():
-        return skin
+        return skin, kept_other
     # the work is done on the skin's bounding box grown by SEED_PX
     box = rows, cols = grown_box(skin, SEED_PX)
     sk, held_by = skin[box], carriers[box]
@@ -806,7 +905,8 @@ def own_colour(
             gone |= surfaces_m2(pieces, other, m, depth[box], intrinsics) > most
         gone[0] = False
         out[box] &= ~gone[pieces]
-    return out
+        kept_other[box] |= other & ~gone[pieces]
+    return out, kept_other
 
 
 def _squared_norms(v: np.ndarray) -> np.ndarray:
