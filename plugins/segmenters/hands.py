@@ -204,7 +204,9 @@ class HandParams(Params):
         bounds=(0.0, 1.0),
         help="An object candidate that reaches the image border and whose outline runs "
         "beside the hand for at least this share of its length is the rest of the arm "
-        "(a fold or shaded strip of a sleeve), not an object. 0 = off.",
+        "(a fold or shaded strip of a sleeve), not an object; so is a piece of neither skin "
+        "nor gripper colour, off the table, whose outline runs next to the arm with no depth "
+        "step along this share of its length (a sleeve's lit facet). 0 = off.",
     )
     hand_touch_m: float = param(
         0.02,
