@@ -737,7 +737,7 @@ def test_the_colour_of_a_hand_is_read_inside_its_outline():
     rgb[hand], rgb[block | strip] = LIGHT_SKIN, (120, 80, 50)
     contact = np.zeros((H, W), bool)
     contact[125:130, 90:200] = True
-    kept = own_colour(hand | block | strip, carriers, rgb, tolerance=0.02, contact=contact)
+    kept, _ = own_colour(hand | block | strip, carriers, rgb, tolerance=0.02, contact=contact)
     assert kept[hand].all()
     assert not kept[block].any()
 

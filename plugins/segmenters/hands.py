@@ -513,7 +513,7 @@ def find_hands(
         doubtful = None  # pieces of the hand of another shade than its own: maybe an object it holds
         if params.hand_chroma > 0 and skin.any():
             carriers = (hand & ~kinds[0]) | (_edge_gaps(d, shadow) if edge is None else edge)
-            own, doubtful = _own_colour(
+            own, doubtful = own_colour(
                 skin,
                 carriers,
                 frame.rgb,
@@ -835,7 +835,7 @@ def own_colour(
     tolerance: float,
     contact: np.ndarray,
     larger: tuple[np.ndarray, Intrinsics, float] | None = None,
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """``skin`` without what a hand holds on the table or carries: in each connected region
     (8-connected) of ``skin``, the pixels whose :func:`chromaticity` lies farther than ``tolerance``
     from the median of its *seeds* (its pixels near the image border or near ``carriers``: where the
@@ -859,23 +859,10 @@ def own_colour(
 
     Returns
     -------
-    ndarray of bool, shape (H, W)
+    kept, other : ndarray of bool, shape (H, W) each -- the hand, and the pieces of another shade than
+        their seeds that it keeps (the hand of a skin-coloured sleeve, or an object the hand carries:
+        which, colour cannot tell)
     """
-    return _own_colour(skin, carriers, rgb, tolerance=tolerance, contact=contact, larger=larger)[0]
-
-
-def _own_colour(
-    skin: np.ndarray,
-    carriers: np.ndarray,
-    rgb: np.ndarray,
-    *,
-    tolerance: float,
-    contact: np.ndarray,
-    larger: tuple[np.ndarray, Intrinsics, float] | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`own_colour`, and the pieces of another shade than their seeds that it keeps (the hand
-    of a skin-coloured sleeve, or an object the hand carries: which, colour cannot tell): bool (H, W)
-    each."""
     kept_other = np.zeros(skin.shape, bool)
     if tolerance <= 0 or not skin.any():
         return skin, kept_other
