@@ -135,12 +135,11 @@ def fill_dropouts(instances: list[np.ndarray], valid: np.ndarray, *, fill_px: in
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * fill_px + 1, 2 * fill_px + 1))
     out = []
     for mask in instances:
-        rows, cols = grown_box(mask, fill_px)
-        y0, y1, x0, x1 = rows.start, rows.stop, cols.start, cols.stop
-        crop = np.pad(mask[y0:y1, x0:x1].astype(np.uint8), fill_px)
+        box = grown_box(mask, fill_px)
+        crop = np.pad(mask[box].astype(np.uint8), fill_px)
         closed = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, kernel)[fill_px:-fill_px, fill_px:-fill_px] > 0
         filled = mask.copy()
-        filled[y0:y1, x0:x1] |= closed & ~valid[y0:y1, x0:x1]
+        filled[box] |= closed & ~valid[box]
         out.append(filled)
     return out
 
