@@ -99,19 +99,17 @@ def steady_kernel(depth, step, out):
 
 
 @njit(cache=True, nogil=True)
-def distinct_kernel(colour, around, scale, where, least_sq, out):
-    """Mark in ``out`` (bool (H, W)) the pixels of ``where`` (bool (H, W)) whose ``colour`` differs
-    from ``around`` (float32 (H, W, 3) each), each channel's difference times its ``scale`` (float32
-    (3,)), by a squared distance of at least ``least_sq`` (float32)."""
-    h, w = where.shape
+def colour_distance_kernel(colour, around, scale, out):
+    """Write in ``out`` (float32 (H, W)) the squared distance between ``colour`` and ``around``
+    (float32 (H, W, 3) each), each channel's difference times its ``scale`` (float32 (3,))."""
+    h, w = out.shape
     s0, s1, s2 = scale[0], scale[1], scale[2]
     for v in range(h):
         for u in range(w):
-            if where[v, u]:
-                d0 = (colour[v, u, 0] - around[v, u, 0]) * s0
-                d1 = (colour[v, u, 1] - around[v, u, 1]) * s1
-                d2 = (colour[v, u, 2] - around[v, u, 2]) * s2
-                out[v, u] = d0 * d0 + d1 * d1 + d2 * d2 >= least_sq
+            d0 = (colour[v, u, 0] - around[v, u, 0]) * s0
+            d1 = (colour[v, u, 1] - around[v, u, 1]) * s1
+            d2 = (colour[v, u, 2] - around[v, u, 2]) * s2
+            out[v, u] = d0 * d0 + d1 * d1 + d2 * d2
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc"})
@@ -280,9 +278,7 @@ def warm_up() -> None:
     step_kernel(depth, np.float32(0.01), flags)
     steady_kernel(depth, np.float32(0.01), flags)
     colour = np.zeros(depth.shape + (3,), np.float32)
-    distinct_kernel(
-        colour, colour, np.ones(3, np.float32), np.ones(depth.shape, bool), np.float32(1.0), flags
-    )
+    colour_distance_kernel(colour, colour, np.ones(3, np.float32), depth.copy())
     region_stats(np.zeros(depth.shape, np.int32), 1)
     all_finite(depth)
     one = np.float32(1.0)

@@ -10,7 +10,7 @@ an object lying on a table; instances they connect become one: the two levers of
 whose pivot is too low to survive the plane removal). Such pixels that form a region of their own,
 whose colour differs from the surface around it by ``thin_contrast``, are an instance too: an
 object a few millimetres thick lying flat (scissors); so is a patch of the table whose colour differs
-from the table around it by ``thin_contrast`` and whose mean height stands out of the plane's noise
+from the table around it by ``thin_contrast`` and whose height stands out of the table around it
 (:func:`colour_patches`: a ruler whose single readings are lost in a far sensor's noise).
 Instances whose 3-D points still come within ``join_m`` of each other are one object: the parts of
 an articulated object touch at their joint. Each instance takes back the holes it encloses whose
@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from artclass_core import Frame, Intrinsics, Sequence, param
 
-from ._compiled import distinct_kernel
+from ._compiled import colour_distance_kernel
 from .hands import HOLD_LINE_M, HandParams, find_hands, held, hidden, pixels_across, widen
 from .selection import InstanceSegmenter, SelectionParams
 from .support import (
@@ -337,15 +337,19 @@ def colour_patches(
 ) -> list[np.ndarray]:
     """Objects lying flat, found by colour first: the pixels of ``plane`` whose CIE Lab colour differs
     by at least ``contrast`` (CIE76 delta E, their colour averaged over ``THIN_WINDOW_PX`` squared
-    pixels) from the mean colour of the ``window_px`` square around them (:class:`SampledColours`:
-    first on a sample of the pixels, then pixel by pixel near what it finds), grouped into connected
-    components of at least ``min_area_fraction`` of the image, whose mean height above the plane is
-    more than the plane's noise ``noise_m`` and more than ``sigmas`` times the noise of that mean
-    (``noise_m / sqrt(n)`` over n readings). A pattern on the table is at its height; an object a
-    few millimetres thick stands out of it on average though none of its single readings does. The
-    patch must lie on the table: ``ON_TABLE_SHARE`` of a ring ``ring_px`` wide around it on
-    ``surface`` (not the border between the table and the wall behind it, whose mixed readings stand
-    off the table). Largest first.
+    pixels) from the mean colour of the ``window_px`` square around them, left out the pixels that
+    themselves differ from it (:class:`SampledColours`: first on a sample of the pixels, then pixel
+    by pixel near what it finds), grouped into connected components of at least
+    ``min_area_fraction`` of the image. A component is an object when its median height stands out
+    of the table around it (the median height of the plane's pixels between ``2 * ring_px`` and
+    half a window from it) by more than the plane's noise ``noise_m`` and more than ``sigmas`` times
+    the noise of a mean (``noise_m / sqrt(n)`` over n readings). A pattern on the table is at its
+    height; an object a few millimetres thick stands out of it on average though none of its single
+    readings does. The table around it, not the plane, is the reference: where the plane fits the
+    table poorly, or the readings beside a tall object stand off it, a patch there is no higher than
+    its surroundings. The patch must lie on the table: ``ON_TABLE_SHARE`` of a ring ``ring_px`` wide
+    around it on ``surface`` (not the border between the table and the wall behind it, whose mixed
+    readings stand off the table). Largest first.
 
     Parameters
     ----------
@@ -366,25 +370,29 @@ def colour_patches(
     surface = plane if surface is None else surface
     # the colours are needed on the plane's bounding box and the half window around it only
     box = grown_box(plane, window_px // 2 + COLOUR_STRIDE_PX)
-    colours = SampledColours(rgb[box], window_px=window_px)
-    least_sq = np.float32(contrast * contrast)
+    colours = SampledColours(rgb[box], window_px=window_px, least_sq=np.float32(contrast * contrast))
     least_px = min_area_fraction * plane.size
     distinct = np.zeros(plane.shape, bool)
-    for within, own in colours.candidates(least_sq, plane[box], least_px=least_px):
+    for within, own in colours.candidates(plane[box], least_px=least_px):
         # pixel by pixel, on the box of the candidate's pixels (in the image: ``near``)
         near = tuple(slice(b.start + w.start, b.start + w.stop) for b, w in zip(box, within))
-        distinct[near] |= colours.pixels_distinct(rgb[near], within, least_sq) & own & plane[near]
+        distinct[near] |= colours.pixels_distinct(rgb[near], within) & own & plane[near]
     found = components(distinct, open_px=0, min_area_fraction=min_area_fraction)
     out = []
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1, 2 * ring_px + 1))
+    reach = max(window_px // 2, 3 * ring_px)
     for m in found:
-        near = grown_box(m, ring_px)  # each in its bounding box, grown by the ring
+        near = grown_box(m, reach)  # each in its bounding box, grown by the table around it
         inside = m[near]
         ring = (cv2.dilate(inside.view(np.uint8), disc) > 0) & ~inside
+        if np.count_nonzero(ring & surface[near]) < ON_TABLE_SHARE * np.count_nonzero(ring):
+            continue
         h = height_m[near][inside]
-        mean = float(h.mean())
-        lies = np.count_nonzero(ring & surface[near]) >= ON_TABLE_SHARE * np.count_nonzero(ring)
-        if lies and mean > noise_m and mean > sigmas * noise_m / np.sqrt(len(h)):
+        # the table's own level around it, beyond the readings its outline mixes with the table's
+        away = cv2.distanceTransform((~inside).view(np.uint8), cv2.DIST_L2, 3)
+        level = height_m[near][plane[near] & (away > 2 * ring_px) & (away <= reach)]
+        lift = float(np.median(h)) - (float(np.median(level)) if len(level) else 0.0)
+        if lift > noise_m and lift > sigmas * noise_m / np.sqrt(len(h)):
             out.append(m)
     return out
 
@@ -393,12 +401,14 @@ class SampledColours:
     """The colour test of objects lying flat (see :func:`colour_patches`) on an 8-bit RGB image
     (H, W, 3), first on every ``COLOUR_STRIDE_PX``-th pixel in x and y: the CIE Lab colour of each
     sample (the mean of its THIN_WINDOW_PX squared pixels) and the mean of the samples in the
-    ``window_px`` square around it (the surface around it); then pixel by pixel where the samples
+    ``window_px`` square around it that do not differ from that window's mean by ``least_sq`` (the
+    surface around it: an object's own colour does not pull the mean of the table beside it, so a
+    large, vivid handle leaves no halo of table around it); then pixel by pixel where the samples
     find something. The window's mean is smooth on the scale of the stride, and the samples cost a
     fraction of the pixels' conversion to CIE Lab.
     """
 
-    def __init__(self, rgb: np.ndarray, *, window_px: int):
+    def __init__(self, rgb: np.ndarray, *, window_px: int, least_sq: np.float32):
         s = COLOUR_STRIDE_PX
         mean = cv2.blur(rows_for_opencv(rgb), (THIN_WINDOW_PX, THIN_WINDOW_PX))
         # OpenCV's 8-bit CIE Lab: its steps (0.4 in L, 1 in a and b) lie far below the contrasts sought;
@@ -407,24 +417,39 @@ class SampledColours:
         lab = cv2.cvtColor(np.ascontiguousarray(mean[::s, ::s]), cv2.COLOR_RGB2Lab)
         self.lab = lab.astype(np.float32)
         # as many samples a side as span the window with their own means' reach
-        samples = _odd((window_px - THIN_WINDOW_PX) / s + 1)
-        self.around = cv2.boxFilter(lab, cv2.CV_32F, (samples, samples))
+        samples = (_odd((window_px - THIN_WINDOW_PX) / s + 1),) * 2
+        self.least_sq = least_sq
+        plain = cv2.boxFilter(lab, cv2.CV_32F, samples)
+        self.found = self._distance(self.lab, plain) >= least_sq
+        # The window's mean again without the samples that differ from it (a thousandth of the plain
+        # mean in their place: where the whole window differs, inside a large object, the plain mean).
+        kept = lab.copy()
+        kept[self.found] = 0
+        n = cv2.boxFilter((~self.found).view(np.uint8), cv2.CV_32F, samples, normalize=False)
+        tiny = 1e-3 * samples[0] * samples[1]
+        total = cv2.scaleAdd(plain, tiny, cv2.boxFilter(kept, cv2.CV_32F, samples, normalize=False))
+        n += tiny
+        self.around = cv2.divide(total, cv2.merge([n, n, n]))
+        self.found = self._distance(self.lab, self.around) >= least_sq
         self.shape = rgb.shape[:2]
 
-    def candidates(
-        self, least_sq: np.float32, where: np.ndarray, *, least_px: float
-    ) -> list[tuple[tuple[slice, slice], np.ndarray]]:
-        """Where to test pixel by pixel: the samples whose colour differs from their window's mean by
-        a squared CIE76 distance of at least ``least_sq``, with their neighbours (a thin object is
+    @staticmethod
+    def _distance(lab: np.ndarray, around: np.ndarray) -> np.ndarray:
+        """Squared CIE76 distance (H, W) between ``lab`` and ``around`` (8-bit Lab units, float32 (H, W, 3))."""
+        out = np.empty(lab.shape[:2], np.float32)
+        colour_distance_kernel(lab, around, _LAB8_UNITS, out)
+        return out
+
+    def candidates(self, where: np.ndarray, *, least_px: float) -> list[tuple[tuple[slice, slice], np.ndarray]]:
+        """Where to test pixel by pixel: the samples whose colour differs from the surface around them
+        by a squared CIE76 distance of at least ``least_sq``, with their neighbours (a thin object is
         found whole, though some of its samples fall on its outline and miss), on ``where`` (bool
         (H, W)), in connected regions (8-connected) of at least ``least_px`` pixels (a sample stands
         for ``COLOUR_STRIDE_PX`` squared). Each as the box of its pixels and of those their means
         reach (rows, columns) and which pixels of the box are its own (their nearest sample is):
         bool (H', W')."""
         s = COLOUR_STRIDE_PX
-        found = np.zeros(self.lab.shape[:2], bool)
-        distinct_kernel(self.lab, self.around, _LAB8_UNITS, np.ones(found.shape, bool), least_sq, found)
-        grown = (cv2.dilate(found.view(np.uint8), np.ones((3, 3), np.uint8)) > 0) & where[::s, ::s]
+        grown = (cv2.dilate(self.found.view(np.uint8), np.ones((3, 3), np.uint8)) > 0) & where[::s, ::s]
         n, labels, stats = label_regions(grown)
         out = []
         for k in np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] * s * s >= least_px) + 1:
@@ -456,12 +481,12 @@ class SampledColours:
             )
         return out
 
-    def pixels_distinct(
-        self, rgb: np.ndarray, within: tuple[slice, slice], least_sq: np.float32
-    ) -> np.ndarray:
+    def pixels_distinct(self, rgb: np.ndarray, within: tuple[slice, slice]) -> np.ndarray:
         """The test for each pixel of ``rgb``, the crop ``within`` of the image (H', W', 3): its own
         colour, averaged over THIN_WINDOW_PX squared pixels (the crop's edge repeated), against the
-        window's mean, interpolated between the samples. bool (H', W')."""
+        surface around it, interpolated between the samples; and at least half as far from it as
+        its neighbours' farthest (a window astride an object's outline takes a part of its colour:
+        the object ends where its colour is half-way). bool (H', W')."""
         lab = cv2.cvtColor(rows_for_opencv(rgb), cv2.COLOR_RGB2Lab)
         lab = cv2.boxFilter(lab, cv2.CV_32F, (THIN_WINDOW_PX, THIN_WINDOW_PX))
         # sample i lies at pixel COLOUR_STRIDE_PX * i: the crop's pixel (x, y) at sample
@@ -475,9 +500,11 @@ class SampledColours:
             flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
             borderMode=cv2.BORDER_REPLICATE,
         )
-        found = np.zeros(lab.shape[:2], bool)
-        distinct_kernel(lab, around, _LAB8_UNITS, np.ones(found.shape, bool), least_sq, found)
-        return found
+        d2 = self._distance(lab, around)
+        found = d2 >= self.least_sq
+        square = np.ones((3, 3), np.uint8)
+        outline = cv2.erode(found.view(np.uint8), square) == 0
+        return found & ~(outline & (4 * d2 < cv2.dilate(d2, square)))
 
 
 # CIE units per unit of OpenCV's 8-bit Lab (L scaled by 255 / 100; a and b offset by 128, which
