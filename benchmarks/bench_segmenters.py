@@ -44,7 +44,8 @@ YCBV = (ROOT / ".." / "shared" / "data" / "ycbv").resolve()
 
 
 class Preloaded(Sequence):
-    """A sequence held in memory (frames copied from a reader's sequence)."""
+    """A sequence held in memory (frames copied from a reader's sequence, with its settings, such as
+    the gripper's colour)."""
 
     def __init__(self, source: Sequence):
         super().__init__(
@@ -53,6 +54,7 @@ class Preloaded(Sequence):
             intrinsics=source.intrinsics,
             n_frames=len(source),
             has_masks=source.has_masks,
+            meta=source.meta,
         )
         self.frames = [source[i] for i in range(len(source))]
         self.cache_frames = len(source)
