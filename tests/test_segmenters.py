@@ -32,7 +32,7 @@ from artclass_core import (
     load_registry,
     open_sequences,
 )
-from artclass_plugins.segmenters._compiled import colour_distance_kernel
+from artclass_plugins.segmenters._compiled import colour_distance_kernel, share_mean_kernel
 from artclass_plugins.segmenters.cache import PackedMask, params_hash
 from artclass_plugins.segmenters.depth_threshold import (
     DepthThresholdParams,
@@ -578,9 +578,10 @@ def test_the_warmed_compiled_loops_are_those_segmenting_uses():
         _compiled.shadow_kernel,
         _compiled.step_kernel,
         _compiled.colour_distance_kernel,
+        _compiled.share_mean_kernel,
         _compiled.region_stats,
     )
-    assert [len(k.signatures) for k in kernels] == [1, 1, 1, 1]
+    assert [len(k.signatures) for k in kernels] == [1, 1, 1, 1, 1]
 
 
 def test_instances_that_touch_in_3d_are_joined():
@@ -687,6 +688,20 @@ def test_compiled_colour_difference_matches_numpy():
     out = np.zeros((30, 40), np.float32)
     colour_distance_kernel(colour, around, scale, out)
     np.testing.assert_allclose(out, np.einsum("ijk,ijk->ij", diff, diff), rtol=1e-5)
+
+
+def test_compiled_mean_of_the_kept_samples_matches_numpy():
+    """A window's mean over the samples it kept (its mean with the others as 0, over the share it
+    kept), and the fallback where it kept none."""
+    rng = np.random.default_rng(4)
+    total, fallback = (rng.normal(50, 8, (30, 40, 3)).astype(np.float32) for _ in range(2))
+    share = rng.random((30, 40)).astype(np.float32)
+    share[rng.random((30, 40)) < 0.2] = 0
+    out = np.zeros_like(total)
+    share_mean_kernel(total, share, fallback, out)
+    kept = share > 0
+    np.testing.assert_allclose(out[kept], total[kept] / share[kept, None], rtol=1e-6)
+    assert np.array_equal(out[~kept], fallback[~kept]) and (~kept).any()
 
 
 def _random_depth(rng: np.random.Generator) -> np.ndarray:

@@ -112,6 +112,19 @@ def colour_distance_kernel(colour, around, scale, out):
             out[v, u] = d0 * d0 + d1 * d1 + d2 * d2
 
 
+@njit(cache=True, nogil=True)
+def share_mean_kernel(total, share, fallback, out):
+    """Write in ``out`` (float32 (H, W, 3)) the mean of the samples a window kept: its mean ``total``
+    over all its samples (the others counted as 0) divided by the ``share`` (float32 (H, W)) it kept;
+    ``fallback`` where it kept none (float32 (H, W, 3) each)."""
+    h, w = share.shape
+    for v in range(h):
+        for u in range(w):
+            s = share[v, u]
+            for c in range(3):
+                out[v, u, c] = total[v, u, c] / s if s > 0 else fallback[v, u, c]
+
+
 @njit(cache=True, nogil=True, fastmath={"reassoc"})
 def all_finite(values):
     """Whether every value of ``values`` (float32 (H, W)) is finite: a row's values times 0 sum to 0
@@ -279,6 +292,7 @@ def warm_up() -> None:
     steady_kernel(depth, np.float32(0.01), flags)
     colour = np.zeros(depth.shape + (3,), np.float32)
     colour_distance_kernel(colour, colour, np.ones(3, np.float32), depth.copy())
+    share_mean_kernel(colour, depth, colour, colour.copy())
     region_stats(np.zeros(depth.shape, np.int32), 1)
     all_finite(depth)
     one = np.float32(1.0)

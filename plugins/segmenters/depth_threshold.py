@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from artclass_core import Frame, Intrinsics, Sequence, param
 
-from ._compiled import colour_distance_kernel
+from ._compiled import colour_distance_kernel, share_mean_kernel
 from .hands import HOLD_LINE_M, HandParams, find_hands, held, hidden, pixels_across, widen
 from .selection import InstanceSegmenter, SelectionParams
 from .support import (
@@ -421,15 +421,13 @@ class SampledColours:
         self.least_sq = least_sq
         plain = cv2.boxFilter(lab, cv2.CV_32F, samples)
         self.found = self._distance(self.lab, plain) >= least_sq
-        # The window's mean again without the samples that differ from it (a thousandth of the plain
-        # mean in their place: where the whole window differs, inside a large object, the plain mean).
+        # The window's mean again without the samples that differ from it (where the whole window
+        # differs, inside a large object, the plain mean).
         kept = lab.copy()
         kept[self.found] = 0
-        n = cv2.boxFilter((~self.found).view(np.uint8), cv2.CV_32F, samples, normalize=False)
-        tiny = 1e-3 * samples[0] * samples[1]
-        total = cv2.scaleAdd(plain, tiny, cv2.boxFilter(kept, cv2.CV_32F, samples, normalize=False))
-        n += tiny
-        self.around = cv2.divide(total, cv2.merge([n, n, n]))
+        share = cv2.boxFilter((~self.found).view(np.uint8), cv2.CV_32F, samples)
+        self.around = np.empty_like(plain)
+        share_mean_kernel(cv2.boxFilter(kept, cv2.CV_32F, samples), share, plain, self.around)
         self.found = self._distance(self.lab, self.around) >= least_sq
         self.shape = rgb.shape[:2]
 
