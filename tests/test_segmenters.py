@@ -407,6 +407,20 @@ def test_a_thin_object_lying_flat_is_found_by_its_colour():
     assert DepthThresholdSegmenter().instances(bump, sequence=ArraySequence([bump])) == []
 
 
+def _colour_patches(table: np.ndarray, rgb: np.ndarray, height: np.ndarray, noise: float) -> list:
+    """:func:`colour_patches` at 4 sigma, 10 delta E and a 25 px window."""
+    return colour_patches(
+        table,
+        rgb,
+        height,
+        noise_m=noise,
+        sigmas=4.0,
+        contrast=10.0,
+        min_area_fraction=0.002,
+        window_px=25,
+    )
+
+
 def test_a_patch_of_colour_on_the_table_is_an_object_when_it_stands_out_of_it_on_average():
     """A beige ruler 4 mm thick and 6 px wide on a brown table whose readings scatter by 3.5 mm: no
     reading stands out of the noise by 4 sigmas, the ruler's mean height over its ~700 readings does
@@ -428,16 +442,7 @@ def test_a_patch_of_colour_on_the_table_is_an_object_when_it_stands_out_of_it_on
     table = np.ones((H, W), bool)
     for wall_rows in (0, 60):  # then the wall, beyond the table's far edge: the ruler lies along it
         table[:wall_rows] = False
-        found = colour_patches(
-            table,
-            rgb,
-            height,
-            noise_m=noise,
-            sigmas=4.0,
-            contrast=10.0,
-            min_area_fraction=0.002,
-            window_px=25,
-        )
+        found = _colour_patches(table, rgb, height, noise)
         if wall_rows:
             assert found == []
         else:
@@ -472,16 +477,7 @@ def test_a_vivid_handle_leaves_no_halo_and_a_raised_stretch_of_table_is_no_objec
     height[tile] += 0.004
     rgb[paint | tile] = (225, 205, 160)
     rgb = np.clip(rgb + rng.normal(0.0, 3.0, rgb.shape), 0, 255).astype(np.uint8)
-    found = colour_patches(
-        table,
-        rgb,
-        height,
-        noise_m=noise,
-        sigmas=4.0,
-        contrast=10.0,
-        min_area_fraction=0.002,
-        window_px=25,
-    )
+    found = _colour_patches(table, rgb, height, noise)
     assert len(found) == 2
     assert mask_iou(found[0], scissors > 0) > 0.9
     assert mask_iou(found[1], tile) > 0.9

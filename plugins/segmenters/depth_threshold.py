@@ -438,7 +438,9 @@ class SampledColours:
         colour_distance_kernel(lab, around, _LAB8_UNITS, out)
         return out
 
-    def candidates(self, where: np.ndarray, *, least_px: float) -> list[tuple[tuple[slice, slice], np.ndarray]]:
+    def candidates(
+        self, where: np.ndarray, *, least_px: float
+    ) -> list[tuple[tuple[slice, slice], np.ndarray]]:
         """Where to test pixel by pixel: the samples whose colour differs from the surface around them
         by a squared CIE76 distance of at least ``least_sq``, with their neighbours (a thin object is
         found whole, though some of its samples fall on its outline and miss), on ``where`` (bool
