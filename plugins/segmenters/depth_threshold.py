@@ -484,9 +484,10 @@ class SampledColours:
     def pixels_distinct(self, rgb: np.ndarray, within: tuple[slice, slice]) -> np.ndarray:
         """The test for each pixel of ``rgb``, the crop ``within`` of the image (H', W', 3): its own
         colour, averaged over THIN_WINDOW_PX squared pixels (the crop's edge repeated), against the
-        surface around it, interpolated between the samples; and at least half as far from it as
-        its neighbours' farthest (a window astride an object's outline takes a part of its colour:
-        the object ends where its colour is half-way). bool (H', W')."""
+        surface around it, interpolated between the samples; and, on the outline of what differs,
+        at least half as far from it as its neighbours' farthest (a window astride an object's
+        outline takes a part of its colour: the object ends where its colour is half-way).
+        bool (H', W')."""
         lab = cv2.cvtColor(rows_for_opencv(rgb), cv2.COLOR_RGB2Lab)
         lab = cv2.boxFilter(lab, cv2.CV_32F, (THIN_WINDOW_PX, THIN_WINDOW_PX))
         # sample i lies at pixel COLOUR_STRIDE_PX * i: the crop's pixel (x, y) at sample
