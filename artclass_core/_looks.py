@@ -104,6 +104,20 @@ def contingency(keys_a, order_a, labels_a, keys_b, order_b, labels_b):
 
 
 @njit(cache=True, nogil=True)
+def _two_lowest(values):
+    """The index of the lowest of ``values`` (H,) (the first, among equals) and the lowest of the
+    others (inf when there are none)."""
+    first = 0
+    for h in range(1, len(values)):
+        first = h if values[h] < values[first] else first
+    second = math.inf
+    for h in range(len(values)):
+        if h != first and values[h] < second:
+            second = values[h]
+    return first, second
+
+
+@njit(cache=True, nogil=True)
 def by_depth(residual, change, landings, reach_m, margin):
     """Each point's part by depth, from the nearest each part's motion puts it to a surface seen
     (``residual`` (H, N), as :func:`look_kernel` leaves it): a part pays that distance when the point
@@ -116,15 +130,10 @@ def by_depth(residual, change, landings, reach_m, margin):
     best, decisive, candidate = np.empty(N, np.int64), np.empty(N, np.bool_), np.empty((H, N))
     cost = np.empty(H)
     for n in range(N):
-        first = 0
         for h in range(H):
             r = residual[h, n]
             cost[h] = reach_m if math.isnan(r) else (r if r < reach_m else math.inf)
-            first = h if cost[h] < cost[first] else first
-        second = math.inf
-        for h in range(H):
-            if h != first and cost[h] < second:
-                second = cost[h]
+        first, second = _two_lowest(cost)
         best[n] = first
         decisive[n] = second - cost[first] > margin  # never where both are infinite
         for h in range(H):
@@ -141,12 +150,7 @@ def by_shade(best, decisive, change, limit):
     for n in range(len(best)):
         if decisive[n]:
             continue
-        first, second = 0, math.inf
-        for h in range(1, change.shape[0]):
-            first = h if change[h, n] < change[first, n] else first
-        for h in range(change.shape[0]):
-            if h != first and change[h, n] < second:
-                second = change[h, n]
+        first, second = _two_lowest(change[:, n])
         if second - change[first, n] > limit:
             best[n], decisive[n] = first, True
     return best, decisive

@@ -420,12 +420,12 @@ class SampledColours:
         samples = (_odd((window_px - THIN_WINDOW_PX) / s + 1),) * 2
         self.least_sq = least_sq
         plain = cv2.boxFilter(lab, cv2.CV_32F, samples)
-        self.found = self._distance(self.lab, plain) >= least_sq
+        differs = self._distance(self.lab, plain) >= least_sq
         # The window's mean again without the samples that differ from it (where the whole window
         # differs, inside a large object, the plain mean).
         kept = lab.copy()
-        kept[self.found] = 0
-        share = cv2.boxFilter((~self.found).view(np.uint8), cv2.CV_32F, samples)
+        kept[differs] = 0
+        share = cv2.boxFilter((~differs).view(np.uint8), cv2.CV_32F, samples)
         self.around = np.empty_like(plain)
         share_mean_kernel(cv2.boxFilter(kept, cv2.CV_32F, samples), share, plain, self.around)
         self.found = self._distance(self.lab, self.around) >= least_sq
