@@ -202,12 +202,15 @@ def test_skin_colour_model_accepts_skin_tones_and_rejects_the_scene():
 
 def test_gripper_colour_box_is_parsed_and_applied():
     assert parse_hsv("") is None
-    assert parse_hsv("0, 0, 0, 180, 100, 100") == ((0, 0, 0), (180, 100, 100))
-    for bad in ("1,2,3", "0,0,0,181,10,10", "10,0,0,5,10,10", "a,b,c,d,e,f"):
+    assert parse_hsv("0, 0, 0, 180, 100, 100") == [((0, 0, 0), (180, 100, 100))]
+    two = "0,0,0,180,100,100; 100,150,100,130,255,255"  # a dark grey body and blue fingers
+    assert parse_hsv(two) == [((0, 0, 0), (180, 100, 100)), ((100, 150, 100), (130, 255, 255))]
+    for bad in ("1,2,3", "0,0,0,181,10,10", "10,0,0,5,10,10", "a,b,c,d,e,f", "0,0,0,180,100,100;"):
         with pytest.raises(ParamError, match="gripper_hsv"):
             HandParams(gripper_hsv=bad)
     patches = np.array([[GRIPPER, TABLE, BOX]], np.uint8)
-    assert hsv_mask(patches, (0, 0, 0), (180, 100, 100))[0].tolist() == [True, False, False]
+    assert hsv_mask(patches, parse_hsv("0,0,0,180,100,100"))[0].tolist() == [True, False, False]
+    assert hsv_mask(patches, parse_hsv(two))[0].tolist() == [True, False, True]  # the blue box too
 
 
 # -- hand regions -----------------------------------------------------------------------------------

@@ -404,10 +404,26 @@ def test_the_rig_records_its_gripper_colour(noise):
     for seed in range(4):  # both gripper colours
         seq = plan_sequence(seed=seed, hand="gripper", **kw)
         frame = seq.render(0)
-        box = parse_hsv(seq.meta["gripper_hsv"])
-        inside.append(hsv_mask(frame.rgb, *box)[frame.hand].mean())
-        assert hsv_mask(frame.rgb, *box)[frame.mask].mean() < 0.5  # the red book is not the gripper
+        boxes = parse_hsv(seq.meta["gripper_hsv"])
+        inside.append(hsv_mask(frame.rgb, boxes)[frame.hand].mean())
+        assert hsv_mask(frame.rgb, boxes)[frame.mask].mean() < 0.5  # the red book is not the gripper
     assert min(inside) > 0.95
+
+
+def test_two_grippers_of_two_colours_get_a_box_each():
+    """A grey and a near-black gripper carry a pair of blue pliers (high noise): one box a colour.
+    Every gripper pixel is in one of them, and half of the shaded pliers (measured 0.49); the one
+    box that holds both colours, every dark colour, holds 0.83 of them."""
+    from artclass_plugins.segmenters.hands import hsv_mask, parse_hsv
+
+    kw = dict(object_name="pliers", motion="carry_articulate", noise="high", n_frames=2, **SMALL)
+    seq = plan_sequence(seed=1, hand="gripper", **kw)
+    frame = seq.render(0)
+    boxes = parse_hsv(seq.meta["gripper_hsv"])
+    assert len(boxes) == 2
+    one = [((0, 0, 0), (180, 255, max(high[2] for _, high in boxes)))]
+    assert hsv_mask(frame.rgb, boxes)[frame.hand].mean() > 0.99
+    assert hsv_mask(frame.rgb, boxes)[frame.mask].mean() < 0.6 < hsv_mask(frame.rgb, one)[frame.mask].mean()
 
 
 def test_hand_colours_span_human_skin():

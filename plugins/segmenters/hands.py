@@ -30,10 +30,11 @@ union of:
   surface as the arm (a lit facet of a sleeve whose shaded faces pass for skin) and joins it
   (:func:`arm_pieces`). The hand's pieces of another shade than its own, which may be an object it
   holds (a mug whose body passes for skin), are no arm to continue;
-* **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv``, or, when
-  that is not set, the box the sequence's own settings give as ``gripper_hsv`` (a robot rig knows
-  its gripper: the native folder format reads it from ``meta.json``); its regions are found apart
-  from the skin-coloured ones, so a wooden object the gripper holds does not join it, and they are
+* **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv`` (or in
+  any of its boxes, for a gripper of several colours), or, when that is not set, the boxes the
+  sequence's own settings give as ``gripper_hsv`` (a robot rig knows its gripper: the native
+  folder format reads it from ``meta.json``); its regions are found apart from the skin-coloured
+  ones, so a wooden object the gripper holds does not join it, and they are
   cut along the projector's shadows too (:func:`projector_shadows`), so a dark object behind a
   finger does not join it through the shadow the finger casts. Its fingers, smaller than
   ``hand_min_area_m2`` and cut off from its body by a depth step or a shadow, join it when they touch
@@ -93,7 +94,7 @@ __all__ = [
     "skin_mask",
     "hsv_mask",
     "parse_hsv",
-    "gripper_box",
+    "gripper_boxes",
     "hand_regions",
     "held",
     "hidden",
@@ -121,45 +122,50 @@ SKIN_CR = (133, 173)
 SKIN_CB = (77, 127)
 
 
-def gripper_box(
+HsvBox = tuple[tuple[int, int, int], tuple[int, int, int]]
+
+
+def gripper_boxes(
     params: HandParams, rig: Mapping[str, Any], sequence_path: Path | str
-) -> tuple[tuple[int, int, int], tuple[int, int, int]] | None:
-    """The gripper's HSV box: the parameter ``gripper_hsv`` when set, else the sequence's own
+) -> list[HsvBox] | None:
+    """The gripper's HSV boxes: the parameter ``gripper_hsv`` when set, else the sequence's own
     ``gripper_hsv`` (``rig``: its settings, e.g. ``meta.json``), else None.
 
-    Raises :class:`~artclass_core.InputError` naming the sequence when its value is not a box.
+    Raises :class:`~artclass_core.InputError` naming the sequence when its value is not boxes.
     """
     if params.gripper_hsv.strip():
         return parse_hsv(params.gripper_hsv)
     return parse_hsv(str(rig.get("gripper_hsv") or ""), where=sequence_path)
 
 
-def parse_hsv(
-    text: str, *, where: Path | str | None = None
-) -> tuple[tuple[int, int, int], tuple[int, int, int]] | None:
-    """``"h0,s0,v0,h1,s1,v1"`` (OpenCV units: H 0-180, S and V 0-255) as (low, high); None for ``""``.
+def parse_hsv(text: str, *, where: Path | str | None = None) -> list[HsvBox] | None:
+    """``"h0,s0,v0,h1,s1,v1"`` (OpenCV units: H 0-180, S and V 0-255), or several such boxes separated
+    by ``;`` (a gripper of several colours: a grey body and black fingers), as a list of (low, high);
+    None for ``""``.
 
-    Raises :class:`~artclass_core.ParamError` naming ``gripper_hsv`` when the text is not six
-    integers in range with low <= high, or :class:`~artclass_core.InputError` naming ``where`` when
-    the text is a sequence's setting.
+    Raises :class:`~artclass_core.ParamError` naming ``gripper_hsv`` when a box is not six integers
+    in range with low <= high, or :class:`~artclass_core.InputError` naming ``where`` when the text
+    is a sequence's setting.
     """
     if not text.strip():
         return None
-    try:
-        v = [int(x) for x in text.replace(" ", "").split(",")]
-    except ValueError:
-        v = []
-    highs = (180, 255, 255)
-    in_range = len(v) == 6 and all(0 <= x <= highs[k % 3] for k, x in enumerate(v))
-    if not in_range or any(v[k] > v[k + 3] for k in range(3)):
-        message = (
-            f"gripper_hsv = {text!r} is not 'h0,s0,v0,h1,s1,v1' with 0 <= h <= 180, "
-            "0 <= s, v <= 255 and each low <= its high"
-        )
-        if where is not None:
-            raise InputError(f"the sequence's {message}", path=where)
-        raise ParamError(f"parameter {message}")
-    return (v[0], v[1], v[2]), (v[3], v[4], v[5])
+    boxes, highs = [], (180, 255, 255)
+    for part in text.split(";"):
+        try:
+            v = [int(x) for x in part.replace(" ", "").split(",")]
+        except ValueError:
+            v = []
+        in_range = len(v) == 6 and all(0 <= x <= highs[k % 3] for k, x in enumerate(v))
+        if not in_range or any(v[k] > v[k + 3] for k in range(3)):
+            message = (
+                f"gripper_hsv = {text!r} is not 'h0,s0,v0,h1,s1,v1' (or several such boxes separated "
+                "by ';') with 0 <= h <= 180, 0 <= s, v <= 255 and each low <= its high"
+            )
+            if where is not None:
+                raise InputError(f"the sequence's {message}", path=where)
+            raise ParamError(f"parameter {message}")
+        boxes.append(((v[0], v[1], v[2]), (v[3], v[4], v[5])))
+    return boxes
 
 
 @dataclass(frozen=True)
@@ -229,7 +235,8 @@ class HandParams(Params):
         "",
         help="The gripper's colour as an HSV box 'h0,s0,v0,h1,s1,v1' in OpenCV units "
         "(H 0-180, S and V 0-255), e.g. '0,0,0,180,100,100' for a dark grey "
-        "gripper; its regions that reach the image border are removed like "
+        "gripper, or several boxes separated by ';' for a gripper of several "
+        "colours; its regions that reach the image border are removed like "
         "hands. Empty = the sequence's own gripper_hsv (meta.json), if any.",
     )
     hand_masks: str = param(
@@ -264,10 +271,10 @@ def skin_mask(rgb: np.ndarray) -> np.ndarray:
     return cv2.inRange(ycrcb, (0, SKIN_CR[0], SKIN_CB[0]), (255, SKIN_CR[1], SKIN_CB[1])) > 0
 
 
-def hsv_mask(rgb: np.ndarray, low: tuple[int, int, int], high: tuple[int, int, int]) -> np.ndarray:
-    """Pixels whose OpenCV HSV (H 0-180, S and V 0-255) lies in the box [low, high]: bool (H, W)."""
+def hsv_mask(rgb: np.ndarray, boxes: list[HsvBox]) -> np.ndarray:
+    """Pixels whose OpenCV HSV (H 0-180, S and V 0-255) lies in any of the boxes (low, high): bool (H, W)."""
     hsv = cv2.cvtColor(np.ascontiguousarray(rgb, dtype=np.uint8), cv2.COLOR_RGB2HSV)
-    return cv2.inRange(hsv, low, high) > 0
+    return np.logical_or.reduce([cv2.inRange(hsv, low, high) > 0 for low, high in boxes])
 
 
 def _at_border(stats: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -421,9 +428,9 @@ def find_hands(
     # skin and the gripper's colour are two kinds of evidence: their regions are found apart, so that a
     # skin-coloured object a gripper holds does not join it (a pixel of both colours is skin)
     kinds = [skin_mask(frame.rgb)]
-    gripper = gripper_box(params, rig or {}, sequence_path)
+    gripper = gripper_boxes(params, rig or {}, sequence_path)
     if gripper is not None:
-        kinds.append(hsv_mask(frame.rgb, *gripper) & ~kinds[0])
+        kinds.append(hsv_mask(frame.rgb, gripper) & ~kinds[0])
     candidates = np.logical_or.reduce(kinds) & ~background
     if not candidates.any():  # nothing skin- or gripper-coloured stands out of the background
         return _with_given(

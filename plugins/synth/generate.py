@@ -35,7 +35,7 @@ __all__ = [
     "plan_sequence",
 ]
 
-GENERATOR_VERSION = "0.3.0"
+GENERATOR_VERSION = "0.3.1"
 
 #: Surface variants: ``textured`` pieces carry their printed pattern, ``plain`` ones are uniform
 #: colours with shading only.
@@ -352,9 +352,10 @@ def plan_sequence(
         "hand": hand,
     }
     level = NOISE_LEVELS[noise]
-    grippers = [p for h in holders if h.kind == "gripper" for p in h.pieces]
-    if grippers:  # the rig knows its gripper's colour, as a robot's owner would measure it once
-        meta["gripper_hsv"] = colour_box(grippers, rgb_sigma=level.rgb_sigma)
+    # the rig knows its grippers' colours, as a robot's owner would measure them once: a box a colour
+    boxes = [colour_box(h.pieces, rgb_sigma=level.rgb_sigma) for h in holders if h.kind == "gripper"]
+    if boxes:
+        meta["gripper_hsv"] = "; ".join(dict.fromkeys(boxes))
     q = traj.joint_positions
     n = len(T_co)
     truth = {
