@@ -33,6 +33,7 @@ from artclass_plugins.segmenters.hands import (
     depth_steps,
     find_hands,
     hand_regions,
+    hand_tips,
     held,
     hsv_mask,
     on_plane,
@@ -249,6 +250,28 @@ def test_held_needs_a_line_of_contact_not_a_couple_of_pixels():
     corner[140:160, 200:230] = True
     assert held([along, corner], hand, depth, touch_m=0.02) == [True, True]
     assert held([along, corner], hand, depth, touch_m=0.02, line_m=0.005, fx=INTR.fx) == [True, False]
+
+
+def test_a_hand_holds_with_its_palm_and_fingers_not_along_its_forearm():
+    """An arm enters from the left border at 0.6 m, 300 px long (60 cm): its tip is its right end. A
+    strip of its own sleeve along the forearm, at its depth, touches it near the border, 40-50 cm
+    from the tip: not held once the distance to the tip counts (the strip is held without it); a box
+    at the hand's end, 0-10 cm from the tip, is held. An arm that enters through pixels without a
+    reading has no known tip, and what touches it anywhere is held."""
+    depth = np.full((H, W), 0.8, np.float32)
+    arm, strip, box = np.zeros((H, W), bool), np.zeros((H, W), bool), np.zeros((H, W), bool)
+    arm[100:140, 0:300] = True
+    strip[90:100, 20:80] = True
+    box[140:180, 250:300] = True
+    depth[arm | strip | box] = 0.6
+    tips, tipless = hand_tips(arm, depth, INTR)
+    assert len(tips) == 1 and not tipless.any()
+    assert np.allclose(tips[0], INTR.points(np.array([299]), np.array([100]), np.array([0.6]))[0])
+    assert held([strip, box], arm, depth, touch_m=0.02) == [True, True]
+    assert held([strip, box], arm, depth, touch_m=0.02, intrinsics=INTR) == [False, True]
+    gap = arm.copy()
+    gap[:, 0:5] = False  # the sleeve's end without a reading: the arm no longer reaches the border
+    assert held([strip, box], gap, depth, touch_m=0.02, intrinsics=INTR) == [True, True]
 
 
 def test_arms_reach_the_border_stand_off_the_table_and_touch_the_hand():

@@ -206,7 +206,14 @@ def join_hidden(
     reach_px = pixels_across(touch_m, intrinsics.fx, depth_m[hand & (depth_m > 0)]) if hand.any() else 1
     if any(
         held(
-            instances, hand, depth_m, touch_m=touch_m, reach_px=reach_px, line_m=HOLD_LINE_M, fx=intrinsics.fx
+            instances,
+            hand,
+            depth_m,
+            touch_m=touch_m,
+            reach_px=reach_px,
+            line_m=HOLD_LINE_M,
+            fx=intrinsics.fx,
+            intrinsics=intrinsics,
         )
     ):
         return instances

@@ -47,8 +47,10 @@ the objects before the handled one is chosen, so a hand alone is never the objec
 left out of the change score, so a hand waving in front of a still object does not make the object
 move. An object that the hand touches in 3-D (object pixels next to hand pixels, within
 ``hand_touch_m`` of their depth, along a line of contact at least ``HOLD_LINE_M`` long, not a couple
-of stray pixels) is *held*, and held objects are preferred (:mod:`.selection`). An object seen on
-both sides of a hand passing in front of it is one object (:func:`hidden`).
+of stray pixels, within ``HAND_LENGTH_M`` of the hand's tip: a hand holds with its palm and fingers,
+and a lit strip of its own sleeve along the forearm is no object it holds) is *held*, and held
+objects are preferred (:mod:`.selection`). An object seen on both sides of a hand passing in front
+of it is one object (:func:`hidden`).
 
 Notes
 -----
@@ -97,6 +99,7 @@ __all__ = [
     "gripper_boxes",
     "hand_regions",
     "held",
+    "hand_tips",
     "hidden",
     "HOLD_LINE_M",
     "load_hand_mask",
@@ -568,6 +571,10 @@ def _with_given(
 # An instance is held when the hand touches it along at least this length (a fingertip's touch): a
 # couple of pixels where the hand passes close to a still object are no grasp.
 HOLD_LINE_M = 0.005
+# A hand holds with its palm and fingers: within this distance of its tip (an adult hand, wrist to
+# fingertip, is 17-19 cm long). A hand's tip is read from its pixels within TIP_WINDOW_PX.
+HAND_LENGTH_M = 0.2
+TIP_WINDOW_PX = 5
 # A region rests on the support plane when at least this many of its pixels come down to it (a line
 # of contact, not a stray reading).
 CONTACT_PX = 3
@@ -977,10 +984,13 @@ def held(
     reach_px: int = 1,
     line_m: float = 0.0,
     fx: float = 0.0,
+    intrinsics: Intrinsics | None = None,
 ) -> list[bool]:
     """Which instances the hand touches in 3-D: instance pixels within ``reach_px`` (a square) of
     hand pixels, whose depth lies within ``touch_m`` of the range of their depths, along a line of
-    contact at least ``line_m`` long.
+    contact at least ``line_m`` long. With ``intrinsics``, only the touching pixels within
+    ``HAND_LENGTH_M`` in 3-D of the hand's tip count (:func:`hand_tips`): a hand holds with its
+    palm and fingers, and a piece of its own sleeve along the forearm is not held.
 
     Parameters
     ----------
@@ -993,14 +1003,56 @@ def held(
         along the hand, must cover at least ``reach_px * line_m * fx / z`` pixels (z: their median
         depth); 0 = any touching pixel
     fx : focal length, pixels (needed when ``line_m`` > 0)
+    intrinsics : pinhole intrinsics, optional -- to measure the distance to the hand's tip
 
     Returns
     -------
     list of bool, one per instance
     """
     return _along_hand(
-        instances, hand, depth_m, touch_m=touch_m, reach_px=reach_px, line_m=line_m, fx=fx, behind=False
+        instances,
+        hand,
+        depth_m,
+        touch_m=touch_m,
+        reach_px=reach_px,
+        line_m=line_m,
+        fx=fx,
+        behind=False,
+        tips=intrinsics,
     )
+
+
+def hand_tips(hand: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """The tips of the hand mask's connected regions (8-connected) that reach the image border: for
+    each, its pixel farthest across the image from the mean of its pixels on the border (where the
+    arm enters the picture), in 3-D at the median depth of the region's readings within
+    ``TIP_WINDOW_PX`` of it. Returns the tips (N, 3), metres, and the regions that do not reach the
+    border or have no reading near their tip (bool (H, W)): an arm that enters through pixels
+    without a reading, whose tip is unknown.
+    """
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(as_uint8(hand), connectivity=8)
+    tipless = np.zeros(hand.shape, bool)
+    tips = []
+    h, w = hand.shape
+    for k in range(1, n):
+        x, y, bw, bh = stats[k, :4]
+        box = (slice(y, y + bh), slice(x, x + bw))
+        v, u = np.nonzero(labels[box] == k)
+        v, u = v + y, u + x
+        entry = (v == 0) | (v == h - 1) | (u == 0) | (u == w - 1)
+        if entry.any():
+            far = int(np.argmax((v - v[entry].mean()) ** 2 + (u - u[entry].mean()) ** 2))
+            r = TIP_WINDOW_PX
+            near = (np.abs(v - v[far]) <= r) & (np.abs(u - u[far]) <= r)
+            z = depth_m[v[near], u[near]]
+            z = z[z > 0]
+            if len(z):
+                tips.append(
+                    intrinsics.points(np.array([u[far]]), np.array([v[far]]), np.array([np.median(z)]))[0]
+                )
+                continue
+        tipless[box] |= labels[box] == k
+    return np.array(tips, dtype=np.float64).reshape(-1, 3), tipless
 
 
 def hidden(
@@ -1043,8 +1095,9 @@ def _along_hand(
     line_m: float,
     fx: float,
     behind: bool,
+    tips: Intrinsics | None = None,
 ) -> list[bool]:
-    """:func:`held` (``behind`` False) or :func:`hidden` (True)."""
+    """:func:`held` (``behind`` False; ``tips``: its ``intrinsics``) or :func:`hidden` (True)."""
     if not hand.any() or not instances:
         return [False] * len(instances)
     d = clean_depth(depth_m)
@@ -1054,12 +1107,24 @@ def _along_hand(
     # no pixel farther than reach_px from the hand's readings is along it: the work is done on their
     # bounding box grown by reach_px
     box = grown_box(seen, reach_px)
+    if tips is not None:
+        at, tipless = hand_tips(hand, d, tips)
     d, hand = d[box], hand[box]
     near, far = _depth_range(d, hand, reach_px)  # of the hand's readings around each pixel
     if behind:
         along = (d > 0) & ~hand & (d > near + touch_m) & (far > 0)
     else:
         along = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
+    if tips is not None and along.any():
+        # within reach of the hand's tip, or beside a region whose tip is unknown
+        v, u = np.nonzero(along)
+        v, u = v + box[0].start, u + box[1].start
+        points = tips.points(u, v, d[along].astype(np.float64))
+        ok = np.zeros(len(points), bool)
+        for tip in at:
+            ok |= _squared_norms(points - tip) <= HAND_LENGTH_M**2
+        ok |= widen(tipless, reach_px)[v, u]
+        along[along] = ok
     out = []
     for m in instances:
         line = m[box] & along

@@ -549,6 +549,7 @@ class InstanceSegmenter(Segmenter):
             reach_px=p.hand_margin_px + 1,
             line_m=HOLD_LINE_M,
             fx=sequence.intrinsics.fx,
+            intrinsics=sequence.intrinsics,
         )
 
     @staticmethod
