@@ -1030,28 +1030,30 @@ def hand_tips(hand: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics) -> 
     border or have no reading near their tip (bool (H, W)): an arm that enters through pixels
     without a reading, whose tip is unknown.
     """
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(as_uint8(hand), connectivity=8)
-    tipless = np.zeros(hand.shape, bool)
-    tips = []
+    tipless = hand.copy()
+    if not hand.any():
+        return np.zeros((0, 3)), tipless
+    rows, cols = grown_box(hand, 0)  # the work is done on the hand's bounding box
+    _, labels = cv2.connectedComponents(as_uint8(hand[rows, cols]), connectivity=8)
+    depth = depth_m[rows, cols]
     h, w = hand.shape
-    for k in range(1, n):
-        x, y, bw, bh = stats[k, :4]
-        box = (slice(y, y + bh), slice(x, x + bw))
-        v, u = np.nonzero(labels[box] == k)
-        v, u = v + y, u + x
-        entry = (v == 0) | (v == h - 1) | (u == 0) | (u == w - 1)
-        if entry.any():
-            far = int(np.argmax((v - v[entry].mean()) ** 2 + (u - u[entry].mean()) ** 2))
-            r = TIP_WINDOW_PX
-            near = (np.abs(v - v[far]) <= r) & (np.abs(u - u[far]) <= r)
-            z = depth_m[v[near], u[near]]
-            z = z[z > 0]
-            if len(z):
-                tips.append(
-                    intrinsics.points(np.array([u[far]]), np.array([v[far]]), np.array([np.median(z)]))[0]
-                )
-                continue
-        tipless[box] |= labels[box] == k
+    # the box's sides that are the image's
+    sides = [labels[0]] * (rows.start == 0) + [labels[-1]] * (rows.stop == h)
+    sides += [labels[:, 0]] * (cols.start == 0) + [labels[:, -1]] * (cols.stop == w)
+    on_border = np.concatenate(sides) if sides else np.zeros(0, labels.dtype)
+    tips = []
+    for k in np.unique(on_border[on_border > 0]):
+        mine = labels == k
+        v, u = np.nonzero(mine)
+        iv, iu = v + rows.start, u + cols.start  # in the image
+        entry = (iv == 0) | (iv == h - 1) | (iu == 0) | (iu == w - 1)
+        far = int(np.argmax((v - v[entry].mean()) ** 2 + (u - u[entry].mean()) ** 2))
+        r = TIP_WINDOW_PX
+        win = slice(max(v[far] - r, 0), v[far] + r + 1), slice(max(u[far] - r, 0), u[far] + r + 1)
+        z = depth[win][mine[win] & (depth[win] > 0)]
+        if len(z):
+            tips.append(intrinsics.points(iu[far : far + 1], iv[far : far + 1], np.array([np.median(z)]))[0])
+            tipless[rows, cols] &= ~mine
     return np.array(tips, dtype=np.float64).reshape(-1, 3), tipless
 
 
@@ -1115,6 +1117,8 @@ def _along_hand(
         along = (d > 0) & ~hand & (d > near + touch_m) & (far > 0)
     else:
         along = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
+    if tips is not None:
+        along &= np.logical_or.reduce([m[box] for m in instances])
     if tips is not None and along.any():
         # within reach of the hand's tip, or beside a region whose tip is unknown
         v, u = np.nonzero(along)
