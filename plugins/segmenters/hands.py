@@ -1018,7 +1018,7 @@ def held(
         line_m=line_m,
         fx=fx,
         behind=False,
-        tips=intrinsics,
+        intrinsics=intrinsics,
     )
 
 
@@ -1097,9 +1097,9 @@ def _along_hand(
     line_m: float,
     fx: float,
     behind: bool,
-    tips: Intrinsics | None = None,
+    intrinsics: Intrinsics | None = None,
 ) -> list[bool]:
-    """:func:`held` (``behind`` False; ``tips``: its ``intrinsics``) or :func:`hidden` (True)."""
+    """:func:`held` (``behind`` False) or :func:`hidden` (True)."""
     if not hand.any() or not instances:
         return [False] * len(instances)
     d = clean_depth(depth_m)
@@ -1109,23 +1109,21 @@ def _along_hand(
     # no pixel farther than reach_px from the hand's readings is along it: the work is done on their
     # bounding box grown by reach_px
     box = grown_box(seen, reach_px)
-    if tips is not None:
-        at, tipless = hand_tips(hand, d, tips)
+    if intrinsics is not None:
+        tips, tipless = hand_tips(hand, d, intrinsics)
     d, hand = d[box], hand[box]
     near, far = _depth_range(d, hand, reach_px)  # of the hand's readings around each pixel
     if behind:
         along = (d > 0) & ~hand & (d > near + touch_m) & (far > 0)
     else:
         along = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
-    if tips is not None:
+    if intrinsics is not None:  # the instances' pixels near the hand's tip, or beside a tipless region
         along &= np.logical_or.reduce([m[box] for m in instances])
-    if tips is not None and along.any():
-        # within reach of the hand's tip, or beside a region whose tip is unknown
         v, u = np.nonzero(along)
         v, u = v + box[0].start, u + box[1].start
-        points = tips.points(u, v, d[along].astype(np.float64))
+        points = intrinsics.points(u, v, d[along].astype(np.float64))
         ok = np.zeros(len(points), bool)
-        for tip in at:
+        for tip in tips:
             ok |= _squared_norms(points - tip) <= HAND_LENGTH_M**2
         ok |= widen(tipless, reach_px)[v, u]
         along[along] = ok
