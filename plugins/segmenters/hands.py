@@ -221,9 +221,9 @@ class HandParams(Params):
         0.02,
         unit="m",
         bounds=(0.0, 0.5),
-        help="An object whose pixels next to the hand lie within this depth of the hand's "
-        "is held (about a finger's thickness); held objects are chosen first. An "
-        "arm joins a hand it comes this close to in 3-D.",
+        help="An object whose pixels next to the hand, within 20 cm of the hand's tip, lie "
+        "within this depth of the hand's is held (about a finger's thickness); held "
+        "objects are chosen first. An arm joins a hand it comes this close to in 3-D.",
     )
     hand_chroma: float = param(
         0.02,
