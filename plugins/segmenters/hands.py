@@ -1109,8 +1109,7 @@ def _along_hand(
     # no pixel farther than reach_px from the hand's readings is along it: the work is done on their
     # bounding box grown by reach_px
     box = grown_box(seen, reach_px)
-    if intrinsics is not None:
-        tips, tipless = hand_tips(hand, d, intrinsics)
+    whole_d, whole_hand = d, hand
     d, hand = d[box], hand[box]
     near, far = _depth_range(d, hand, reach_px)  # of the hand's readings around each pixel
     if behind:
@@ -1119,6 +1118,8 @@ def _along_hand(
         along = (d > 0) & ~hand & (d >= near - touch_m) & (d <= far + touch_m)
     if intrinsics is not None:  # the instances' pixels near the hand's tip, or beside a tipless region
         along &= np.logical_or.reduce([m[box] for m in instances])
+    if intrinsics is not None and along.any():  # the tips are found only when something touches
+        tips, tipless = hand_tips(whole_hand, whole_d, intrinsics)
         v, u = np.nonzero(along)
         v, u = v + box[0].start, u + box[1].start
         points = intrinsics.points(u, v, d[along].astype(np.float64))
