@@ -405,6 +405,29 @@ def test_tum_reader(layouts, tmp_path):
     )
 
 
+def test_tum_associations_and_given_intrinsics(tmp_path):
+    # ORB-SLAM2's associations.txt decides the pairs, whatever the timestamps (recorders that write
+    # frame durations instead of times cannot be associated by time); given intrinsics win.
+    seq = write_tum(tmp_path, "desk")
+    rgb = sorted((seq / "rgb").iterdir())[:3]
+    depth = sorted((seq / "depth").iterdir())[:3]
+    lines = [f"0.016 rgb/{a.name} 0.016 depth/{b.name}" for a, b in zip(rgb, depth)]
+    (seq / "associations.txt").write_text("\n".join(lines) + "\n")
+    reader = REGISTRY.create(
+        "reader", "tum", tum_mod.TumParams(fx=600, fy=601, cx=300, cy=200, depth_scale=2500)
+    )
+    (s,) = reader.sequences(seq)
+    assert len(s) == 3 and s.meta["intrinsics_source"] == "reader parameters"
+    assert (s.intrinsics.fx, s.intrinsics.fy, s.intrinsics.cx, s.intrinsics.cy) == (600, 601, 300, 200)
+    frame = s.load(1)
+    assert frame.name == rgb[1].stem
+    # Depth read at half TUM's scale doubles: the fixture's depth was written at 5000 units a metre.
+    (ref,) = REGISTRY.create("reader", "tum").sequences(seq)
+    np.testing.assert_allclose(frame.depth_m, 2 * ref.load(1).depth_m)
+    with pytest.raises(InputError, match="all four intrinsics"):
+        REGISTRY.create("reader", "tum", tum_mod.TumParams(fx=600)).sequences(seq)
+
+
 def test_tum_bad_list_line_is_named(tmp_path):
     seq = write_tum(tmp_path)
     (seq / "rgb.txt").write_text("# fine\n1305031102.0 rgb/a.png\nnot-a-time rgb/b.png\n")

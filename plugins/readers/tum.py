@@ -4,19 +4,25 @@
 
     SEQ/rgb.txt            lines "timestamp filename" (seconds; "#" starts a comment)
     SEQ/depth.txt          the same for depth
+    SEQ/associations.txt   optional lines "timestamp rgb_file timestamp depth_file" (ORB-SLAM2's input)
     SEQ/rgb/*.png          8-bit colour, 640x480
     SEQ/depth/*.png        16-bit depth registered to the colour image; metres = value / 5000
     SEQ/groundtruth.txt    optional "timestamp tx ty tz qx qy qz qw": world_from_camera (motion capture)
     SEQ/meta.json          optional (or camera.json): "fx", "fy", "cx", "cy", "depth_scale" (units per
                            metre, default 5000), "label" (articulated | rigid | static), "object"
 
-Colour and depth frames are associated as TUM's ``associate.py`` does: candidate pairs closer than
-``max_time_diff_s`` (0.02 s), taken greedily from the closest, each frame used once.
+Colour and depth frames are the pairs ``associations.txt`` lists, when the folder has one (the file
+TUM's ``associate.py`` writes, and ORB-SLAM2 reads: recordings made with other tools may carry
+timestamps that cannot be associated); otherwise they are associated as ``associate.py`` does:
+candidate pairs closer than ``max_time_diff_s`` (0.02 s), taken greedily from the closest, each frame
+used once.
 
-Intrinsics: ``meta.json``/``camera.json`` when present; otherwise the calibrated values of the
-Kinect named in the folder name (``rgbd_dataset_freiburg1_*`` -> fr1, as published on the TUM
-website); otherwise the ROS default (525, 525, 319.5, 239.5). ``meta["intrinsics_source"]`` says
-which was used.
+Intrinsics: the reader's ``fx, fy, cx, cy`` when given (``--param fx=615 ...``); else
+``meta.json``/``camera.json`` when present; otherwise the calibrated values of the Kinect named in
+the folder name (``rgbd_dataset_freiburg1_*`` -> fr1, as published on the TUM website); otherwise the
+ROS default (525, 525, 319.5, 239.5). ``meta["intrinsics_source"]`` says which was used. The depth
+scale likewise: ``depth_scale``, else meta.json's, else TUM's 5000 units a metre (a RealSense
+recording saved in millimetres has 1000).
 
 There is no label unless meta.json gives one (TUM RGB-D films static scenes, not handled objects),
 and no per-pair truth: the ground truth is the camera's trajectory, not an object's pose. It is
@@ -45,6 +51,7 @@ FREIBURG_INTRINSICS: dict[str, tuple[float, float, float, float]] = {
 ROS_DEFAULT_INTRINSICS = (525.0, 525.0, 319.5, 239.5)
 TUM_DEPTH_SCALE = 5000.0
 CONFIG_FILES = ("meta.json", "camera.json")
+ASSOCIATIONS = "associations.txt"
 
 
 def associate(times_a: np.ndarray, times_b: np.ndarray, *, max_diff_s: float) -> list[tuple[int, int]]:
@@ -125,6 +132,29 @@ class TumParams(Params):
         bounds=(0.0, 1.0),
         help="Colour and depth frames further apart in time than this are not paired "
         "(TUM's associate.py default).",
+    )
+    fx: float | None = param(
+        None,
+        unit="px",
+        bounds=(1.0, 1e5),
+        auto="meta.json, the Kinect named in the folder name, or 525",
+        help="Focal length along x of the colour camera, pixels.",
+    )
+    fy: float | None = param(
+        None, unit="px", bounds=(1.0, 1e5), auto="as fx", help="Focal length along y, pixels."
+    )
+    cx: float | None = param(
+        None, unit="px", bounds=(-1e5, 1e5), auto="as fx", help="Principal point, x, pixels."
+    )
+    cy: float | None = param(
+        None, unit="px", bounds=(-1e5, 1e5), auto="as fx", help="Principal point, y, pixels."
+    )
+    depth_scale: float | None = param(
+        None,
+        unit="1/m",
+        bounds=(1e-3, 1e7),
+        auto="meta.json's depth_scale, else 5000",
+        help="Depth image units per metre (TUM: 5000; a RealSense saved in millimetres: 1000).",
     )
 
 
@@ -213,22 +243,35 @@ class TumReader(Reader):
             raise InputError("lists no depth image", path=path / "depth.txt")
         dt = self.params.max_time_diff_s
         n_listed = len(rgb)
-        pairs = associate([t for t, _ in rgb], [t for t, _ in depth], max_diff_s=dt)
-        if not pairs:
-            raise InputError(
-                f"no colour frame has a depth frame within {dt:g} s "
-                f"(rgb.txt and depth.txt timestamps do not overlap)",
-                path=path,
-            )
-        rgb = [rgb[a] for a, _ in pairs]
-        depth = [depth[b] for _, b in pairs]
+        if (path / ASSOCIATIONS).is_file():
+            rows = read_list(path / ASSOCIATIONS, columns=4)
+            rgb = [(float(r[0]), path / r[1]) for r in rows]
+            depth = [(float(r[2]), path / r[3]) for r in rows]
+            if not rgb:
+                raise InputError("lists no frame", path=path / ASSOCIATIONS)
+        else:
+            pairs = associate([t for t, _ in rgb], [t for t, _ in depth], max_diff_s=dt)
+            if not pairs:
+                raise InputError(
+                    f"no colour frame has a depth frame within {dt:g} s "
+                    f"(rgb.txt and depth.txt timestamps do not overlap)",
+                    path=path,
+                )
+            rgb = [rgb[a] for a, _ in pairs]
+            depth = [depth[b] for _, b in pairs]
 
         config_path = next((path / n for n in CONFIG_FILES if (path / n).is_file()), None)
         config = read_json(config_path) if config_path else {}
         label = config.get("label")
         if label is not None and label not in LABELS:
             raise InputError(f"label {label!r} is not one of {', '.join(LABELS)}", path=config_path)
-        if config_path and any(k in config for k in ("fx", "fy", "cx", "cy")):
+        given = tuple(getattr(self.params, k) for k in ("fx", "fy", "cx", "cy"))
+        if any(v is not None for v in given):
+            if None in given:
+                raise InputError("give all four intrinsics fx, fy, cx, cy, or none", path=path)
+            fx, fy, cx, cy = given
+            source = "reader parameters"
+        elif config_path and any(k in config for k in ("fx", "fy", "cx", "cy")):
             fx, fy, cx, cy = (
                 require_number(config, k, path=config_path, positive=k in ("fx", "fy"))
                 for k in ("fx", "fy", "cx", "cy")
@@ -242,7 +285,7 @@ class TumReader(Reader):
             else:
                 source = "ros_default"
                 fx, fy, cx, cy = ROS_DEFAULT_INTRINSICS
-        depth_scale = (
+        depth_scale = self.params.depth_scale or (
             require_number(config, "depth_scale", path=config_path)
             if "depth_scale" in config
             else TUM_DEPTH_SCALE
@@ -268,7 +311,7 @@ class TumReader(Reader):
             intrinsics_source=source,
             depth_units_per_metre=depth_scale,
             n_rgb_listed=n_listed,
-            n_associated=len(pairs),
+            n_associated=len(rgb),
             has_groundtruth=groundtruth is not None,
         )
         return [
