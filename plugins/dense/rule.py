@@ -89,6 +89,14 @@ class DenseRuleParams(Params):
         "its own for at least this share on average (and so must those of the "
         "points it explains that no chosen motion does).",
     )
+    noise_lag_rad: float = param(
+        0.05,
+        unit="rad",
+        bounds=(0.0, 1.0),
+        help="The depth noise of a pair is the spread of residual differences between points this "
+        "far apart (seen from the camera): beyond the few pixels over which a sensor's depth error "
+        "is correlated, within a part (32 px at 640x480).",
+    )
     min_seen_share: float = param(
         0.3,
         unit="fraction",
@@ -225,6 +233,56 @@ def _swapped(costs: np.ndarray, chosen: list[int]) -> list[int]:
     return chosen
 
 
+def field_noise(
+    residual_m: np.ndarray, pixels: np.ndarray, stride: int, *, lag_px: float, floor_m: float
+) -> tuple[float, float]:
+    """The noise of a residual field from second differences of points ``lag_px`` apart, and how
+    many points it correlates.
+
+    Real depth error is correlated over the image (a stereo matcher's windows, a projector's pattern,
+    the preprocessor's smoothing), so the spread of a residual about its neighbours' understates it.
+    The second difference ``r(p - L) - 2 r(p) + r(p + L)`` of points ``L`` apart along a row or a
+    column holds the error of all three, correlated or not, once ``L`` exceeds the correlation length;
+    but not a misfit that varies linearly over a region (a part turning away from the motion fitted
+    to the whole object), which shows only at the region's edges.
+
+    Parameters
+    ----------
+    residual_m : (N,) residuals, NaN where a point has none
+    pixels : (N, 2) their (column, row)
+    stride : the points' grid step, pixels
+    lag_px : L, pixels
+    floor_m : the noise of one pixel (the sensor's), metres: the sigmas are not taken below it
+
+    Returns
+    -------
+    sigma : the robust sigma (1.4826 MAD of the second differences over sqrt 6) at lag L, metres;
+        NaN for too few points
+    area : the points that make one independent observation: the square of that sigma over the
+        same at lag one grid step (1 for an uncorrelated field), at most L^2
+    """
+    g, shape = _grid(pixels, stride, pad=0)
+    value = np.full(shape, np.nan)
+    value[g[:, 1], g[:, 0]] = residual_m
+
+    def sigma(lag: int) -> float:
+        """At ``lag`` grid steps, or an eighth of the field's extent along a row or a column if
+        that is less: a part's edges must stay a small share of the differences."""
+        across, down = (min(lag, max(1, n // 8)) if n >= 3 else 0 for n in shape[::-1])
+        d = []
+        if across:
+            d.append(value[:, : -2 * across] - 2 * value[:, across:-across] + value[:, 2 * across :])
+        if down:
+            d.append(value[: -2 * down] - 2 * value[down:-down] + value[2 * down :])
+        d = np.concatenate([x[np.isfinite(x)] for x in d]) if d else np.empty(0)
+        return _spread(d, centred=False) / np.sqrt(6) if len(d) >= 20 else np.nan
+
+    lag = max(1, int(round(lag_px / max(stride, 1))))
+    near, far = sigma(1), sigma(lag)
+    area = max(1.0, max(far, floor_m) / max(near, floor_m)) ** 2 if np.isfinite(far + near) else 1.0
+    return far, min(area, lag**2)
+
+
 def _spread(values: np.ndarray, *, centred: bool = True) -> float:
     """Robust standard deviation (1.4826 MAD) of ``values``; about zero when not ``centred``."""
     centre = np.median(values) if centred else 0.0
@@ -269,17 +327,31 @@ class DenseRule(DecisionRule):
         )
 
     def noise(self, ev: MotionEvidence, seen: np.ndarray) -> tuple[float, float, np.ndarray]:
-        """The depth and flow noise of the pair, measured on the model: the robust spread (1.4826 MAD)
-        of each seen point's residual and flow misfit under the motion the selection gives it (never
-        below the frames' own noise and ``flow_sigma_px``), and the costs under them. Selecting with the
-        frames' noise first lets a part take its points before their misfit is counted as noise."""
+        """The depth and flow noise of the pair, and the costs under them.
+
+        The depth noise is that of the residual field of the single motion that explains the pair
+        best (:func:`field_noise`, never below the frames' own noise); how many points it correlates
+        is kept as :attr:`area`, the points that make one independent observation. The flow noise is
+        the robust spread of each seen point's flow misfit under the motion the selection gives it
+        (never below ``flow_sigma_px``)."""
         costs = self.costs(ev)
+        best = int(np.argmin(costs.sum(axis=1)))
+        forward = ev.forward
+        residual = np.where(seen & (ev.status[best] == SURFACE), ev.residual_m[best], np.nan)[forward]
+        fx = float(np.median(ev.points[forward, 2])) / ev.pixel_m
+        field, area = field_noise(
+            residual,
+            ev.pixels[forward],
+            int(ev.info.get("stride_px", 1)),
+            lag_px=self.params.noise_lag_rad * fx,
+            floor_m=ev.noise_m,
+        )
+        sigma = float(np.nanmax([field, ev.noise_m]))
+        self.area = int(round(area))
         chosen = self.choose(ev, costs, seen)
         owner = np.asarray(chosen)[np.argmin(costs[chosen], axis=0)]
         point = np.arange(len(owner))
-        r = ev.residual_m[owner, point][seen & (ev.status[owner, point] == SURFACE)]
         f = ev.flow_px[owner, point][seen & np.isfinite(ev.flow_px[owner, point])]
-        sigma = max(_spread(r), ev.noise_m) if len(r) >= 10 else ev.noise_m
         flow = (
             max(_spread(f, centred=False), self.params.flow_sigma_px)
             if len(f) >= 10
@@ -290,16 +362,16 @@ class DenseRule(DecisionRule):
     def choose(self, ev: MotionEvidence, costs: np.ndarray, seen: np.ndarray) -> list[int]:
         """The hypotheses selected for the seen points (indices into ``ev.motions``)."""
         p = self.params
-        n = int(seen.sum())
+        n, area = int(seen.sum()), getattr(self, "area", 1)
         return select(
             costs[:, seen],
             _layout(ev)[seen],
-            penalty=p.bic_factor * 6 * np.log(max(n, 2)),
+            penalty=p.bic_factor * area * 6 * np.log(max(n / area, 2)),
             misfit=p.noise_factor**2,
-            min_points=max(p.min_part_points, int(p.min_part_share * n)),
+            min_points=max(p.min_part_points * area, int(p.min_part_share * n)),
             min_coherence=p.min_coherence,
             stride=int(ev.info.get("stride_px", 1)),
-            min_still_points=p.min_part_points,
+            min_still_points=p.min_part_points * area,
         )
 
     def decide(self, ev: MotionEvidence, *, source=None, target=None) -> RuleDecision:
@@ -334,23 +406,28 @@ class DenseRule(DecisionRule):
         )
         layout, stride = _layout(ev), int(ev.info.get("stride_px", 1))
         coherence = label_coherence(decisive, layout, stride)
-        misfit, enough = p.noise_factor**2, max(p.min_part_points, int(p.min_part_share * seen.sum()))
+        misfit, area = p.noise_factor**2, self.area
 
-        def least(h: int) -> int:
-            """The points motion ``h`` must explain on its own: staying still is no fit."""
-            return p.min_part_points if h == 0 else enough
+        def least(h: int, area: int = area) -> int:
+            """The points motion ``h`` must explain on its own (``area`` points to an independent
+            observation): staying still is no fit."""
+            few = p.min_part_points * area
+            return few if h == 0 else max(few, int(p.min_part_share * seen.sum()))
 
         depth = None  # the costs without flow, worked out when first needed
 
-        def needed(a: int, b: int, *, texture: bool = False) -> bool:
+        def needed(a: int, b: int, *, texture: bool = False, part: bool = True) -> bool:
             """Whether motion ``a`` explains enough points that ``b`` fails in depth (or, with
-            ``texture``, in depth or optical flow); staying still needs only ``min_part_points``."""
+            ``texture``, in depth or optical flow); staying still needs only ``min_part_points``.
+            A ``part`` counts them in independent observations."""
             nonlocal depth
             if depth is None:  # a miss counts beyond noise_factor sigma plus the look-up's half pixel
                 depth = self.costs(ev, noise + ev.pixel_m / 2 / p.noise_factor, np.inf)
             failed = costs[b] if texture else depth[b]
-            return int((seen & (costs[a] < misfit / 2) & (failed >= misfit)).sum()) >= least(a)
+            members = seen & (costs[a] < misfit / 2) & (failed >= misfit)
+            return int(members.sum()) >= least(a, area if part else 1)
 
+        tests = []
         for h in chosen[1:]:
             own, rest = ev.points[forward & (labels == h)], ev.points[forward & (labels >= 0) & (labels != h)]
             apart = min(
@@ -367,12 +444,17 @@ class DenseRule(DecisionRule):
             both_needed = needed(h, base, texture=texture) and needed(base, h)
             # ... and a part is one region of the image where its motion is clearly the better one.
             region = regions(decisive == h, layout, stride, min_points=least(h) // 2, most=1)
-            if (
-                apart > threshold
-                and both_needed
-                and region
-                and np.nanmean(coherence[decisive == h]) >= p.min_coherence
-            ):
+            coherent = float(np.nanmean(coherence[decisive == h])) if region else 0.0
+            tests.append(
+                dict(
+                    motion=ev.names[h],
+                    apart_m=round(apart, 5),
+                    needed=both_needed,
+                    region=bool(region),
+                    coherence=round(coherent, 3),
+                )
+            )
+            if apart > threshold and both_needed and region and coherent >= p.min_coherence:
                 parts.append(h)
         kept = [base, *parts]
         labels = np.where(seen, np.asarray(kept)[np.argmin(costs[kept], axis=0)], -1)
@@ -391,12 +473,14 @@ class DenseRule(DecisionRule):
         info = dict(
             noise_m=round(noise, 6),
             frame_noise_m=round(ev.noise_m, 6),
+            correlated_points=self.area,
             flow_noise_px=round(flow_noise, 3),
             threshold_m=round(threshold, 6),
             seen_share=round(share, 4),
             n_hypotheses=len(ev.motions),
             selected=[ev.names[h] for h in chosen],
             part_shares=[round(m.n_points / max(int((seen & forward).sum()), 1), 4) for m in motions],
+            candidates=tests,
         )
         if parts:
             shares = ", ".join(f"{s:.0%}" for s in info["part_shares"][1:])
@@ -413,7 +497,7 @@ class DenseRule(DecisionRule):
         # ... and, as a part must, it must be needed in depth: staying still (the evidence's first
         # hypothesis, the identity) fails points it explains. A fit that slides along a surface depth
         # cannot fix (a sliver of a still mug beside a moving hand) moves points, but shows no motion.
-        if moved > threshold and not needed(base, 0):
+        if moved > threshold and not needed(base, 0, part=False):
             moved, reason = 0.0, reason + ", but staying still explains the depth as well"
         decision = "RM" if moved > threshold else "NM"
         return RuleDecision(
