@@ -12,12 +12,12 @@ from typing import Any
 
 from tqdm import tqdm
 
-from .config import PLUGIN_KINDS, Config
+from .articulation import Articulation, forget_clouds
+from .config import JOINT_ESTIMATOR, PART_FINDER, PLUGIN_KINDS, Config
 from .errors import ArtclassError
 from .evaluate import evaluation, markdown
 from .interfaces import KINDS
 from .params import PipelineParams, describe
-from .parts import Articulation, find_articulation, forget_clouds
 from .pipeline import Pipeline
 from .plugins import Registry, load_registry
 from .sequences import find_sequences, open_sequences
@@ -126,7 +126,12 @@ def cmd_classify(registry: Registry, args) -> int:
     config = config_from_args(registry, args)
     seq = open_one_sequence(registry, args.path, reader=args.reader)
     result, articulation = classify_with_parts(
-        registry, config, seq, workers=args.workers, estimator=args.joint_estimator
+        registry,
+        config,
+        seq,
+        workers=args.workers,
+        part_finder=args.part_finder,
+        estimator=args.joint_estimator,
     )
     if args.json:
         out = result.to_dict(cells=not args.no_cells)
@@ -162,18 +167,26 @@ def open_one_sequence(registry: Registry, path: str, *, reader: str | None = Non
 
 
 def classify_with_parts(
-    registry: Registry, config: Config, sequence, *, workers: int, estimator: str = "bic"
+    registry: Registry,
+    config: Config,
+    sequence,
+    *,
+    workers: int,
+    part_finder: str = PART_FINDER,
+    estimator: str = JOINT_ESTIMATOR,
 ) -> tuple[RunResult, Articulation | None]:
-    """Classify ``sequence`` and find its parts and joints (None with a rule that does not label
-    points by motion). The clouds a run keeps for the parts are dropped afterwards."""
+    """Classify ``sequence`` and find its parts and joints with the part finder ``part_finder`` (None
+    when it cannot work on the runs of the configured rule). The clouds a run keeps for the parts are
+    dropped afterwards."""
     pipeline = Pipeline(registry, config)
-    by_motion = pipeline.rule.needs == "motions"
+    finder = registry.create("part_finder", part_finder)
+    with_parts = finder.works_on(pipeline.rule)
     result = pipeline.run(
-        sequence, progress=_progress(sys.stderr.isatty()), workers=workers, keep_clouds=by_motion
+        sequence, progress=_progress(sys.stderr.isatty()), workers=workers, keep_clouds=with_parts
     )
-    if not by_motion:
+    if not with_parts:
         return result, None
-    articulation = find_articulation(result, estimator=registry.create("joint_estimator", estimator))
+    articulation = finder.find(result, estimator=registry.create("joint_estimator", estimator))
     forget_clouds(result)
     return result, articulation
 
@@ -357,7 +370,10 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p.add_argument("path", help="sequence folder (PATH#NAME picks one of several)")
     _pipeline_options(p)
     p.add_argument("--no-cells", action="store_true", help="leave the per-cell details out of --json")
-    p.add_argument("--joint-estimator", default="bic", help="joint estimator plugin (default: %(default)s)")
+    p.add_argument("--part-finder", default=PART_FINDER, help="part finder plugin (default: %(default)s)")
+    p.add_argument(
+        "--joint-estimator", default=JOINT_ESTIMATOR, help="joint estimator plugin (default: %(default)s)"
+    )
     p.set_defaults(func=partial(cmd_classify, registry))
     p = sub.add_parser("evaluate", help="classify every labelled sequence under a folder and report accuracy")
     p.add_argument("root")

@@ -719,7 +719,7 @@ def parts_3d(articulation, *, max_points: int = 4000) -> go.Figure:
 
     Parameters
     ----------
-    articulation : :class:`artclass_core.parts.Articulation`
+    articulation : :class:`artclass_core.articulation.Articulation`
     max_points : at most this many points of each part are drawn
 
     Returns
