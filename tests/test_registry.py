@@ -27,7 +27,16 @@ from artclass_core.plugins import ENTRY_POINT_GROUP
 
 from conftest import make_sequence
 
-BUILTIN_ENTRY_POINTS = {"readers", "segmenters", "preprocessors", "registrars", "rules", "joints", "parts"}
+BUILTIN_ENTRY_POINTS = {
+    "readers",
+    "segmenters",
+    "preprocessors",
+    "registrars",
+    "rules",
+    "joints",
+    "parts",
+    "sweep",
+}
 
 
 def plugin_module(name: str, **hooks) -> types.ModuleType:

@@ -10,9 +10,10 @@ import pandas as pd
 import streamlit as st
 
 from app import state, uploads
-from artclass_core import ArtclassError, InputError, Sequence, figures
+from artclass_core import ArtclassError, InputError, Sequence
 from artclass_core.articulation import Articulation
 from artclass_core.config import JOINT_ESTIMATOR, PART_FINDER
+from artclass_plugins import figures
 
 log = logging.getLogger("artclass.app")
 SOURCES = ("Bundled samples", "Folder on the server", "Upload a zip")
