@@ -2,9 +2,9 @@
 
 This folder is not installed. The app puts the project root on ``sys.path`` and imports its modules
 as ``app.state``, ``app.uploads`` ...; the Plotly figure builders it draws with are installed with
-artclass (:mod:`artclass_core.figures`), so a notebook imports them directly::
+artclass (:mod:`artclass_plugins.figures`), so a notebook imports them directly::
 
-    from artclass_core.figures import decision_timeline, motion_arrows
+    from artclass_plugins.figures import decision_timeline, motion_arrows
 
 Modules without Streamlit (usable anywhere): :mod:`app.uploads` (zip uploads and data-root
 confinement). With Streamlit: :mod:`app.state` (the stage cache, pipelines, session state; a run is

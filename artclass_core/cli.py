@@ -7,32 +7,21 @@ import json
 import os
 import sys
 from functools import partial
-from pathlib import Path
 from typing import Any
 
 from tqdm import tqdm
 
-from .config import PLUGIN_KINDS, Config
+from .articulation import Articulation, forget_clouds
+from .config import JOINT_ESTIMATOR, PART_FINDER, PLUGIN_KINDS, Config
 from .errors import ArtclassError
 from .evaluate import evaluation, markdown
 from .interfaces import KINDS
 from .params import PipelineParams, describe
-from .parts import Articulation, find_articulation, forget_clouds
 from .pipeline import Pipeline
 from .plugins import Registry, load_registry
 from .sequences import find_sequences, open_sequences
-from .sweep import (
-    DASK_HINT,
-    grid_settings,
-    parse_grid,
-    plan_tasks,
-    run_tasks,
-    summary,
-    sweep,
-    swept_names,
-    write_figure,
-)
-from .types import DECISIONS, RunResult
+from .sweep import DASK_HINT, grid_settings, plan_tasks, run_tasks
+from .types import RunResult
 
 
 class _Bars:
@@ -126,7 +115,12 @@ def cmd_classify(registry: Registry, args) -> int:
     config = config_from_args(registry, args)
     seq = open_one_sequence(registry, args.path, reader=args.reader)
     result, articulation = classify_with_parts(
-        registry, config, seq, workers=args.workers, estimator=args.joint_estimator
+        registry,
+        config,
+        seq,
+        workers=args.workers,
+        part_finder=args.part_finder,
+        estimator=args.joint_estimator,
     )
     if args.json:
         out = result.to_dict(cells=not args.no_cells)
@@ -162,18 +156,26 @@ def open_one_sequence(registry: Registry, path: str, *, reader: str | None = Non
 
 
 def classify_with_parts(
-    registry: Registry, config: Config, sequence, *, workers: int, estimator: str = "bic"
+    registry: Registry,
+    config: Config,
+    sequence,
+    *,
+    workers: int,
+    part_finder: str = PART_FINDER,
+    estimator: str = JOINT_ESTIMATOR,
 ) -> tuple[RunResult, Articulation | None]:
-    """Classify ``sequence`` and find its parts and joints (None with a rule that does not label
-    points by motion). The clouds a run keeps for the parts are dropped afterwards."""
+    """Classify ``sequence`` and find its parts and joints with the part finder ``part_finder`` (None
+    when it cannot work on the runs of the configured rule). The clouds a run keeps for the parts are
+    dropped afterwards."""
     pipeline = Pipeline(registry, config)
-    by_motion = pipeline.rule.needs == "motions"
+    finder = registry.create("part_finder", part_finder)
+    with_parts = finder.works_on(pipeline.rule)
     result = pipeline.run(
-        sequence, progress=_progress(sys.stderr.isatty()), workers=workers, keep_clouds=by_motion
+        sequence, progress=_progress(sys.stderr.isatty()), workers=workers, keep_clouds=with_parts
     )
-    if not by_motion:
+    if not with_parts:
         return result, None
-    articulation = find_articulation(result, estimator=registry.create("joint_estimator", estimator))
+    articulation = finder.find(result, estimator=registry.create("joint_estimator", estimator))
     forget_clouds(result)
     return result, articulation
 
@@ -229,64 +231,6 @@ def cmd_evaluate(registry: Registry, args) -> int:
     else:
         print(markdown(evals))
     return 0
-
-
-def cmd_sweep(registry: Registry, args) -> int:
-    grid = parse_grid(args.grid)
-    out = Path(args.out)
-    sequences = _labelled_sequences(registry, args)
-    settings = grid_settings(
-        registry, grid, params=_overrides(args), **{kind: getattr(args, kind) for kind in PLUGIN_KINDS}
-    )
-    lost: list[str] = []
-    try:
-        table = sweep(
-            registry,
-            sequences,
-            settings,
-            out=out,
-            scheduler=args.scheduler,
-            workers=_workers(args),
-            force=args.force,
-            reader=args.reader,
-            progress=_progress(sys.stderr.isatty()),
-            lost=lost,
-        )
-    except KeyboardInterrupt:
-        print(
-            f"artclass: interrupted; the finished rows are in {out}: run the same command again to resume",
-            file=sys.stderr,
-        )
-        raise
-    html = write_figure(table, out.with_suffix(".html"))
-    summ = summary(table)
-    if args.json:
-        print(
-            json.dumps(
-                dict(table=str(out), figure=str(html), summary=summ.to_dict("records"), lost=lost),
-                default=str,
-            )
-        )
-    else:
-        print(
-            summ.drop(columns=swept_names(table), errors="ignore").to_string(
-                index=False,
-                na_rep="–",
-                formatters={
-                    "accuracy": "{:.1%}".format,
-                    "pair_accuracy": "{:.1%}".format,
-                    "seconds": "{:.1f}".format,
-                    **{d: "{:.3f}".format for d in DECISIONS},
-                },
-            )
-        )
-        failed = table["error"].notna().sum()
-        print(f"\n{len(table)} rows ({failed} failed, see the error column) in {out}; figure: {html}")
-    for item in lost:
-        print(f"artclass: lost by the cluster, not recorded: {item}", file=sys.stderr)
-    if lost:
-        print("artclass: run the same command again to run the lost sequences", file=sys.stderr)
-    return 1 if lost else 0
 
 
 def _param_dicts(params_cls: type) -> list[dict[str, Any]]:
@@ -357,7 +301,10 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p.add_argument("path", help="sequence folder (PATH#NAME picks one of several)")
     _pipeline_options(p)
     p.add_argument("--no-cells", action="store_true", help="leave the per-cell details out of --json")
-    p.add_argument("--joint-estimator", default="bic", help="joint estimator plugin (default: %(default)s)")
+    p.add_argument("--part-finder", default=PART_FINDER, help="part finder plugin (default: %(default)s)")
+    p.add_argument(
+        "--joint-estimator", default=JOINT_ESTIMATOR, help="joint estimator plugin (default: %(default)s)"
+    )
     p.set_defaults(func=partial(cmd_classify, registry))
     p = sub.add_parser("evaluate", help="classify every labelled sequence under a folder and report accuracy")
     p.add_argument("root")
@@ -369,34 +316,6 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
         help="also evaluate the paper's pipeline as written (paper preprocessor and rule, no prealignment)",
     )
     p.set_defaults(func=partial(cmd_evaluate, registry))
-    p = sub.add_parser(
-        "sweep",
-        help="evaluate every labelled sequence under a folder for every setting of a grid, into one table",
-    )
-    p.add_argument("root", help="folder searched for labelled sequences (recursively)")
-    p.add_argument(
-        "--grid",
-        action="append",
-        default=[],
-        required=True,
-        metavar="NAME=V1,V2,...",
-        help="a parameter (by name or paper symbol) or a plugin kind and the values to try; repeatable: "
-        "every combination runs",
-    )
-    _pipeline_options(p, cluster=True)
-    p.add_argument(
-        "--out",
-        default="sweep.parquet",
-        metavar="TABLE",
-        help="the results table, .parquet or .csv, written as it grows; the figure goes next to it as "
-        ".html (default: %(default)s)",
-    )
-    p.add_argument(
-        "--force",
-        action="store_true",
-        help="run again the rows already in the table (by default they are kept and skipped)",
-    )
-    p.set_defaults(func=partial(cmd_sweep, registry))
     p = sub.add_parser("plugins", help="list the registered plugins and their parameters")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=partial(cmd_plugins, registry))

@@ -19,6 +19,7 @@ from .plugins import Registry
 PLUGIN_KINDS = ("segmenter", "preprocessor", "registrar", "rule")
 AUTO_SEGMENTER = "auto"  # the sequence's own masks when it has them, else depth_threshold
 CELL_REGISTRAR, CELL_RULE = "icp_point_to_point", "paper"  # the paper's, for a per-cell pipeline
+PART_FINDER, JOINT_ESTIMATOR = "tracks", "bic"  # the parts stage after a run, and its joint fit
 
 
 @dataclass(frozen=True)

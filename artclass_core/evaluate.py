@@ -11,9 +11,11 @@ from typing import Any
 import cv2
 import numpy as np
 
+from .articulation import forget_clouds
+from .config import JOINT_ESTIMATOR, PART_FINDER
 from .errors import ArtclassError
+from .interfaces import PartFinder
 from .joint_metrics import score_articulation
-from .parts import find_articulation, forget_clouds
 from .pipeline import Config, Pipeline, StageCache
 from .plugins import Registry
 from .types import DECISIONS, LABELS, RunResult, Sequence
@@ -192,7 +194,8 @@ def run_outcome(
     t0 = time.perf_counter()
     result = None
     truth = getattr(seq, "truth", None)
-    with_joints = isinstance(truth, dict) and "joints" in truth and pipeline.rule.needs == "motions"
+    finder = pipeline.registry.create("part_finder", PART_FINDER)
+    with_joints = isinstance(truth, dict) and "joints" in truth and finder.works_on(pipeline.rule)
     try:
         result = pipeline.run(seq, workers=workers, cache=cache, keep_clouds=with_joints)
     except Exception as exc:  # bad data, or a plugin's bug: one line here, and the next sequence runs
@@ -200,7 +203,7 @@ def run_outcome(
     else:
         if with_joints:
             try:
-                o.joints = _score_joints(pipeline, seq, result, truth)
+                o.joints = _score_joints(finder, pipeline, seq, result, truth)
             except Exception as exc:  # the label stands; the parts are reported as failed
                 o.joints = dict(part_iou=None, part_iou_all_frames=None, joints=[], error=one_line(exc))
         score_labels(o, pipeline, seq, result)
@@ -239,9 +242,12 @@ def _observable(seq: Sequence, params) -> bool | None:
     return ("AM" in known) if known else None
 
 
-def _score_joints(pipeline: Pipeline, seq: Sequence, result: RunResult, truth: dict) -> dict[str, Any]:
-    """The parts and joints of a run against the sequence's joint truth and part images (``parts/``)."""
-    articulation = find_articulation(result, estimator=pipeline.registry.create("joint_estimator", "bic"))
+def _score_joints(
+    finder: PartFinder, pipeline: Pipeline, seq: Sequence, result: RunResult, truth: dict
+) -> dict[str, Any]:
+    """The parts and joints ``finder`` finds in a run against the sequence's joint truth and part
+    images (``parts/``)."""
+    articulation = finder.find(result, estimator=pipeline.registry.create("joint_estimator", JOINT_ESTIMATOR))
     images = {}
     for frame in result.frames:
         path = Path(seq.path) / "parts" / f"{frame.name}.png"

@@ -84,3 +84,16 @@ def register_joint_estimators(register) -> None:
     (radians or metres, relative to the first known frame) and their uncertainties, as an
     :class:`~artclass_core.interfaces.JointEstimate`.
     """
+
+
+@hookspec
+def register_part_finders(register) -> None:
+    """Register part finders: classes with ``find(result, *, estimator) -> Articulation``.
+
+    ``result`` is a finished :class:`~artclass_core.types.RunResult` made with ``keep_clouds=True``;
+    ``estimator`` is the :class:`~artclass_core.interfaces.JointEstimator` to fit each joint with.
+    The finder returns the parts (the base first), the joints between them (metres, radians, in the
+    base's coordinates of the first frame) and each frame's part image, as an
+    :class:`~artclass_core.articulation.Articulation`. Its class attribute ``needs`` names what the
+    run's rule must decide from (``"motions"``, ``"cells"`` or ``"any"``).
+    """

@@ -12,6 +12,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from .articulation import JOINT_TYPES, Articulation, JointEstimate  # noqa: F401  (JOINT_TYPES: re-exported)
 from .params import Params
 from .types import (
     CellMotion,
@@ -22,6 +23,7 @@ from .types import (
     Motion,
     MotionEvidence,
     Registration,
+    RunResult,
     Sequence,
 )
 
@@ -143,73 +145,6 @@ KINDS: dict[str, tuple[str, str]] = {
 }
 
 
-#: Joint types a :class:`JointEstimate` can carry, simplest first.
-JOINT_TYPES = ("fixed", "prismatic", "revolute", "screw", "free")
-
-
-@dataclass
-class JointEstimate:
-    """The joint between a moving part and its parent, as a joint estimator finds it.
-
-    Everything is in the parent's frame, in metres and radians. ``states[i]`` is the joint state in
-    frame ``i`` relative to the first frame whose pose the model explains: an angle in radians for ``revolute``
-    and ``screw``, a travel in metres for ``prismatic``; NaN where the pose is unknown or an outlier.
-
-    Attributes
-    ----------
-    type : one of :data:`JOINT_TYPES`
-    axis_direction : ndarray, shape (3,), unit vector, or None (``fixed``, ``free``)
-    axis_point_m : ndarray, shape (3,), metres, or None: a point on a revolute or screw axis (the one
-        nearest the part), or the part's point a prismatic axis runs through
-    states : ndarray, shape (N,), radians or metres
-    inliers : ndarray, shape (N,), bool: the poses the chosen model explains
-    axis_direction_std_rad : float, one standard deviation of the axis direction (NaN if unknown)
-    axis_point_std_m : float, one standard deviation of the axis position across the axis
-    states_std : ndarray, shape (N,), one standard deviation of each state
-    scores : dict, the BIC of every model tried (lower is better); empty if the estimator has none
-    info : dict, JSON-ready extra evidence (noise levels found, outlier count, screw pitch ...)
-    """
-
-    type: str
-    axis_direction: np.ndarray | None
-    axis_point_m: np.ndarray | None
-    states: np.ndarray
-    inliers: np.ndarray
-    axis_direction_std_rad: float = float("nan")
-    axis_point_std_m: float = float("nan")
-    states_std: np.ndarray | None = None
-    scores: dict[str, float] = field(default_factory=dict)
-    info: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def state_unit(self) -> str:
-        """``"m"`` for a prismatic joint, ``"rad"`` otherwise."""
-        return "m" if self.type == "prismatic" else "rad"
-
-    def summary(self, *, up: np.ndarray) -> str:
-        """One readable line, e.g. ``"revolute joint, axis 2 deg from vertical, 0-74 deg over the video"``.
-
-        Parameters
-        ----------
-        up : ndarray, shape (3,): the vertical in the parent's frame (the camera's up, or -gravity)
-        """
-        if self.type == "fixed":
-            return "fixed joint: the part does not move relative to its parent"
-        if self.type == "free" or self.axis_direction is None:
-            return (
-                f"free motion: no single joint explains the part's motion ({int(self.inliers.sum())} of "
-                f"{len(self.inliers)} poses fit the best one)"
-            )
-        up = np.asarray(up, float) / np.linalg.norm(up)
-        tilt = np.degrees(np.arccos(np.clip(abs(float(self.axis_direction @ up)), 0.0, 1.0)))
-        word = "direction" if self.type == "prismatic" else "axis"
-        scale, unit = (1000.0, "mm") if self.type == "prismatic" else (np.degrees(1.0), "deg")
-        known = self.states[np.isfinite(self.states)] * scale
-        low, high = (float(known.min()), float(known.max())) if len(known) else (0.0, 0.0)
-        span = f"{max(low, 0.0) + 0.0:.0f}-{high:.0f}" if round(low) >= 0 else f"{low:.0f} to {high:.0f}"
-        return f"{self.type} joint, {word} {tilt:.0f} deg from vertical, {span} {unit} over the video"
-
-
 class JointEstimator(Plugin):
     def estimate(
         self, poses: np.ndarray, *, n_independent: int | None = None, reach_m: float | None = None
@@ -228,3 +163,31 @@ class JointEstimator(Plugin):
 
 
 KINDS["joint_estimator"] = ("register_joint_estimators", "estimate")
+
+
+class PartFinder(Plugin):
+    """Parts and joints over a whole video, from a finished run.
+
+    The stage runs after the pipeline: it is given the :class:`~artclass_core.types.RunResult` of a
+    run made with ``keep_clouds=True`` (every frame's cloud and every pair's motions, point labels and
+    evidence) and returns the object's parts, the joints between them and each frame's part image.
+    """
+
+    #: What the run's decision rule must decide from for this stage to work on it: ``"motions"`` (each
+    #: pair's rigid motions and the points each explains), ``"cells"``, or ``"any"``.
+    needs: ClassVar[str] = "motions"
+
+    def works_on(self, rule: DecisionRule) -> bool:
+        """Whether this stage can find parts in the runs of ``rule``."""
+        return self.needs in ("any", rule.needs)
+
+    def find(self, result: RunResult, *, estimator: JointEstimator) -> Articulation:
+        """The parts and joints of ``result``; each joint is fitted by ``estimator``.
+
+        A sequence not labelled articulated gets its base only and no joint. Raises
+        :class:`~artclass_core.errors.ArtclassError` when the run kept too little (no clouds).
+        """
+        raise NotImplementedError
+
+
+KINDS["part_finder"] = ("register_part_finders", "find")

@@ -150,7 +150,7 @@ def score_articulation(articulation, truth: dict, true_labels: dict[int, np.ndar
 
     Parameters
     ----------
-    articulation : :class:`artclass_core.parts.Articulation`
+    articulation : :class:`artclass_core.articulation.Articulation`
     truth : dict
         The sequence's ``truth.json`` (``parts``, ``joints`` with per-frame ``state``,
         ``axis_camera0``, ``origin_camera0_m``, ``part_poses`` and ``part_points_m``).

@@ -25,15 +25,17 @@ from .errors import InputError, ParamError
 from .frames import FrameSteps
 from .labels import fractions, labelled_result, max_count_filter, sequence_label, with_longer
 from .plugins import Registry
+from .redecide import RedecideSteps
 from .scheduler import Progress, add_time, single_threaded_open3d, stream_pairs
 from .types import CellMotion, Cloud, FrameResult, MotionEvidence, PairResult, RunResult, Sequence
 
 __all__ = ["Config", "Pipeline", "StageCache", "fractions", "max_count_filter", "sequence_label"]
 
 
-class Pipeline(FrameSteps):
+class Pipeline(FrameSteps, RedecideSteps):
     """The configured plugins, ready to run step by step or on a whole sequence (steps 1 and 2, one
-    frame to its cloud, are :class:`~artclass_core.frames.FrameSteps`)."""
+    frame to its cloud, are :class:`~artclass_core.frames.FrameSteps`; deciding a finished run again
+    is :class:`~artclass_core.redecide.RedecideSteps`)."""
 
     def __init__(self, registry: Registry, config: Config | None = None, *, segmenters: dict | None = None):
         """``segmenters``: segmenters by name, shared with pipelines of the same segmentation settings."""
@@ -265,21 +267,6 @@ class Pipeline(FrameSteps):
         add_time(timing, "register", t1 - t0)
         add_time(timing, "decide", time.perf_counter() - t1)
         return pair
-
-    # -- re-deciding a finished run ---------------------------------------------------------------
-    def redecide(
-        self,
-        result: RunResult,
-        *,
-        sequence: Sequence | None = None,
-        cache: StageCache | None = None,
-        workers: int = 1,
-    ) -> RunResult:
-        """Decide a finished run again under this pipeline's decision settings, reusing its registrations
-        (:func:`artclass_core.redecide.redecide`, which documents the parameters and errors)."""
-        from .redecide import redecide
-
-        return redecide(self, result, sequence=sequence, cache=cache, workers=workers)
 
     # -- steps 5 and 6: max-count filter and label -------------------------------------------------
     def summarise(

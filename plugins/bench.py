@@ -11,7 +11,7 @@ cached under ``$XDG_CACHE_HOME/artclass/bench`` keyed by the generator's version
   of its time;
 - the time to re-decide the sequence after a decision-rule parameter changes (reusing the cached
   registrations through :class:`artclass_core.pipeline.StageCache`), next to a full re-run;
-- the cost of finding the parts and joints (:func:`artclass_core.parts.find_articulation`) on top of
+- the cost of finding the parts and joints (the part finder, ``tracks`` by default) on top of
   the classification, as a share of its run time, on a clip whose part is found (:data:`PARTS_SEQUENCE`,
   rendered and cached the same way; with ``--sequence``, that sequence);
 - a long sequence (default 1000 frames, the rendered frames played back and forth by
@@ -199,7 +199,7 @@ def start_up() -> float:
         "artclass_plugins.dense.projective",
         "artclass_plugins.segmenters._compiled",
         "artclass_plugins.joints._compiled",
-        "artclass_core._looks",
+        "artclass_plugins.parts._compiled",
     ):
         try:
             warm_up = importlib.import_module(module).warm_up
@@ -252,19 +252,20 @@ def measure_run(spec: dict) -> dict:
 
 def measure_parts(spec: dict) -> dict:
     """The cost of finding parts and joints on top of classification (called in a child): one run that
-    keeps what the parts need, then :func:`artclass_core.parts.find_articulation` on it."""
+    keeps what the parts need, then the part finder on it."""
     from artclass_core import Pipeline, load_registry
-    from artclass_core.parts import find_articulation
+    from artclass_core.config import JOINT_ESTIMATOR, PART_FINDER
 
     registry = load_registry()
     seq = _open(registry, spec)
     pipe = Pipeline(registry, _config(registry, spec))
-    estimator = registry.create("joint_estimator", "bic")
+    finder = registry.create("part_finder", PART_FINDER)
+    estimator = registry.create("joint_estimator", JOINT_ESTIMATOR)
     start_up_s = start_up()
     t0, c0 = time.perf_counter(), time.process_time()
     result = pipe.run(seq, keep_clouds=True, **_run_kwargs(pipe, spec))
     t1, c1 = time.perf_counter(), time.process_time()
-    articulation = find_articulation(result, estimator=estimator)
+    articulation = finder.find(result, estimator=estimator)
     t2, c2 = time.perf_counter(), time.process_time()
     return dict(
         spec=spec,
@@ -509,7 +510,7 @@ def run_bench(args) -> int:
     registry = load_registry()
     out = sys.stdout
     if args.quick:
-        args.segmenters, args.workers, args.long_frames, args.skip_paper = "mask", "1", 0, True
+        args.segmenters, args.workers, args.long_frames = "mask", "1", 0
     if args.sequence:
         path = str(args.sequence)
     else:
@@ -647,7 +648,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--quick",
         action="store_true",
-        help="a short check: the mask segmenter, the default registrar, 1 worker, no long sequence",
+        help="a short check: the mask segmenter, 1 worker, the paper's pipeline beside it, no long sequence",
     )
     p.add_argument("--json", metavar="FILE", help="also write every number to this JSON file")
 

@@ -1,4 +1,4 @@
-"""``artclass_core.figures``: the Plotly figures the app and the notebooks draw."""
+"""``artclass_plugins.figures``: the Plotly figures the app and the notebooks draw."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from artclass_core import Config, figures
+from artclass_core import Config
 from artclass_core.evaluate import evaluate
+from artclass_plugins import figures
 
 pytestmark = pytest.mark.slow  # renders the app's sequences and runs the pipeline on them
 

@@ -16,7 +16,6 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from artclass_core import Config, Pipeline, load_registry, open_sequences  # noqa: E402
-from artclass_core.parts import find_articulation  # noqa: E402
 
 APP = str(ROOT / "app" / "streamlit_app.py")
 LAPTOP = ROOT / "sample_data" / "laptop_articulate"
@@ -60,7 +59,8 @@ def expected():
     registry = load_registry()
     seq = open_sequences(registry, LAPTOP)[0]
     result = Pipeline(registry, Config()).run(seq, keep_clouds=True)
-    return find_articulation(result, estimator=registry.create("joint_estimator", "bic"))
+    finder = registry.create("part_finder", "tracks")
+    return finder.find(result, estimator=registry.create("joint_estimator", "bic"))
 
 
 def test_the_page_says_which_joint_in_one_line(laptop_page, expected):

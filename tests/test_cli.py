@@ -22,6 +22,7 @@ BUILTINS = {
     "registrar": {"icp_point_to_point", "icp_point_to_plane"},
     "rule": {"dense", "paper"},
     "joint_estimator": {"bic"},
+    "part_finder": {"tracks"},
 }
 SAMPLES = sample_sequences()
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import json
 from types import SimpleNamespace
 
@@ -26,13 +27,16 @@ from artclass_core import (
     Pipeline,
     PluginError,
     RuleDecision,
+    RunResult,
     Sequence,
     describe,
     hookimpl,
     load_registry,
 )
+from artclass_core.articulation import Articulation, JointEstimate, Part
+from artclass_core.cli import classify_with_parts, plugin_table
 from artclass_core.geometry import transform
-from artclass_core.interfaces import KINDS
+from artclass_core.interfaces import KINDS, PartFinder
 
 from conftest import INTRINSICS, make_sequence, sample_sequences
 
@@ -482,3 +486,99 @@ def test_joint_estimator_refuses_poses_of_the_wrong_shape(name):
     with pytest.raises(InputError) as err:
         REGISTRY.create("joint_estimator", name).estimate(np.zeros((4, 3, 4)))
     one_line_error(err.value)
+
+
+# -- part finders ------------------------------------------------------------------------------------
+
+
+@functools.cache
+def _hinge_run(needs: str, *, keep_clouds: bool = True) -> RunResult:
+    """A run of a small hinge (8 frames, k = 2) under a rule that gives what a part finder needs."""
+    config = (Config.paper() if needs == "cells" else Config()).with_overrides(REGISTRY, {"k": "2"})
+    return Pipeline(REGISTRY, config).run(make_sequence("hinge", n_frames=8), keep_clouds=keep_clouds)
+
+
+def check_articulation(art: Articulation, result: RunResult) -> None:
+    """What every part finder returns: parts (the base first, parents before children), joints
+    between them, the base's poses and part images of the frames' shape."""
+    assert isinstance(art, Articulation) and art.parts, "at least the base"
+    for n, part in enumerate(art.parts):
+        assert part.index == n and part.parent < n and (part.parent >= 0) == (n > 0)
+        assert part.points_m.ndim == 2 and part.points_m.shape[1] == 3
+    for joint in art.joints:
+        assert 0 <= joint.parent < len(art.parts) and 0 < joint.child < len(art.parts)
+        assert isinstance(joint.estimate, JointEstimate)
+        assert joint.estimate.states.shape == (len(result.frames),)
+    assert art.base_poses.shape == (len(result.frames), 4, 4)
+    for f in art.frames:
+        image = art.label_image(f)
+        assert image.dtype == np.uint8 and image.shape == (INTRINSICS.height, INTRINSICS.width)
+        assert image.max() <= len(art.parts)
+    json.dumps(art.to_dict())
+    assert art.summary().strip() and "\n" not in art.summary()
+
+
+@pytest.mark.parametrize("name", ids("part_finder"))
+def test_part_finder_returns_parts_joints_and_part_images(name):
+    finder = REGISTRY.create("part_finder", name)
+    result = _hinge_run(finder.needs)
+    art = finder.find(result, estimator=REGISTRY.create("joint_estimator", "bic"))
+    check_articulation(art, result)
+    again = REGISTRY.create("part_finder", name).find(
+        result, estimator=REGISTRY.create("joint_estimator", "bic")
+    )
+    assert again.to_dict() == art.to_dict(), "deterministic"
+
+
+@pytest.mark.parametrize("name", ids("part_finder"))
+def test_part_finder_without_the_clouds_names_the_fix(name):
+    finder = REGISTRY.create("part_finder", name)
+    result = _hinge_run(finder.needs, keep_clouds=False)
+    with pytest.raises(ArtclassError, match="keep_clouds") as err:
+        finder.find(result, estimator=REGISTRY.create("joint_estimator", "bic"))
+    one_line_error(err.value)
+
+
+class OneBodyFinder(PartFinder):
+    """A second part finder, from outside the core: the whole object as one part, from any rule."""
+
+    name = "one_body"
+    description = "the whole object as one part, with no joint"
+    needs = "any"
+
+    def find(self, result: RunResult, *, estimator) -> Articulation:
+        clouds = {f.index: f.cloud for f in result.frames if f.cloud is not None}
+        if not clouds:
+            raise ArtclassError("finding parts needs the frames' clouds: run with keep_clouds=True")
+        first = min(clouds)
+        base = Part(0, "base", -1, clouds[first].points, sorted(clouds), sum(map(len, clouds.values())))
+        views = {
+            f: (c.pixels, np.zeros(len(c), int), c.view.mask, 1)
+            for f, c in clouds.items()
+            if c.pixels is not None
+        }
+        return Articulation([base], [], np.full((len(result.frames), 4, 4), np.nan), views)
+
+
+@hookimpl
+def register_part_finders(register):
+    register(OneBodyFinder)
+
+
+def test_hook_register_part_finders_takes_a_second_finder():
+    """A part finder registered through the hook is listed, keeps the contract and is the one that
+    ``classify_with_parts`` uses when chosen, under a rule the built-in one cannot work with."""
+    registry = load_registry(extra_plugins=(SimpleNamespace(register_part_finders=register_part_finders),))
+    assert {"one_body", "tracks"} <= set(registry.names("part_finder"))
+    assert "one_body" in [row["name"] for row in plugin_table(registry)["part_finder"]]
+    finder = registry.create("part_finder", "one_body")
+    check_articulation(finder.find(_hinge_run("cells"), estimator=None), _hinge_run("cells"))
+    config = Config.paper().with_overrides(registry, {"k": "2"})
+    seq = make_sequence("hinge", n_frames=4)
+    _, none = classify_with_parts(registry, config, seq, workers=1)
+    assert none is None, "the built-in finder needs a rule that decides from motions"
+    result, art = classify_with_parts(registry, config, seq, workers=1, part_finder="one_body")
+    assert (
+        [p.name for p in art.parts] == ["base"] and art.joints == [] and art.parts[0].frames == list(range(4))
+    )
+    assert all(f.cloud is None for f in result.frames), "the clouds kept for the parts are dropped"

@@ -242,3 +242,65 @@ def test_index_links_every_page():
             assert f"]({page.name})" in index, f"docs/index.md does not link {page.name}"
     for notebook in sorted((ROOT / "notebooks").glob("*.ipynb")):
         assert f"notebooks/{notebook.name}" in index, f"docs/index.md does not link {notebook.name}"
+
+
+# -- the documents a newcomer reads first ---------------------------------------------------------------
+
+README, CHANGELOG, BENCHMARKS = ROOT / "README.md", ROOT / "CHANGELOG.md", ROOT / "benchmarks" / "README.md"
+CHANGELOG_SECTIONS = {"Added", "Changed", "Deprecated", "Removed", "Fixed", "Security"}
+
+
+def _section(text: str, title: str) -> list[str]:
+    """The non-blank lines under the heading ``title`` up to the next heading of its level or above."""
+    lines = text.splitlines()
+    start = lines.index(title)
+    level = title.split()[0]
+    out = []
+    for line in lines[start + 1 :]:
+        if line.startswith("#") and len(line.split()[0]) <= len(level):
+            break
+        out.append(line)
+    return [line for line in out if line.strip()]
+
+
+@pytest.mark.parametrize("page", [README, CHANGELOG, BENCHMARKS], ids=lambda p: str(p.relative_to(ROOT)))
+def test_top_level_links_resolve(page):
+    test_links_resolve(page)
+
+
+def test_readme_reads_in_five_minutes():
+    text = README.read_text()
+    assert len(text.splitlines()) <= 200, f"README.md has {len(text.splitlines())} lines; at most 200"
+    first = text.splitlines()[:4]
+    assert first[0] == "```" and first[1].startswith("make app ") and first[2].startswith("make test ")
+    limits = _section(text, "## Known limitations")
+    assert 0 < len(limits) <= 15, f"README's known limitations run to {len(limits)} lines; at most 15"
+    assert all("docs/limitations.md#" in item for item in "\n".join(limits).split("\n- ")), (
+        "every known limitation links to its measured detail in docs/limitations.md"
+    )
+
+
+def test_changelog_is_releases_of_short_entries():
+    text = CHANGELOG.read_text()
+    lines = text.splitlines()
+    assert len(lines) <= 400, f"CHANGELOG.md has {len(lines)} lines; at most 400"
+    releases = [line for line in lines if line.startswith("## ")]
+    assert releases and all(re.match(r"## \[(Unreleased|\d+\.\d+\.\d+)\]", r) for r in releases), releases
+    kinds = {line[4:] for line in lines if line.startswith("### ")}
+    assert kinds <= CHANGELOG_SECTIONS, (
+        f"sections other than Keep a Changelog's: {kinds - CHANGELOG_SECTIONS}"
+    )
+    assert not [line for line in lines if line.startswith("#### ")], "no sub-sections under a kind of change"
+    entries = re.split(r"^- ", text, flags=re.M)[1:]
+    long = [e.splitlines()[0] for e in entries if len(e.split("\n\n")[0].strip().splitlines()) > 3]
+    assert not long, f"entries longer than three lines: {long}"
+
+
+def test_benchmarks_readme_opens_with_its_tables():
+    text = BENCHMARKS.read_text()
+    body = text.split("## Current results", 1)[1].split("\n## ", 1)[0]
+    for table in re.split(r"^### ", body, flags=re.M)[1:]:
+        title = table.splitlines()[0]
+        assert "Remake" in table.split("|", 1)[0], f"table {title!r}: the command that remakes it comes first"
+        prose = [p for p in table.split("\n\n") if p.strip() and not p.lstrip().startswith(("|", "Remake"))]
+        assert len(prose) <= 2, f"table {title!r}: at most a paragraph of prose, got {len(prose) - 1}"

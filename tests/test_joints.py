@@ -18,8 +18,9 @@ from artclass_core.joint_metrics import (
     part_iou,
     state_error,
 )
-from artclass_plugins.joints import BICJointParams, chain_pair_motions, fit_joint
+from artclass_plugins.joints import BICJointParams, fit_joint
 from artclass_plugins.joints.synthetic import synthetic_joint
+from artclass_plugins.parts import chain_pair_motions
 
 NOISE_M, NOISE_RAD = 0.001, np.radians(0.5)  # 1 mm and 0.5 degree per axis
 UP = np.array([0.0, 0.0, 1.0])

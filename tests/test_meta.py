@@ -47,6 +47,7 @@ def test_hooks_are_found():
         "register_registrars",
         "register_rules",
         "register_joint_estimators",
+        "register_part_finders",
         "register_commands",
     } <= set(HOOKS)
 
@@ -94,6 +95,7 @@ def test_parameters_are_collected():
         "registrar",
         "rule",
         "joint_estimator",
+        "part_finder",
     } <= kinds
     assert len(SPECS) >= 15
 

@@ -12,20 +12,9 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from artclass_core import ArtclassError, parts
+from artclass_core import ArtclassError
 from artclass_core.geometry import transform
 from artclass_core.joint_metrics import axis_direction_error_rad, axis_position_error_m, score_articulation
-from artclass_core.parts import (
-    PartsParams,
-    _base_motions,
-    _look,
-    _one_body_pairs_on,
-    _still_track,
-    chain_interleaved,
-    find_articulation,
-    frame_states,
-    smooth_misfit,
-)
 from artclass_core.plugins import load_registry
 from artclass_core.types import (
     Cloud,
@@ -37,6 +26,20 @@ from artclass_core.types import (
     RunResult,
     View,
 )
+from artclass_plugins.parts import (
+    PartsParams,
+    chain_interleaved,
+    find_articulation,
+    frame_states,
+    images,
+    motions,
+    observations,
+    tracks,
+    tree,
+)
+from artclass_plugins.parts.base import _base_motions, _one_body_pairs_on, _still_track
+from artclass_plugins.parts.images import _look
+from artclass_plugins.parts.joints import smooth_misfit
 
 K = Intrinsics(500.0, 500.0, 160.0, 120.0, 320, 240)
 HINGE = np.array([0.0, 0.0, 0.8])  # camera frame of frame 0, metres
@@ -416,7 +419,7 @@ def test_a_part_that_moves_little_is_linked_against_its_own_pairs_noise(bic):
     the two pairs' together) is linked into one part with every pair's evidence."""
     run = run_result(carried=True)
     pair = run.pairs[0]
-    field = parts._twist_log(
+    field = motions._twist_log(
         np.linalg.inv(pair.motions[0].T_target_from_source) @ pair.motions[1].T_target_from_source
     )
     moved_m = np.median(np.linalg.norm(np.cross(field[0], LID) + field[1], axis=1))
@@ -468,7 +471,7 @@ def test_texture_shows_a_part_sliding_along_a_surface(bic, monkeypatch):
     assert [j.estimate.type for j in art.joints] == ["prismatic"]
     assert min(_agreement(art, f, slide=True) for f in (0, 10, 23)) > 0.95
     # with the depth alone, the band stays on the base in some frame
-    monkeypatch.setattr(parts, "_by_shade", lambda best, decisive, *args, **kw: (best, decisive))
+    monkeypatch.setattr(images, "_by_shade", lambda best, decisive, *args, **kw: (best, decisive))
     depth_only = find_articulation(run_result(slide=True, mislabelled=0.4), estimator=bic)
     assert min(_agreement(depth_only, f, slide=True) for f in (0, 10, 23)) < 0.9
 
@@ -487,7 +490,7 @@ def test_a_frame_where_the_part_is_not_found_gets_it_from_the_joint(bic, monkeyp
     held from the nearest frame that gave one, and the frame's points take the part whose points,
     placed there by the joint, are nearest: the flap keeps its part, a few degrees off."""
     monkeypatch.setattr(
-        parts, "_look", lambda motions, points, view, reach_m: np.full((len(motions), len(points)), np.nan)
+        images, "_look", lambda motions, points, view, reach_m: np.full((len(motions), len(points)), np.nan)
     )
     art = find_articulation(run_result(hidden=range(20, 24)), estimator=bic)
     for f in (21, 23):
@@ -522,7 +525,7 @@ def test_a_moved_point_is_looked_up_where_it_projects():
     it, or out of the picture: no evidence (NaN). A part pays that distance, or infinitely when it is
     beyond reach, and the reach when there is no evidence: the unmoved points go to the part that
     stays, by more than the reach against one beyond reach, by less against one without evidence."""
-    from artclass_core._looks import by_depth
+    from artclass_plugins.parts._compiled import by_depth
 
     cloud, _ = _cloud(0, False)
     points = cloud.points[:: len(cloud.points) // 50]
@@ -544,7 +547,7 @@ def test_points_go_to_the_part_that_explains_them_by_depth_then_by_texture():
     when the next costs more than the margin more, and a point left open goes to the part (among
     those within the margin) that changes its intensity least, when the next changes it by more than
     the limit more."""
-    from artclass_core._looks import by_depth, by_shade
+    from artclass_plugins.parts._compiled import by_depth, by_shade
 
     rng = np.random.default_rng(8)
     residual = rng.choice([np.nan, np.inf, 0.001, 0.004, 0.006, 0.02], (3, 400))
@@ -717,7 +720,7 @@ def test_part_iou_over_every_frame_counts_the_frames_given_up(bic):
     full = score_articulation(art, truth, images)
     assert full["part_iou"] == pytest.approx(full["part_iou_all_frames"]) and full["part_iou"] > 0.95
     half = N_FRAMES // 2
-    gave_up = dataclasses.replace(art, _views={f: v for f, v in art._views.items() if f < half})
+    gave_up = dataclasses.replace(art, views={f: v for f, v in art.views.items() if f < half})
     scores = score_articulation(gave_up, truth, images)
     assert scores["part_iou"] > 0.95
     assert scores["part_iou_all_frames"] == pytest.approx(
@@ -835,9 +838,11 @@ def test_overlaps_count_the_pixels_both_labellings_label():
     labels = {"a": rng.integers(-1, 3, len(grid)), "b": rng.integers(-1, 2, len(grid))}
 
     def observation(pair, pick, name):
-        return parts._Observation(pair, 0, grid[pick], np.zeros((len(pick), 3)), labels[name][pick], True)
+        return observations._Observation(
+            pair, 0, grid[pick], np.zeros((len(pick), 3)), labels[name][pick], True
+        )
 
-    found = parts._overlaps(observation(0, first, "a"), observation(1, second, "b"))
+    found = tracks._overlaps(observation(0, first, "a"), observation(1, second, "b"))
     shared = np.intersect1d(first, second)
     expected = {}
     for m in range(3):
@@ -854,7 +859,7 @@ def test_overlaps_count_the_pixels_both_labellings_label():
 def test_intensities_where_points_land_are_smoothed_as_opencv_smooths(shape):
     """The part images compare intensities smoothed over a pixel's neighbours, computed only at the
     pixels looked at: the same values as blurring the whole image with OpenCV, edges included."""
-    from artclass_core._looks import smoothed_at
+    from artclass_plugins.parts._compiled import smoothed_at
 
     gray = np.random.default_rng(4).integers(0, 256, shape).astype(np.uint8)
     pixels = np.stack(np.meshgrid(np.arange(shape[1]), np.arange(shape[0])), -1).reshape(-1, 2)
@@ -873,10 +878,10 @@ def test_reach_measures_the_parent_points_placed_at_state_0():
     )
     placement[3] = np.nan
     placed = np.concatenate([own] + [transform(parent[f], np.linalg.inv(placement[f])) for f in range(3)])
-    assert parts._reach(own, parent, placement, centre) == pytest.approx(
+    assert tree._reach(own, parent, placement, centre) == pytest.approx(
         np.linalg.norm(placed - centre, axis=1).max()
     )
     unplaced = np.concatenate([own, *parent.values()])
-    assert parts._reach(own, parent, np.full_like(placement, np.nan), centre) == pytest.approx(
+    assert tree._reach(own, parent, np.full_like(placement, np.nan), centre) == pytest.approx(
         np.linalg.norm(unplaced - centre, axis=1).max()
     )

@@ -27,7 +27,16 @@ from artclass_core.plugins import ENTRY_POINT_GROUP
 
 from conftest import make_sequence
 
-BUILTIN_ENTRY_POINTS = {"readers", "segmenters", "preprocessors", "registrars", "rules", "joints"}
+BUILTIN_ENTRY_POINTS = {
+    "readers",
+    "segmenters",
+    "preprocessors",
+    "registrars",
+    "rules",
+    "joints",
+    "parts",
+    "sweep",
+}
 
 
 def plugin_module(name: str, **hooks) -> types.ModuleType:
@@ -76,7 +85,15 @@ def test_builtins_come_from_entry_points():
     assert BUILTIN_ENTRY_POINTS <= names
     registry = load_registry(entry_point_setting="")
     assert not registry.failures, registry.failures
-    for kind in ("reader", "segmenter", "preprocessor", "registrar", "rule", "joint_estimator"):
+    for kind in (
+        "reader",
+        "segmenter",
+        "preprocessor",
+        "registrar",
+        "rule",
+        "joint_estimator",
+        "part_finder",
+    ):
         assert registry.names(kind), f"no {kind} registered"
         for info in registry.plugins[kind].values():
             assert info.kind == kind and info.cls.name == info.name and info.source

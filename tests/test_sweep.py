@@ -21,7 +21,6 @@ import pytest
 from artclass_core import ArtclassError, InputError, ParamError, Pipeline, load_registry, open_sequences
 from artclass_core.cli import main
 from artclass_core.sweep import (
-    figure,
     grid_settings,
     parse_grid,
     plan_tasks,
@@ -31,6 +30,7 @@ from artclass_core.sweep import (
     swept_names,
     write_table,
 )
+from artclass_plugins.figures import sweep_figure
 
 from conftest import ROOT
 
@@ -345,7 +345,7 @@ def test_scheduler_without_dask_says_how_to_install_it(capsys, root, tmp_path, m
 def test_figure_has_a_panel_per_swept_name(registry, sequences, tmp_path):
     settings = grid_settings(registry, {"w": ["1", "3", "5"], "rule": ["dense", "paper"]})
     table = sweep(registry, sequences, settings, out=tmp_path / "t.parquet")
-    fig = figure(table)
+    fig = sweep_figure(table)
     titles = [a.text for a in fig.layout.annotations]
     assert titles == ["w", "rule"]
     summ = summary(table)
@@ -400,7 +400,7 @@ def test_evaluate_page_opens_a_sweep_table(registry, sequences, root, tmp_path, 
     ).run()
     assert not app.exception and not app.error, [e.value for e in app.error]
     shown = json.loads(app.get("plotly_chart")[0].proto.spec)
-    assert shown == json.loads(figure(table).to_json()), "the page shows the figure the command writes"
+    assert shown == json.loads(sweep_figure(table).to_json()), "the page shows the figure the command writes"
     app.get("file_uploader")[0].set_value(("t.csv", b"not,a,sweep\n1,2,3\n", "text/csv")).run()
     assert not app.exception
     errors = [e.value for e in app.error]

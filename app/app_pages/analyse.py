@@ -10,8 +10,10 @@ import pandas as pd
 import streamlit as st
 
 from app import state, uploads
-from artclass_core import ArtclassError, InputError, Sequence, figures
-from artclass_core.parts import Articulation, find_articulation
+from artclass_core import ArtclassError, InputError, Sequence
+from artclass_core.articulation import Articulation
+from artclass_core.config import JOINT_ESTIMATOR, PART_FINDER
+from artclass_plugins import figures
 
 log = logging.getLogger("artclass.app")
 SOURCES = ("Bundled samples", "Folder on the server", "Upload a zip")
@@ -236,7 +238,9 @@ def show_result(seq: Sequence, config, result) -> None:
 @st.cache_resource(max_entries=4, show_spinner="Finding parts and joints")
 def articulation_of(seq_key: str, config_key: str, _result) -> Articulation:
     """The parts and joints of a run (keyed on the sequence and the whole configuration)."""
-    return find_articulation(_result, estimator=state.registry().create("joint_estimator", "bic"))
+    reg = state.registry()
+    finder = reg.create("part_finder", PART_FINDER)
+    return finder.find(_result, estimator=reg.create("joint_estimator", JOINT_ESTIMATOR))
 
 
 def show_parts(seq: Sequence, config, result, pair) -> dict:

@@ -9,10 +9,11 @@ import pandas as pd
 import streamlit as st
 
 from app import state, uploads
-from artclass_core import ArtclassError, Config, InputError, Sequence, figures
+from artclass_core import ArtclassError, Config, InputError, Sequence
 from artclass_core.evaluate import Evaluation, evaluate, markdown
-from artclass_core.sweep import figure as sweep_figure
 from artclass_core.sweep import read_table, summary
+from artclass_plugins import figures
+from artclass_plugins.figures import sweep_figure
 
 log = logging.getLogger("artclass.app")
 NO_COMPARE = "(none)"

@@ -83,10 +83,10 @@ def noise_m(depth_m: np.ndarray | float, at_1m: float) -> np.ndarray | float:
 
 def finite_depth(depth_m: np.ndarray) -> np.ndarray:
     """A copy (H, W) float32 of a depth image (metres) with its non-finite pixels set to 0."""
-    from .projective import kernels  # Numba, on first use
+    from . import _compiled  # Numba, on first use
 
     out = np.empty(depth_m.shape, np.float32)
-    kernels().finite_or_zero(depth_m, out)
+    _compiled.finite_or_zero(depth_m, out)
     return out
 
 
@@ -127,9 +127,9 @@ def normal_map(vertices: np.ndarray, *, window_px: int = 5, min_support: float =
     # the kernel divides it by the support only at the pixels it differentiates.
     total = cv2.blur(vertices, k)
     normals = np.zeros_like(vertices)
-    from .projective import kernels  # Numba, on first use
+    from . import _compiled  # Numba, on first use
 
-    kernels().normals_kernel(vertices, total, support, window_px // 2, np.float32(min_support), normals)
+    _compiled.normals_kernel(vertices, total, support, window_px // 2, np.float32(min_support), normals)
     return normals
 
 
@@ -182,9 +182,9 @@ def valid_median(
     depth, out = median_5x5(depth, valid) if median is None else (_masked(depth, valid), median.copy())
     # Where a window is all valid and inside the image, the plain median is the same.
     whole = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8), borderValue=0) > 0
-    from .projective import kernels  # Numba, on first use
+    from . import _compiled  # Numba, on first use
 
-    kernels().valid_median_kernel(depth, valid, valid & ~whole, out, 2, min_count)
+    _compiled.valid_median_kernel(depth, valid, valid & ~whole, out, 2, min_count)
     return np.where(valid, out, 0).astype(np.float32, copy=False)
 
 

@@ -8,7 +8,7 @@ and chooses one by BIC (:func:`fit_joint`). :mod:`artclass_core.joint_metrics` c
 from artclass_core import hookimpl
 from artclass_core.interfaces import JointEstimate, JointEstimator
 
-from .models import MODELS, BICJointParams, chain_pair_motions, fit_joint
+from .models import MODELS, BICJointParams, fit_joint
 
 
 class BICJointEstimator(JointEstimator):
@@ -36,4 +36,4 @@ def register_commands(subparsers):
     add_export(subparsers)
 
 
-__all__ = ["BICJointEstimator", "BICJointParams", "MODELS", "chain_pair_motions", "fit_joint"]
+__all__ = ["BICJointEstimator", "BICJointParams", "MODELS", "fit_joint"]

@@ -26,7 +26,6 @@ from scipy.stats import chi2
 
 from artclass_core import InputError, Params, param
 from artclass_core.interfaces import JointEstimate
-from artclass_core.parts import chain_pair_motions  # noqa: F401  (part of this module's API)
 
 from . import _compiled
 

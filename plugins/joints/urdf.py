@@ -166,7 +166,7 @@ def _check_tree(model: ArticulatedModel) -> None:
 
 def model_from_articulation(articulation, *, name: str) -> ArticulatedModel:
     """The URDF model of the parts and joints found in a video
-    (:class:`artclass_core.parts.Articulation`).
+    (:class:`artclass_core.articulation.Articulation`).
 
     The base is the root link, in the base's coordinates of the first frame; each moving part is a
     link on its joint, its points at state 0 moved into the joint frame. Every estimate and every

@@ -2,7 +2,7 @@
 temporary arrays: the parts' look-ups (object points moved by each part's motion into another frame
 and looked up in its depth and intensity images), the choice of each point's part from them, the
 overlaps of two pairs' labellings, and how far a part reaches. Imported when first needed, so that
-importing :mod:`artclass_core` does not load Numba."""
+importing the plugins does not load Numba."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 Pure functions of artclass data types: no Streamlit, no file access, no algorithm. Each returns a
 :class:`plotly.graph_objects.Figure` (or plain rows for a table)::
 
-    from artclass_core.figures import decision_timeline, motion_arrows, frame_images, cells_table, confusion_figure
+    from artclass_plugins.figures import decision_timeline, motion_arrows, frame_images, cells_table, confusion_figure
 
 Stable API
 ----------
@@ -14,6 +14,7 @@ frame_images(frame, mask, *, title=None)           RGB with the mask overlaid, a
 cells_table(pair)                                  one row (dict) per cell of a pair, in mm and degrees
 confusion_figure(metrics, *, title=None)           confusion matrix of ``Evaluation.metrics()``
 figures_html(figures, *, title)                    several figures in one self-contained HTML page
+sweep_figure(table, *, title=...)                  accuracy against each swept parameter (``artclass sweep``)
 
 Units: the clouds are plotted in metres (camera frame: x right, y down, z forward, seen from the
 camera); hover texts and tables give translations and displacements in millimetres, angles in degrees.
@@ -23,16 +24,19 @@ from __future__ import annotations
 
 import base64
 import html
+import itertools
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import cv2
 import numpy as np
+import pandas as pd
 import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
 from artclass_core import Cloud, Frame, PairResult, RunResult
 from artclass_core.geometry import transform
+from artclass_core.sweep import summary, swept_names
 
 __all__ = [
     "DECISION_COLOURS",
@@ -46,6 +50,7 @@ __all__ = [
     "confusion_figure",
     "figures_html",
     "selected_pair_index",
+    "sweep_figure",
 ]
 
 DECISION_COLOURS = {"AM": "#E4572E", "RM": "#2E86AB", "NM": "#57A773", "skipped": "#B8B8B8"}
@@ -719,7 +724,7 @@ def parts_3d(articulation, *, max_points: int = 4000) -> go.Figure:
 
     Parameters
     ----------
-    articulation : :class:`artclass_core.parts.Articulation`
+    articulation : :class:`artclass_core.articulation.Articulation`
     max_points : at most this many points of each part are drawn
 
     Returns
@@ -898,3 +903,54 @@ def _arrows(
 def _markers(points: np.ndarray, **style) -> go.Scatter3d:
     """A 3D scatter of ``points`` (N, 3), metres, as markers, with the trace's other ``style``."""
     return go.Scatter3d(x=points[:, 0], y=points[:, 1], z=points[:, 2], mode="markers", **style)
+
+
+# -- sweeps ----------------------------------------------------------------------------------------------
+def sweep_figure(table: pd.DataFrame, *, title: str = "Accuracy against each swept parameter"):
+    """A Plotly figure: one panel per swept name, sequence accuracy (solid) and pair accuracy (dashed)
+    against its values, one line per combination of the other swept names (named in the legend)."""
+    summ = summary(table)
+    names = swept_names(table) or ["setting"]
+    fig = make_subplots(rows=1, cols=len(names), subplot_titles=names, shared_yaxes=True)
+    palette = ["#2E86AB", "#E4572E", "#76B041", "#F2A541", "#8E6C8A", "#17BEBB", "#4D4D4D"]
+    line = itertools.count()  # one colour per line, across the panels
+    for col, name in enumerate(names, 1):
+        others = [n for n in names if n != name]
+        values = pd.to_numeric(summ[name], errors="coerce")
+        numeric = bool(values.notna().all())
+        summ["_x"] = values if numeric else summ[name]
+        for key, part in summ.groupby(others, sort=False) if others else [((), summ)]:
+            key = key if isinstance(key, tuple) else (key,)
+            label = ", ".join(f"{n}={v}" for n, v in zip(others, key)) or "all"
+            part = part.sort_values("_x") if numeric else part
+            colour = palette[next(line) % len(palette)]
+            for metric, dash in (("accuracy", None), ("pair_accuracy", "dash")):
+                fig.add_trace(
+                    go.Scatter(
+                        x=part["_x"],
+                        y=part[metric],
+                        mode="lines+markers",
+                        legendgroup=label,
+                        name=f"{'sequence' if metric == 'accuracy' else 'pair'} accuracy, {label}",
+                        line=dict(color=colour, dash=dash),
+                        hovertemplate=f"{name}=%{{x}}<br>{metric.replace('_', ' ')} %{{y:.1%}}<extra>{label}</extra>",
+                    ),
+                    row=1,
+                    col=col,
+                )
+        fig.update_xaxes(
+            title_text=name,
+            type=None if numeric else "category",
+            tickvals=sorted(values.unique()) if numeric else None,
+            row=1,
+            col=col,
+        )
+    fig.update_yaxes(range=[-0.05, 1.05], tickformat=".0%", title_text="accuracy", col=1)
+    fig.update_layout(
+        template="plotly_white",
+        title=title,
+        height=420,
+        margin=dict(t=80),
+        legend=dict(orientation="h", y=-0.25),
+    )
+    return fig
