@@ -19,7 +19,7 @@ from .interfaces import KINDS
 from .params import PipelineParams, describe
 from .pipeline import Pipeline
 from .plugins import Registry, load_registry
-from .sequences import find_sequences, open_sequences
+from .sequences import find_sequences, open_sequences, split_reader_values
 from .sweep import DASK_HINT, grid_settings, plan_tasks, run_tasks
 from .types import RunResult
 
@@ -96,7 +96,7 @@ def _workers(args) -> int:
     return 1 if args.scheduler else os.cpu_count() or 1
 
 
-def _overrides(args) -> dict[str, str]:
+def _all_overrides(args) -> dict[str, str]:
     overrides = {}
     for item in args.param:
         key, sep, value = item.partition("=")
@@ -106,14 +106,24 @@ def _overrides(args) -> dict[str, str]:
     return overrides
 
 
+def _overrides(registry: Registry, args) -> dict[str, str]:
+    """The ``--param`` settings of the pipeline and its plugins (the readers' are :func:`reader_values`)."""
+    return split_reader_values(registry, _all_overrides(args))[1]
+
+
+def reader_values(registry: Registry, args) -> dict[str, str]:
+    """The ``--param`` settings that name a reader's parameter (``max_time_diff_s``, ``colour_topic`` ...)."""
+    return split_reader_values(registry, _all_overrides(args))[0]
+
+
 def config_from_args(registry: Registry, args: argparse.Namespace) -> Config:
     plugins = {kind: getattr(args, kind) for kind in PLUGIN_KINDS}
-    return grid_settings(registry, {}, params=_overrides(args), **plugins)[0].config(registry)
+    return grid_settings(registry, {}, params=_overrides(registry, args), **plugins)[0].config(registry)
 
 
 def cmd_classify(registry: Registry, args) -> int:
     config = config_from_args(registry, args)
-    seq = open_one_sequence(registry, args.path, reader=args.reader)
+    seq = open_one_sequence(registry, args.path, reader=args.reader, values=reader_values(registry, args))
     result, articulation = classify_with_parts(
         registry,
         config,
@@ -143,9 +153,10 @@ def cmd_classify(registry: Registry, args) -> int:
     return 0
 
 
-def open_one_sequence(registry: Registry, path: str, *, reader: str | None = None):
-    """The one sequence at ``path`` (``PATH#NAME`` picks one of several)."""
-    sequences = open_sequences(registry, path, reader=reader)
+def open_one_sequence(registry: Registry, path: str, *, reader: str | None = None, values=None):
+    """The one sequence at ``path`` (``PATH#NAME`` picks one of several); ``values`` set reader
+    parameters by name."""
+    sequences = open_sequences(registry, path, reader=reader, reader_values=values)
     if len(sequences) > 1:
         names = ", ".join(s.name for s in sequences)
         raise ArtclassError(
@@ -181,7 +192,9 @@ def classify_with_parts(
 
 
 def _labelled_sequences(registry: Registry, args) -> list:
-    sequences, errors = find_sequences(registry, args.root, reader=args.reader)
+    sequences, errors = find_sequences(
+        registry, args.root, reader=args.reader, reader_values=reader_values(registry, args)
+    )
     for err in errors:
         print(f"artclass: skipping {err}", file=sys.stderr)
     if not sequences:
@@ -192,16 +205,16 @@ def _labelled_sequences(registry: Registry, args) -> list:
 def cmd_evaluate(registry: Registry, args) -> int:
     sequences = _labelled_sequences(registry, args)
     plugins = {kind: getattr(args, kind) for kind in PLUGIN_KINDS}
-    settings = grid_settings(registry, {}, params=_overrides(args), **plugins)
+    settings = grid_settings(registry, {}, params=_overrides(registry, args), **plugins)
     if args.compare_rule:
         settings += grid_settings(
-            registry, {}, params=_overrides(args), **{**plugins, "rule": args.compare_rule}
+            registry, {}, params=_overrides(registry, args), **{**plugins, "rule": args.compare_rule}
         )
     if args.compare_paper:
         settings += grid_settings(
             registry,
             {},
-            params={**_overrides(args), "prealign": "false", "slow_factor": "1"},
+            params={**_overrides(registry, args), "prealign": "false", "slow_factor": "1"},
             **{**plugins, "preprocessor": "paper", "rule": "paper"},
         )
     outcomes: list[dict[int, Any]] = [{} for _ in settings]

@@ -24,7 +24,10 @@ def _cmd_sweep(args) -> int:
     out = Path(args.out)
     sequences = _labelled_sequences(registry, args)
     settings = grid_settings(
-        registry, grid, params=_overrides(args), **{kind: getattr(args, kind) for kind in PLUGIN_KINDS}
+        registry,
+        grid,
+        params=_overrides(registry, args),
+        **{kind: getattr(args, kind) for kind in PLUGIN_KINDS},
     )
     lost: list[str] = []
     try:
