@@ -1,7 +1,8 @@
-"""Dataset readers: the native folder format, YCB-Video, RBO and TUM RGB-D."""
+"""Dataset readers: the native folder format, YCB-Video, RBO, TUM RGB-D and ROS / RealSense bags."""
 
 from artclass_core import hookimpl
 
+from .bag import BagReader
 from .folder import FolderReader
 from .rbo import RboReader
 from .tum import TumReader
@@ -14,3 +15,4 @@ def register_readers(register):
     register(YcbvReader)
     register(RboReader)
     register(TumReader)
+    register(BagReader)
