@@ -29,6 +29,7 @@ pages = [
         default=True,
     ),
     st.Page(HERE / "app_pages" / "evaluate.py", title="Evaluate", icon=":material/fact_check:"),
+    st.Page(HERE / "app_pages" / "live.py", title="Live", icon=":material/videocam:"),
     st.Page(HERE / "app_pages" / "plugins.py", title="Plugins", icon=":material/extension:"),
 ]
 with st.sidebar:

@@ -198,3 +198,24 @@ def test_live_plays_a_realsense_recording_through_the_sdk(laptop_bag, registry, 
     status, out, err = run_cli(capsys, "live", "--source", path, "--json")
     assert status == 0, err
     assert json.loads(out)["label"] == "articulated"
+
+
+@pytest.mark.slow
+def test_live_page_grows_the_timeline(app, laptop_bag, monkeypatch):
+    """The app's live page plays a bag under a data root: decision, pairs and the final label."""
+    from app_helpers import errors, metric, ok
+
+    _folder, bag, _seq = laptop_bag
+    monkeypatch.setenv("ARTCLASS_DATA_ROOTS", str(bag.parent))
+    ok(app.run())
+    app.switch_page("app_pages/live.py")
+    ok(app.run())
+    app.text_input(key="lv_path").set_value(str(bag))
+    app.button(key="lv_start").click()
+    ok(app.run())
+    assert metric(app, "Decision so far") == "articulated"
+    assert metric(app, "Pairs") == str(N_FRAMES - 5)
+    assert any("laptop: articulated" in s.value for s in app.success), [s.value for s in app.success]
+    assert len(app.get("plotly_chart")) == 2  # the timeline and the latest pair's 3D view
+    app.text_input(key="lv_path").set_value("/etc/passwd").run()
+    assert any("outside the data folders" in e for e in errors(app)), errors(app)
