@@ -477,3 +477,20 @@ def test_partial_intrinsics_are_refused(laptop, tmp_path):
 def test_other_files_are_not_bags(tmp_path, registry):
     (tmp_path / "notes.txt").write_text("x")
     assert BagReader().sequences(tmp_path) == [] and BagReader().sequences(tmp_path / "notes.txt") == []
+
+
+def test_the_depth_cameras_info_is_not_taken_for_colour(laptop, tmp_path):
+    """A bag with CameraInfo for the depth camera only: the colour camera's intrinsics are missing,
+    not silently the depth camera's."""
+    _folder, seq, frames = laptop
+    t = [10**9 + i * 33_000_000 for i in range(4)]
+    path = write_topics(
+        tmp_path / "depthinfo.bag",
+        {
+            "/camera/color/image_raw": [(t[i], "c", frames[i].rgb, "rgb8") for i in range(4)],
+            "/camera/depth/image_raw": [(t[i], "c", _mm(frames[i].depth_m), "16UC1") for i in range(4)],
+        },
+        info=[("/camera/depth/camera_info", seq.intrinsics)],
+    )
+    with pytest.raises(InputError, match="no CameraInfo for /camera/color/image_raw"):
+        BagReader().sequences(path)

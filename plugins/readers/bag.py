@@ -324,21 +324,26 @@ def _first(reader, topic: str, msgtype: str | None = None):
     return None
 
 
-def _nearest_topic(reader, near: str, msgtype: str) -> str | None:
-    """The topic of ``msgtype`` sharing the longest leading path with ``near`` (at least its first
-    part), e.g. ``/camera/color/camera_info`` for ``/camera/color/image_raw``."""
-    parts = near.split("/")
+def _shared(a: str, b: str) -> int:
+    """How many leading parts of two topic names agree."""
+    n = 0
+    for x, y in zip(a.split("/"), b.split("/")):
+        if x != y:
+            break
+        n += 1
+    return n
 
-    def shared(name: str) -> int:
-        n = 0
-        for a, b in zip(name.split("/"), parts):
-            if a != b:
-                break
-            n += 1
-        return n
 
-    found = [(shared(n), -len(n), n) for n, i in reader.topics.items() if i.msgtype == msgtype and i.msgcount]
-    found = [f for f in found if f[0] >= 2]
+def _nearest_topic(reader, near: str, msgtype: str, *, not_nearer: str = "") -> str | None:
+    """The topic of ``msgtype`` sharing the longest leading path with ``near`` (its first part at
+    least), e.g. ``/camera/color/camera_info`` for ``/camera/color/image_raw``; one that shares more
+    with ``not_nearer`` (the other image topic) belongs to that one and is not taken."""
+    found = [
+        (_shared(name, near), -len(name), name)
+        for name, info in reader.topics.items()
+        if info.msgtype == msgtype and info.msgcount
+    ]
+    found = [f for f in found if f[0] >= 2 and (not not_nearer or f[0] >= _shared(f[2], not_nearer))]
     return max(found)[2] if found else None
 
 
@@ -350,10 +355,10 @@ def _field(msg, name: str):
     return getattr(msg, name, None) if hasattr(msg, name) else getattr(msg, name.upper())
 
 
-def camera_info(reader, image: ImageTopic, *, path: Path) -> tuple[Intrinsics, str] | None:
-    """The intrinsics of ``image`` from the ``CameraInfo`` topic nearest it, and that topic; None if
-    the bag has none."""
-    topic = _nearest_topic(reader, image.name, CAMERA_INFO)
+def camera_info(reader, image: ImageTopic, *, other: ImageTopic, path: Path) -> tuple[Intrinsics, str] | None:
+    """The intrinsics of ``image`` from the ``CameraInfo`` topic nearest it (not one nearer ``other``,
+    the other image topic), and that topic; None if the bag has none."""
+    topic = _nearest_topic(reader, image.name, CAMERA_INFO, not_nearer=other.name)
     msg = None if topic is None else _first(reader, topic)
     if msg is None:
         return None
@@ -757,7 +762,7 @@ class BagReader(Reader):
                     f"{p.max_time_diff_s:g} s (header stamps)",
                     path=path,
                 )
-            intrinsics, source = self._intrinsics(reader, colour, path=path)
+            intrinsics, source = self._intrinsics(reader, colour, depth, path=path)
             units = DEPTH_ENCODINGS.get(depth.encoding, (None, None))[1] or MILLIMETRE
             if depth.realsense_stream:
                 units = _rs_depth_units(reader, depth) or units
@@ -788,7 +793,9 @@ class BagReader(Reader):
             )
         ]
 
-    def _intrinsics(self, reader, colour: ImageTopic, *, path: Path) -> tuple[Intrinsics, str]:
+    def _intrinsics(
+        self, reader, colour: ImageTopic, depth: ImageTopic, *, path: Path
+    ) -> tuple[Intrinsics, str]:
         p = self.params
         if p.fx is not None:
             if not colour.width:
@@ -797,7 +804,7 @@ class BagReader(Reader):
                     path=path,
                 )
             return Intrinsics(p.fx, p.fy, p.cx, p.cy, width=colour.width, height=colour.height), "params"
-        found = camera_info(reader, colour, path=path)
+        found = camera_info(reader, colour, other=depth, path=path)
         if found is None:
             namespace = colour.name.rsplit("/", 1)[0]
             raise InputError(
@@ -823,7 +830,7 @@ class BagReader(Reader):
                 )
             return None, "recorded registered"
         found = depth_to_colour(reader, colour, depth)
-        depth_info = camera_info(reader, depth, path=path)
+        depth_info = camera_info(reader, depth, other=colour, path=path)
         if found is None or depth_info is None:
             namespace = "/" + colour.name.strip("/").split("/")[0]
             wanted = (
