@@ -29,6 +29,24 @@ def run_cli(capsys, *argv) -> tuple[int, str, str]:
     return status, out, err
 
 
+def classify_json(capsys, where, *more) -> dict:
+    """``artclass classify WHERE --json`` with the mask-free segmenter on one worker, as data."""
+    argv = [
+        "classify",
+        where,
+        "--json",
+        "--no-cells",
+        "--workers",
+        1,
+        "--segmenter",
+        "depth_threshold",
+        *more,
+    ]
+    status, out, err = run_cli(capsys, *argv)
+    assert status == 0, err
+    return json.loads(out)
+
+
 @pytest.fixture(scope="module")
 def laptop(rendered, registry):
     """A small articulated sequence in the folder format, and its frames."""
@@ -94,22 +112,7 @@ def test_classify_bag_decides_as_the_folder(laptop, tmp_path, capsys, layout):
     folder, seq, frames = laptop
     name, kw = LAYOUTS[layout]
     path = write_bag(frames, tmp_path / name, intrinsics=seq.intrinsics, **kw)
-    runs = []
-    for where in (folder, path):
-        status, out, err = run_cli(
-            capsys,
-            "classify",
-            where,
-            "--json",
-            "--no-cells",
-            "--workers",
-            1,
-            "--segmenter",
-            "depth_threshold",
-        )
-        assert status == 0, err
-        runs.append(json.loads(out))
-    a, b = runs
+    a, b = (classify_json(capsys, where) for where in (folder, path))
     assert [(p["i"], p["j"], p["decision"]) for p in a["pairs"]] == [
         (p["i"], p["j"], p["decision"]) for p in b["pairs"]
     ]

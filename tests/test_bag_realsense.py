@@ -4,16 +4,15 @@ to colour with the recording's extrinsics the way the SDK's own alignment does."
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from test_bag import classify_json
 
 from artclass_core import Intrinsics, open_sequences
-from artclass_core.cli import main
 
 rs = pytest.importorskip("pyrealsense2", reason="pyrealsense2 (the realsense extra) is not installed")
 
@@ -108,11 +107,7 @@ def test_sdk_recording_reads_back_exactly(laptop, sdk_bag, registry):
 @pytest.mark.slow
 def test_sdk_recording_decides_as_the_folder(laptop, sdk_bag, capsys):
     folder, _seq, _frames = laptop
-    runs = []
-    for where in (folder, sdk_bag):
-        argv = ["classify", where, "--json", "--no-cells", "--workers", 1, "--segmenter", "depth_threshold"]
-        assert main([str(a) for a in argv]) == 0
-        runs.append(json.loads(capsys.readouterr().out))
+    runs = [classify_json(capsys, where) for where in (folder, sdk_bag)]
     assert [p["decision"] for p in runs[0]["pairs"]] == [p["decision"] for p in runs[1]["pairs"]]
     assert runs[0]["label"] == runs[1]["label"] == "articulated"
 

@@ -10,21 +10,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_bag import classify_json, run_cli
 
 from artclass_core import Frame, InputError, Intrinsics, open_sequences
-from artclass_core.cli import main
 from artclass_plugins.live import LiveSequence, StreamEnded, classify_live, open_source
 from artclass_plugins.live.sources import SequenceSource, has_realsense
 from artclass_plugins.readers.bag import write_bag
 
 N_FRAMES = 12
 SIZE = dict(width=160, height=120)
-
-
-def run_cli(capsys, *argv) -> tuple[int, str, str]:
-    status = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return status, out, err
 
 
 @pytest.fixture(scope="module")
@@ -96,21 +90,7 @@ def test_live_bag_decides_as_classify_and_records_a_replayable_folder(laptop_bag
     )
     assert status == 0, err
     live = json.loads(out)
-    runs = [live]
-    for where in (bag, record):
-        status, out, err = run_cli(
-            capsys,
-            "classify",
-            where,
-            "--json",
-            "--no-cells",
-            "--workers",
-            1,
-            "--segmenter",
-            "depth_threshold",
-        )
-        assert status == 0, err
-        runs.append(json.loads(out))
+    runs = [live] + [classify_json(capsys, where) for where in (bag, record)]
     decisions = [[(p["i"], p["j"], p["decision"]) for p in r["pairs"]] for r in runs]
     assert decisions[0] == decisions[1] == decisions[2]
     assert live["label"] == runs[1]["label"] == "articulated"

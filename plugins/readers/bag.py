@@ -76,6 +76,11 @@ ALIGNED_WORDS = ("aligned_depth_to_colo", "depth_registered")
 MAX_SKIP = 16
 
 
+def _intrinsic(what: str, *, bounds: tuple[float, float]) -> Any:
+    """A colour camera intrinsic parameter, in pixels; by default the bag's CameraInfo's."""
+    return param(None, unit="px", bounds=bounds, auto="the bag's CameraInfo", help=f"{what} (colour camera).")
+
+
 @dataclass(frozen=True)
 class BagParams(Params):
     colour_topic: str = param("", help="The colour image topic; empty: found by its name.")
@@ -100,34 +105,10 @@ class BagParams(Params):
         help="Read up to this many seconds after the first image (bag time).",
     )
     every: int = param(1, unit="frames", bounds=(1, 10000), help="Keep every n-th colour-depth pair.")
-    fx: float | None = param(
-        None,
-        unit="px",
-        bounds=(1e-3, 1e5),
-        auto="the bag's CameraInfo",
-        help="Focal length along x (colour camera).",
-    )
-    fy: float | None = param(
-        None,
-        unit="px",
-        bounds=(1e-3, 1e5),
-        auto="the bag's CameraInfo",
-        help="Focal length along y (colour camera).",
-    )
-    cx: float | None = param(
-        None,
-        unit="px",
-        bounds=(-1e5, 1e5),
-        auto="the bag's CameraInfo",
-        help="Principal point's column (colour camera).",
-    )
-    cy: float | None = param(
-        None,
-        unit="px",
-        bounds=(-1e5, 1e5),
-        auto="the bag's CameraInfo",
-        help="Principal point's row (colour camera).",
-    )
+    fx: float | None = _intrinsic("Focal length along x", bounds=(1e-3, 1e5))
+    fy: float | None = _intrinsic("Focal length along y", bounds=(1e-3, 1e5))
+    cx: float | None = _intrinsic("Principal point's column", bounds=(-1e5, 1e5))
+    cy: float | None = _intrinsic("Principal point's row", bounds=(-1e5, 1e5))
 
 
 # -- opening a bag --------------------------------------------------------------------------------
