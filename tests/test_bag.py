@@ -10,14 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rosbags.rosbag1 import Writer as Writer1
-from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from artclass_core import InputError, Intrinsics, open_sequences
 from artclass_core.cli import main
-from artclass_plugins.readers.bag import BagParams, BagReader, register_depth, write_bag
+from artclass_plugins.readers.bag import BagParams, BagReader, BagWriter, register_depth, write_bag
 
 N_FRAMES = 12
 SIZE = dict(width=160, height=120)
@@ -120,92 +117,37 @@ def test_classify_bag_decides_as_the_folder(laptop, tmp_path, capsys, layout):
     assert a["filtered"] == b["filtered"]
 
 
-def _ros_writer(path: Path):
-    """A rosbags writer, its typestore and serialiser (ROS 1 for a .bag path, else ROS 2)."""
-    ros1 = path.suffix == ".bag"
-    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-    writer = Writer1(path) if ros1 else Writer2(path, version=9)
-    return writer, store, store.serialize_ros1 if ros1 else store.serialize_cdr, ros1
-
-
-def _image(store, ros1, t_ns, frame_id, array, encoding):
-    T = store.types
-    stamp = T["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
-    header = T["std_msgs/msg/Header"](**({"seq": 0} if ros1 else {}), stamp=stamp, frame_id=frame_id)
-    data = np.ascontiguousarray(array)
-    return T["sensor_msgs/msg/Image"](
-        header=header,
-        height=data.shape[0],
-        width=data.shape[1],
-        encoding=encoding,
-        is_bigendian=0,
-        step=data.strides[0],
-        data=data.view(np.uint8).reshape(-1),
-    )
-
-
 def write_topics(
     path: Path, topics: dict[str, list[tuple[int, str, np.ndarray, str]]], *, info=None, tf=()
 ) -> Path:
     """A bag of image topics, each a list of (stamp ns, frame_id, array, encoding), written at their
     stamps; ``info``: (topic, Intrinsics) pairs for CameraInfo; ``tf``: (parent, child, 4x4
     T_parent_from_child) on /tf_static."""
-    writer, store, serialize, ros1 = _ros_writer(path)
-    T = store.types
-    writer.open()
-    conns = {}
-
-    def put(topic, msgtype, msg, t_ns):
-        if topic not in conns:
-            conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
-        writer.write(conns[topic], t_ns, serialize(msg, msgtype))
-
-    for topic, k in info or ():
-        K = np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1.0])
-        fields = dict(d=np.zeros(5), k=K, r=np.eye(3).ravel(), p=np.zeros(12))
-        header = T["std_msgs/msg/Header"](
-            **({"seq": 0} if ros1 else {}),
-            stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0),
-            frame_id="",
-        )
-        roi = T["sensor_msgs/msg/RegionOfInterest"](
-            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
-        )
-        msg = T["sensor_msgs/msg/CameraInfo"](
-            header=header,
-            height=k.height,
-            width=k.width,
-            distortion_model="plumb_bob",
-            binning_x=0,
-            binning_y=0,
-            roi=roi,
-            **{(n.upper() if ros1 else n): v for n, v in fields.items()},
-        )
-        put(topic, "sensor_msgs/msg/CameraInfo", msg, 1)
-    if tf:
+    with BagWriter(path) as bag:
+        T = bag.types
+        for topic, k in info or ():
+            bag.put(topic, "sensor_msgs/msg/CameraInfo", bag.camera_info(1, "", k), 1)
         transforms = []
         for parent, child, M in tf:
             q = Rotation.from_matrix(M[:3, :3]).as_quat()
-            header = T["std_msgs/msg/Header"](
-                **({"seq": 0} if ros1 else {}),
-                stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0),
-                frame_id=parent,
+            transform = T["geometry_msgs/msg/Transform"](
+                translation=T["geometry_msgs/msg/Vector3"](x=M[0, 3], y=M[1, 3], z=M[2, 3]),
+                rotation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
             )
             transforms.append(
                 T["geometry_msgs/msg/TransformStamped"](
-                    header=header,
-                    child_frame_id=child,
-                    transform=T["geometry_msgs/msg/Transform"](
-                        translation=T["geometry_msgs/msg/Vector3"](x=M[0, 3], y=M[1, 3], z=M[2, 3]),
-                        rotation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
-                    ),
+                    header=bag.header(0, parent), child_frame_id=child, transform=transform
                 )
             )
-        put("/tf_static", "tf2_msgs/msg/TFMessage", T["tf2_msgs/msg/TFMessage"](transforms=transforms), 1)
-    messages = sorted((t, topic, fid, a, enc) for topic, items in topics.items() for t, fid, a, enc in items)
-    for t, topic, fid, a, enc in messages:
-        put(topic, "sensor_msgs/msg/Image", _image(store, ros1, t, fid, a, enc), t)
-    writer.close()
+        if transforms:
+            bag.put(
+                "/tf_static", "tf2_msgs/msg/TFMessage", T["tf2_msgs/msg/TFMessage"](transforms=transforms), 1
+            )
+        messages = sorted(
+            (t, topic, fid, a, enc) for topic, items in topics.items() for t, fid, a, enc in items
+        )
+        for t, topic, fid, a, enc in messages:
+            bag.put(topic, "sensor_msgs/msg/Image", bag.image(t, fid, a, enc), t)
     return path
 
 

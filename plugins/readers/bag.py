@@ -863,6 +863,84 @@ LAYOUTS = {
 }
 
 
+class BagWriter:
+    """Messages into a new bag, with rosbags' writers: a ROS 1 bag for a ``.bag`` path, else a ROS 2
+    bag folder (``storage``: ``sqlite3`` or ``mcap``). Use it in a ``with`` block; ``types`` are the
+    message classes of its type store (ROS 1 Noetic or ROS 2 Humble)."""
+
+    def __init__(self, path: Path, *, storage: str = "sqlite3"):
+        from rosbags.rosbag1 import Writer as Writer1
+        from rosbags.rosbag2 import StoragePlugin
+        from rosbags.rosbag2 import Writer as Writer2
+        from rosbags.typesys import Stores, get_typestore
+
+        self.path = Path(path)
+        self.ros1 = self.path.suffix == ".bag"
+        store = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
+        self.store, self.types = store, store.types
+        self.serialize = store.serialize_ros1 if self.ros1 else store.serialize_cdr
+        self.writer = (
+            Writer1(self.path)
+            if self.ros1
+            else Writer2(self.path, version=9, storage_plugin=StoragePlugin[storage.upper()])
+        )
+        self.connections: dict[str, Any] = {}
+
+    def __enter__(self) -> BagWriter:
+        self.writer.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.writer.close()
+
+    def put(self, topic: str, msgtype: str, msg, t_ns: int) -> None:
+        """Write ``msg`` on ``topic`` at bag time ``t_ns`` (ns)."""
+        if topic not in self.connections:
+            self.connections[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store)
+        self.writer.write(self.connections[topic], t_ns, self.serialize(msg, msgtype))
+
+    def header(self, t_ns: int, frame_id: str):
+        T = self.types
+        stamp = T["builtin_interfaces/msg/Time"](sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000)
+        return T["std_msgs/msg/Header"](**({"seq": 0} if self.ros1 else {}), stamp=stamp, frame_id=frame_id)
+
+    def image(self, t_ns: int, frame_id: str, array: np.ndarray, encoding: str):
+        """A ``sensor_msgs/Image`` of ``array`` (H, W[, C]), stamped ``t_ns``."""
+        data = np.ascontiguousarray(array)
+        return self.types[IMAGE](
+            header=self.header(t_ns, frame_id),
+            height=data.shape[0],
+            width=data.shape[1],
+            encoding=encoding,
+            is_bigendian=0,
+            step=data.strides[0],
+            data=data.view(np.uint8).reshape(-1),
+        )
+
+    def camera_info(self, t_ns: int, frame_id: str, k: Intrinsics):
+        """A ``sensor_msgs/CameraInfo`` of the pinhole ``k`` (no distortion)."""
+        T = self.types
+        matrices = dict(
+            d=np.zeros(5),
+            k=np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1], float),
+            r=np.eye(3).ravel(),
+            p=np.array([k.fx, 0, k.cx, 0, 0, k.fy, k.cy, 0, 0, 0, 1, 0], float),
+        )
+        roi = T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        )
+        return T[CAMERA_INFO](
+            header=self.header(t_ns, frame_id),
+            height=k.height,
+            width=k.width,
+            distortion_model="plumb_bob",
+            **{(name.upper() if self.ros1 else name): value for name, value in matrices.items()},
+            binning_x=0,
+            binning_y=0,
+            roi=roi,
+        )
+
+
 def write_bag(
     frames,
     path: Path,
@@ -886,7 +964,7 @@ def write_bag(
         identity extrinsics and the colour camera's intrinsics, and ``Depth Units`` of 1 mm
     colour_encoding : one of :data:`COLOUR_ENCODINGS`
     depth_encoding : ``16UC1`` (millimetres, rounded) or ``32FC1`` (metres)
-    fps : frame rate: frame i is stamped i / fps seconds (colour and depth alike)
+    fps : frame rate: frame i is stamped 1 s + i / fps (colour and depth alike)
     camera_info : write the CameraInfo topics
     storage : a ROS 2 bag's storage, ``sqlite3`` (.db3) or ``mcap``
 
@@ -894,99 +972,37 @@ def write_bag(
     -------
     the path of the bag written
     """
-    from rosbags.rosbag1 import Writer as Writer1
-    from rosbags.rosbag2 import StoragePlugin
-    from rosbags.rosbag2 import Writer as Writer2
-    from rosbags.typesys import Stores, get_typestore
-
-    path = Path(path)
-    ros1 = path.suffix == ".bag"
-    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-    serialize = store.serialize_ros1 if ros1 else store.serialize_cdr
-    T = store.types
-    if ros1:
-        writer = Writer1(path)
-    else:
-        writer = Writer2(path, version=9, storage_plugin=StoragePlugin[storage.upper()])
     colour_topic, depth_topic, info_topic = LAYOUTS[layout]
-    connections: dict[str, Any] = {}
-
-    def put(topic: str, msgtype: str, msg, t_ns: int) -> None:
-        if topic not in connections:
-            connections[topic] = writer.add_connection(topic, msgtype, typestore=store)
-        writer.write(connections[topic], t_ns, serialize(msg, msgtype))
-
-    def header(t_ns: int, frame_id: str):
-        stamp = T["builtin_interfaces/msg/Time"](sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000)
-        return T["std_msgs/msg/Header"](**({"seq": 0} if ros1 else {}), stamp=stamp, frame_id=frame_id)
-
-    def image(t_ns: int, frame_id: str, array: np.ndarray, encoding: str):
-        data = np.ascontiguousarray(array)
-        h, w = data.shape[:2]
-        return T[IMAGE](
-            header=header(t_ns, frame_id),
-            height=h,
-            width=w,
-            encoding=encoding,
-            is_bigendian=0,
-            step=data.strides[0],
-            data=data.view(np.uint8).reshape(-1),
-        )
-
-    def info(t_ns: int, frame_id: str):
-        k = intrinsics
-        K = np.array([k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1], float)
-        P = np.array([k.fx, 0, k.cx, 0, 0, k.fy, k.cy, 0, 0, 0, 1, 0], float)
-        roi = T["sensor_msgs/msg/RegionOfInterest"](
-            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
-        )
-        matrices = dict(d=np.zeros(5), k=K, r=np.eye(3).ravel(), p=P)
-        return T[CAMERA_INFO](
-            header=header(t_ns, frame_id),
-            height=k.height,
-            width=k.width,
-            distortion_model="plumb_bob",
-            **{(name.upper() if ros1 else name): value for name, value in matrices.items()},
-            binning_x=0,
-            binning_y=0,
-            roi=roi,
-        )
-
     frame_ids = ("camera_color_optical_frame",) * 2 if layout == "ros" else ("Color", "Depth")
-    colour_conversion = {"rgb8": None, "bgr8": cv2.COLOR_RGB2BGR, "rgba8": cv2.COLOR_RGB2RGBA}
-    colour_conversion.update(bgra8=cv2.COLOR_RGB2BGRA, mono8=cv2.COLOR_RGB2GRAY)
-    writer.open()
-    try:
+    to_encoding = {"rgb8": None, "bgr8": cv2.COLOR_RGB2BGR, "rgba8": cv2.COLOR_RGB2RGBA}
+    to_encoding.update(bgra8=cv2.COLOR_RGB2BGRA, mono8=cv2.COLOR_RGB2GRAY)
+    # the SDK names its 16-bit depth (Z16) mono16
+    depth_name = "mono16" if layout == "realsense" and depth_encoding == "16UC1" else depth_encoding
+    with BagWriter(path, storage=storage) as bag:
+        T = bag.types
         if layout == "realsense":
             identity = T["geometry_msgs/msg/Transform"](
                 translation=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
                 rotation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
             )
-            put("/file_version", "std_msgs/msg/UInt32", T["std_msgs/msg/UInt32"](data=3), 0)
-            put(
-                "/device_0/sensor_0/option/Depth Units/value",
-                "std_msgs/msg/Float32",
-                T["std_msgs/msg/Float32"](data=0.001),
-                0,
-            )
+            bag.put("/file_version", "std_msgs/msg/UInt32", T["std_msgs/msg/UInt32"](data=3), 0)
+            units = T["std_msgs/msg/Float32"](data=MILLIMETRE)
+            bag.put("/device_0/sensor_0/option/Depth Units/value", "std_msgs/msg/Float32", units, 0)
             for stream in ("/device_0/sensor_0/Depth_0", "/device_0/sensor_1/Color_0"):
-                put(f"{stream}/tf/0", "geometry_msgs/msg/Transform", identity, 0)
+                bag.put(f"{stream}/tf/0", "geometry_msgs/msg/Transform", identity, 0)
             if camera_info:
-                put("/device_0/sensor_0/Depth_0/info/camera_info", CAMERA_INFO, info(0, frame_ids[1]), 0)
+                depth_info = bag.camera_info(0, frame_ids[1], intrinsics)
+                bag.put("/device_0/sensor_0/Depth_0/info/camera_info", CAMERA_INFO, depth_info, 0)
         if camera_info:
-            put(info_topic, CAMERA_INFO, info(0, frame_ids[0]), 0)
+            bag.put(info_topic, CAMERA_INFO, bag.camera_info(0, frame_ids[0], intrinsics), 0)
         for n, frame in enumerate(frames):
             t_ns = round(n * 1e9 / fps) + 1_000_000_000
-            conversion = colour_conversion[colour_encoding]
+            conversion = to_encoding[colour_encoding]
             rgb = frame.rgb if conversion is None else cv2.cvtColor(frame.rgb, conversion)
-            put(colour_topic, IMAGE, image(t_ns, frame_ids[0], rgb, colour_encoding), t_ns)
+            bag.put(colour_topic, IMAGE, bag.image(t_ns, frame_ids[0], rgb, colour_encoding), t_ns)
             if depth_encoding == "16UC1":
                 depth = np.rint(frame.depth_m / MILLIMETRE).astype(np.uint16)
             else:
                 depth = frame.depth_m.astype(np.float32)
-            # the SDK names its 16-bit depth (Z16) mono16
-            encoding = "mono16" if layout == "realsense" and depth_encoding == "16UC1" else depth_encoding
-            put(depth_topic, IMAGE, image(t_ns, frame_ids[1], depth, encoding), t_ns)
-    finally:
-        writer.close()
-    return path
+            bag.put(depth_topic, IMAGE, bag.image(t_ns, frame_ids[1], depth, depth_name), t_ns)
+    return Path(path)
