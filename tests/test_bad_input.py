@@ -102,7 +102,7 @@ def test_folder_no_reader_recognises(tmp_path, capfd):
     assert_error(
         *run(capfd, ["classify", tmp_path], watch=tmp_path),
         path=tmp_path,
-        problem=r"not a sequence that any reader recognises \(tried: folder, .*rbo.*tum.*ycbv",
+        problem=r"not a sequence that any reader recognises \(tried: bag, folder, .*rbo.*tum.*ycbv",
     )
 
 
