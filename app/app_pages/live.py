@@ -8,7 +8,8 @@ import logging
 import streamlit as st
 
 from app import state, uploads
-from artclass_core import ArtclassError, Config, figures
+from artclass_core import ArtclassError, Config
+from artclass_plugins import figures
 from artclass_plugins.live import classify_live, open_source
 from artclass_plugins.live.sources import has_realsense
 
