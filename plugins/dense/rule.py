@@ -37,7 +37,7 @@ import numpy as np
 
 from artclass_core import DecisionRule, Motion, MotionEvidence, Params, RuleDecision, param
 from artclass_core.geometry import transform
-from artclass_core.types import SURFACE
+from artclass_core.types import FREE_SPACE, OFF_OBJECT, SURFACE
 
 from .projective import hypothesis_costs
 
@@ -88,6 +88,14 @@ class DenseRuleParams(Params):
         help="A part is a region, not a scatter: its points' image neighbours must be "
         "its own for at least this share on average (and so must those of the "
         "points it explains that no chosen motion does).",
+    )
+    calibration_error: float = param(
+        0.03,
+        unit="fraction",
+        bounds=(0.0, 0.5),
+        help="Relative error of the camera's calibration (focal length, principal point, depth "
+        "scale): a rigid motion that turns the object by R misplaces a point r from its centre by "
+        "up to this times |(R - I) r|, which a part must exceed to fail its base.",
     )
     noise_lag_rad: float = param(
         0.05,
@@ -414,17 +422,26 @@ class DenseRule(DecisionRule):
             few = p.min_part_points * area
             return few if h == 0 else max(few, int(p.min_part_share * seen.sum()))
 
-        depth = None  # the costs without flow, worked out when first needed
+        # A miss counts beyond noise_factor sigma plus the look-up's half pixel, plus what the
+        # calibration's error makes of the motion's rotation.
+        limit = p.noise_factor * noise + ev.pixel_m / 2
+        centre = np.median(ev.points, axis=0)
+
+        def fails(b: int, *, texture: bool) -> np.ndarray:
+            """The points motion ``b`` misses in depth (or, with ``texture``, in optical flow)."""
+            status, residual = ev.status[b], np.abs(np.nan_to_num(ev.residual_m[b], nan=np.inf))
+            turned = np.linalg.norm((ev.points - centre) @ (ev.motions[b][:3, :3] - np.eye(3)).T, axis=1)
+            out = (status == FREE_SPACE) | (status == OFF_OBJECT)
+            out |= (status == SURFACE) & (residual >= limit + p.calibration_error * turned)
+            if texture:
+                out |= np.nan_to_num(ev.flow_px[b]) >= p.noise_factor * flow_noise
+            return out
 
         def needed(a: int, b: int, *, texture: bool = False, part: bool = True) -> bool:
             """Whether motion ``a`` explains enough points that ``b`` fails in depth (or, with
             ``texture``, in depth or optical flow); staying still needs only ``min_part_points``.
             A ``part`` counts them in independent observations."""
-            nonlocal depth
-            if depth is None:  # a miss counts beyond noise_factor sigma plus the look-up's half pixel
-                depth = self.costs(ev, noise + ev.pixel_m / 2 / p.noise_factor, np.inf)
-            failed = costs[b] if texture else depth[b]
-            members = seen & (costs[a] < misfit / 2) & (failed >= misfit)
+            members = seen & (costs[a] < misfit / 2) & fails(b, texture=texture)
             return int(members.sum()) >= least(a, area if part else 1)
 
         tests = []
