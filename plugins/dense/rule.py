@@ -499,6 +499,18 @@ class DenseRule(DecisionRule):
             part_shares=[round(m.n_points / max(int((seen & forward).sum()), 1), 4) for m in motions],
             candidates=tests,
         )
+        # No model explains the pair when the kept motions fail most of its points, or, for parts, when
+        # the optical flow follows none of them: a motion beyond what registration reaches.
+        unexplained = float((costs[kept].min(axis=0)[seen] >= misfit).mean())
+        info["unexplained_share"] = round(unexplained, 4)
+        lost = flow_noise > p.noise_factor * p.flow_sigma_px
+        if unexplained > 0.5 or (parts and lost):
+            why = (
+                f"the kept motions fail {unexplained:.0%} of the points"
+                if unexplained > 0.5
+                else f"the optical flow follows none of the {len(kept)} motions (misfit {flow_noise:.0f} px)"
+            )
+            return RuleDecision("undecided", [], reason=f"no model explains the pair: {why}", info=info)
         if parts:
             shares = ", ".join(f"{s:.0%}" for s in info["part_shares"][1:])
             return RuleDecision(
