@@ -138,8 +138,9 @@ def cmd_classify(registry: Registry, args) -> int:
             out.update(articulation.to_dict())
         print(json.dumps(out))
         return 0
-    decisions = " ".join(p.decision if p.decision != "skipped" else "-" for p in result.pairs)
+    decisions = " ".join({"skipped": "-", "undecided": "?"}.get(p.decision, p.decision) for p in result.pairs)
     print(f"{seq.name}: {result.label}" + (f" (ground truth: {seq.label})" if seq.label else ""))
+    print(f"  why: {result.reason}")
     print(f"  pairs (i, i+{config.pipeline.k}): {decisions}")
     print(f"  after max-count filter (w={config.pipeline.w}): {' '.join(result.filtered)}")
     print("  fractions: " + ", ".join(f"{d} {v:.2f}" for d, v in result.fractions.items()))

@@ -90,7 +90,7 @@ class Config:
             preprocessor="paper",
             registrar=CELL_REGISTRAR,
             rule="paper",
-            pipeline=PipelineParams(prealign=False, slow_factor=1),
+            pipeline=PipelineParams(prealign=False, slow_factor=1, video_joints=False),
         )
 
     def plugin_params(self, registry: Registry, kind: str, name: str | None = None) -> Params:

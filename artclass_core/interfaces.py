@@ -181,11 +181,14 @@ class PartFinder(Plugin):
         """Whether this stage can find parts in the runs of ``rule``."""
         return self.needs in ("any", rule.needs)
 
-    def find(self, result: RunResult, *, estimator: JointEstimator) -> Articulation:
+    def find(self, result: RunResult, *, estimator: JointEstimator, images: bool = True) -> Articulation:
         """The parts and joints of ``result``; each joint is fitted by ``estimator``.
 
-        A sequence not labelled articulated gets its base only and no joint. Raises
-        :class:`~artclass_core.errors.ArtclassError` when the run kept too little (no clouds).
+        A sequence not labelled articulated gets its base only and no joint. With ``images`` false the
+        frames' part images may be left out: the pipeline asks for the joints only, to label a run
+        that kept each pair's labelled points (:attr:`~artclass_core.types.PairResult.points`) but
+        not its clouds. Raises :class:`~artclass_core.errors.ArtclassError` when the run kept too
+        little.
         """
         raise NotImplementedError
 

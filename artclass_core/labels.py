@@ -1,10 +1,10 @@
-"""From pair decisions to a sequence label: the longer pair of a slow motion, the moving max-count filter
-and the label rule."""
+"""From pair decisions to a sequence label: the longer pair of a slow motion, the shorter pair of a
+motion too large to register, the moving max-count filter and the label rule."""
 
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from .types import DECISIONS, FrameResult, PairResult, RunResult
@@ -43,6 +43,20 @@ def with_longer(pair: PairResult, longer: PairResult) -> PairResult:
     return pair
 
 
+def with_shorter(pair: PairResult, shorter: PairResult) -> PairResult:
+    """``shorter``, a pair (i, i + k/2), in place of ``pair`` (i, i + k), which no model explained (a
+    motion beyond what registration reaches), when it is decided; else ``pair``. Each keeps the other
+    as :attr:`PairResult.other`."""
+    if shorter.decision in DECISIONS:
+        shorter.other = pair
+        shorter.reason = (
+            f"no model explains {pair.j - pair.i} frames; over {shorter.j - shorter.i}: {shorter.reason}"
+        )
+        return shorter
+    pair.other = shorter
+    return pair
+
+
 def sequence_label(filtered: Iterable[str]) -> str:
     """``articulated`` if any filtered decision is AM, else ``rigid`` if any is RM, else ``static``."""
     seen = set(filtered)
@@ -64,13 +78,19 @@ def labelled_result(
     params: dict[str, dict],
     plugins: dict[str, str],
     timing: dict[str, float],
+    confirm: Callable[[RunResult], tuple[bool, str]] | None = None,
 ) -> RunResult:
     """The :class:`RunResult` of a sequence's pair decisions: filtered with window ``w``, the label and
     the class fractions, recorded with the ``params`` and ``plugins`` that produced them, the stage
-    ``timing`` (s) and the artclass version."""
-    decided = [p.decision for p in pairs if p.decision != "skipped"]
+    ``timing`` (s) and the artclass version.
+
+    Undecided and skipped pairs are left out of the filter. With ``confirm``, a sequence whose filtered
+    decisions hold AM is articulated only if ``confirm(result)`` says so (the parts over the whole
+    video: :func:`artclass_core.video.joints_over_video`); otherwise its AM pairs count as RM (they
+    show that something moved)."""
+    decided = [p.decision for p in pairs if p.decision in DECISIONS]
     filtered = max_count_filter(decided, w=w)
-    return RunResult(
+    result = RunResult(
         sequence=sequence,
         label=sequence_label(filtered),
         fractions=fractions(decided),
@@ -81,7 +101,21 @@ def labelled_result(
         plugins=plugins,
         timing_s={k: round(v, 4) for k, v in timing.items()},
         version=_version(),
+        reason=_reason(filtered, len(pairs)),
     )
+    if result.label == "articulated" and confirm is not None:
+        confirmed, result.reason = confirm(result)
+        if not confirmed:
+            result.label = sequence_label("RM" if d == "AM" else d for d in filtered)
+    return result
+
+
+def _reason(filtered: list[str], n_pairs: int) -> str:
+    """Why the filtered decisions give their label, in a few words."""
+    counts = Counter(filtered)
+    top = "AM" if counts["AM"] else "RM" if counts["RM"] else "NM"
+    what = {"AM": "show parts moving apart", "RM": "show one rigid motion", "NM": "show no motion"}[top]
+    return f"{counts[top]} of {n_pairs} pairs {what} after the max-count filter"
 
 
 def _version() -> str:

@@ -160,6 +160,12 @@ class PipelineParams(Params):
         help="Window of the moving max-count filter over the pair decisions (1 = no filtering). "
         "The paper leaves w open; 3 removes isolated single-pair errors.",
     )
+    video_joints: bool = param(
+        True,
+        help="A video is articulated only when a part tracked across its pairs moves about a joint "
+        "(prismatic, revolute or screw) over the whole video; false: whenever an AM pair survives "
+        "the max-count filter (the paper's rule).",
+    )
     slow_factor: int = param(
         2,
         unit="1",

@@ -16,6 +16,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Iterable
+from functools import partial
 from typing import Any
 
 from . import cells as _cells
@@ -23,11 +24,12 @@ from .cache import StageCache
 from .config import STAGES, Config, _fitting
 from .errors import InputError, ParamError
 from .frames import FrameSteps
-from .labels import fractions, labelled_result, max_count_filter, sequence_label, with_longer
+from .labels import fractions, labelled_result, max_count_filter, sequence_label, with_longer, with_shorter
 from .plugins import Registry
 from .redecide import RedecideSteps
 from .scheduler import Progress, add_time, single_threaded_open3d, stream_pairs
 from .types import CellMotion, Cloud, FrameResult, MotionEvidence, PairResult, RunResult, Sequence
+from .video import joints_over_video
 
 __all__ = ["Config", "Pipeline", "StageCache", "fractions", "max_count_filter", "sequence_label"]
 
@@ -217,13 +219,19 @@ class Pipeline(FrameSteps, RedecideSteps):
         cache: StageCache | None,
     ) -> PairResult:
         """The pair (i, i + k) of frame ``a`` (frame i), given the frames ``after`` it; or, when that pair
-        shows no motion and the frames reach, the pair (i, i + slow_factor k) if it shows one."""
+        shows no motion and the frames reach, the pair (i, i + slow_factor k) if it shows one; or, when
+        no model explains it, the pair (i, i + k/2) if one does."""
         k, far = self.params.k, self.params.k * self.params.slow_factor
-        pair = self.pair_of(sequence, a, after[k - 1], after[: k - 1], timing, cache)
+
+        def over(n: int) -> PairResult:
+            return self.pair_of(sequence, a, after[n - 1], after[: n - 1], timing, cache)
+
+        pair = over(k)
+        if pair.decision == "undecided" and k > 1:
+            return with_shorter(pair, over(k // 2))
         if pair.decision != "NM" or far == k or len(after) < far:
             return pair
-        longer = self.pair_of(sequence, a, after[far - 1], after[: far - 1], timing, cache)
-        return with_longer(pair, longer)
+        return with_longer(pair, over(far))
 
     def pair_of(
         self,
@@ -291,6 +299,14 @@ class Pipeline(FrameSteps, RedecideSteps):
         timing: dict[str, float],
     ) -> RunResult:
         plugins, params = self.config.record(self.registry, segmenter=segmenter)
+        by_joints = self.params.video_joints and self.rule.needs == "motions"
         return labelled_result(
-            sequence_info, frames, pairs, w=self.params.w, params=params, plugins=plugins, timing=timing
+            sequence_info,
+            frames,
+            pairs,
+            w=self.params.w,
+            params=params,
+            plugins=plugins,
+            timing=timing,
+            confirm=partial(joints_over_video, self.registry) if by_joints else None,
         )

@@ -14,8 +14,10 @@ import numpy as np
 from .errors import InputError
 
 Label = Literal["articulated", "rigid", "static"]
-Decision = Literal["AM", "RM", "NM", "skipped"]
+Decision = Literal["AM", "RM", "NM", "undecided", "skipped"]
 LABELS: tuple[str, ...] = ("articulated", "rigid", "static")
+#: What a pair can show: articulated motion, rigid motion, no motion. A pair no model explains is
+#: ``undecided`` (shown, never counted as one of these); one that cannot be judged is ``skipped``.
 DECISIONS: tuple[str, ...] = ("AM", "RM", "NM")
 
 
@@ -313,6 +315,35 @@ class MotionEvidence:
         return out
 
 
+@dataclass(frozen=True)
+class PairPoints:
+    """A pair's labelled points without the evidence they were judged on (a few hundred kB a pair,
+    against megabytes): what tracking parts over the whole video needs of each pair.
+
+    Attributes
+    ----------
+    pixels : ndarray, shape (N, 2), int: each point's (column, row); the first ``n_source`` in frame i,
+        the rest in frame j
+    points : ndarray, shape (N, 3), metres, each in its own frame's camera coordinates
+    n_source : int
+    noise_m : float, the pair's depth noise
+    pixel_m : float, one pixel on the object, metres
+    stride_px : int, the points' grid step
+    """
+
+    pixels: np.ndarray
+    points: np.ndarray
+    n_source: int
+    noise_m: float
+    pixel_m: float
+    stride_px: int
+
+    @classmethod
+    def of(cls, ev: MotionEvidence) -> PairPoints:
+        n = len(ev.points) if ev.n_source is None else ev.n_source
+        return cls(ev.pixels, ev.points, n, ev.noise_m, ev.pixel_m, int(ev.info.get("stride_px", 1)))
+
+
 @dataclass
 class Motion:
     """One rigid motion a rule selected for a pair, and the source points it moves."""
@@ -353,12 +384,18 @@ class PairResult:
     )  # the selected motions (rules that decide from motions)
     labels: np.ndarray | None = None  # (N,) int: each evidence point's motion (index into motions), -1 = none
     evidence: MotionEvidence | None = field(default=None, repr=False)  # what the motions were selected from
+    # the points that ``labels`` label; kept when the evidence is dropped, for the parts over the video
+    points: PairPoints | None = field(default=None, repr=False)
     # the rule's scratch space for this pair (DecisionRule.uses_scratch); not part of the result's JSON
     scratch: dict[Any, Any] = field(default_factory=dict, repr=False, compare=False)
     # The pair of the same frame i over the other baseline, when both were registered (the pipeline's
     # slow_factor): the pair (i, i + k) that showed no motion, when this longer pair replaced it because
     # it shows one; or, on a pair (i, i + k) without motion, the longer pair, which showed none either.
     other: PairResult | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        if self.points is None and self.evidence is not None:
+            self.points = PairPoints.of(self.evidence)
 
     def to_dict(self, *, cells: bool = True) -> dict[str, Any]:
         d = dict(
@@ -412,12 +449,14 @@ class RunResult:
     plugins: dict[str, str]  # kind -> plugin name
     timing_s: dict[str, float]
     version: str = ""
+    reason: str = ""  # why the video has its label
 
     def to_dict(self, *, cells: bool = True) -> dict[str, Any]:
         return dict(
             version=self.version,
             sequence=self.sequence,
             label=self.label,
+            reason=self.reason,
             fractions=self.fractions,
             filtered=self.filtered,
             params=self.params,

@@ -546,7 +546,7 @@ class OneBodyFinder(PartFinder):
     description = "the whole object as one part, with no joint"
     needs = "any"
 
-    def find(self, result: RunResult, *, estimator) -> Articulation:
+    def find(self, result: RunResult, *, estimator, images: bool = True) -> Articulation:
         clouds = {f.index: f.cloud for f in result.frames if f.cloud is not None}
         if not clouds:
             raise ArtclassError("finding parts needs the frames' clouds: run with keep_clouds=True")

@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 from artclass_core import ArtclassError
 from artclass_core.geometry import transform
 from artclass_core.joint_metrics import axis_direction_error_rad, axis_position_error_m, score_articulation
+from artclass_core.labels import labelled_result
 from artclass_core.plugins import load_registry
 from artclass_core.types import (
     Cloud,
@@ -26,6 +27,7 @@ from artclass_core.types import (
     RunResult,
     View,
 )
+from artclass_core.video import joints_over_video
 from artclass_plugins.parts import (
     PartsParams,
     chain_interleaved,
@@ -885,3 +887,50 @@ def test_reach_measures_the_parent_points_placed_at_state_0():
     assert tree._reach(own, parent, np.full_like(placement, np.nan), centre) == pytest.approx(
         np.linalg.norm(unplaced - centre, axis=1).max()
     )
+
+
+def _wandering(run: RunResult, *, move_m: float, turn_rad: float) -> RunResult:
+    """``run`` with each pair's second motion replaced by a patch that is there in this pair only and
+    moves off the base by about ``move_m`` and ``turn_rad`` in a random direction: what real depth
+    error, a calibration a few percent off or a motion too large to register makes of a rigid object,
+    pair by pair (seeded)."""
+    rng = np.random.default_rng(3)
+    for n, p in enumerate(run.pairs):
+        pixels = p.points.pixels
+        column = pixels[:, 0].min() + (n * 37) % max(1, int(np.ptp(pixels[:, 0])))
+        turn = Rotation.from_rotvec(rng.normal(0, turn_rad, 3)).as_matrix()
+        off = _T(turn, rng.normal(0, move_m, 3)) @ p.motions[0].T_target_from_source
+        p.motions = [p.motions[0], dataclasses.replace(p.motions[0], T_target_from_source=off)]
+        p.labels = (np.abs(pixels[:, 0] - column) < 6).astype(int)
+    return run
+
+
+def test_a_video_is_articulated_only_when_a_part_moves_about_a_joint_over_it():
+    registry = load_registry()
+    hinge = run_result()
+    for f in hinge.frames:  # the pipeline keeps each pair's labelled points, not the clouds
+        f.cloud = None
+    for p in hinge.pairs:
+        p.evidence = None
+    confirmed, why = joints_over_video(registry, hinge)
+    assert confirmed and "revolute" in why, why
+    for move_m, turn_rad in ((0.03, 0.1), (0.1, 0.5)):
+        confirmed, why = joints_over_video(
+            registry, _wandering(run_result(), move_m=move_m, turn_rad=turn_rad)
+        )
+        assert not confirmed and "no part moves about a joint" in why, why
+
+
+def test_an_unconfirmed_articulation_labels_the_video_by_its_motion():
+    pairs = [PairResult(i, i + 2, d) for i, d in enumerate(["RM", "AM", "AM", "RM", "RM"])]
+    run = labelled_result(
+        {}, [], pairs, w=3, params={}, plugins={}, timing={}, confirm=lambda r: (False, "no joint")
+    )
+    assert (run.label, run.reason, run.filtered) == ("rigid", "no joint", ["RM", "AM", "AM", "RM", "RM"])
+    told = labelled_result(
+        {}, [], pairs, w=3, params={}, plugins={}, timing={}, confirm=lambda r: (True, "a hinge")
+    )
+    assert (told.label, told.reason) == ("articulated", "a hinge")
+    still = [PairResult(i, i + 2, d) for i, d in enumerate(["NM", "AM", "AM", "NM", "undecided"])]
+    run = labelled_result({}, [], still, w=3, params={}, plugins={}, timing={}, confirm=lambda r: (False, ""))
+    assert run.label == "rigid" and run.filtered == ["NM", "AM", "AM", "NM"]  # undecided: not filtered

@@ -84,8 +84,8 @@ class TracksPartFinder(PartFinder):
     Params = PartsParams
     needs = "motions"
 
-    def find(self, result: RunResult, *, estimator: JointEstimator) -> Articulation:
-        return find_articulation(result, estimator=estimator, params=self.params)
+    def find(self, result: RunResult, *, estimator: JointEstimator, images: bool = True) -> Articulation:
+        return find_articulation(result, estimator=estimator, params=self.params, images=images)
 
 
 @hookimpl

@@ -197,7 +197,7 @@ def _linked_by_motion(
             continue
         field_a, field_b = va[1](np.vstack([va[0], vb[0]])), vb[1](np.vstack([va[0], vb[0]]))
         scale = float(np.sum(field_a * field_b)) / max(float(np.sum(field_b * field_b)), 1e-18)
-        noise_a, noise_b = result.pairs[a[0]].evidence.noise_m, result.pairs[b[0]].evidence.noise_m
+        noise_a, noise_b = result.pairs[a[0]].points.noise_m, result.pairs[b[0]].points.noise_m
         noise = float(np.hypot(noise_a, noise_b))  # of a difference of the two pairs' fields
         moves = all(
             np.median(np.linalg.norm(f, axis=1)) > link_sigmas * n

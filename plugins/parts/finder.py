@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from artclass_core import RunResult
+from artclass_core import ArtclassError, RunResult
 from artclass_core.articulation import Articulation, PartJoint
 from artclass_core.interfaces import JointEstimator
 
@@ -15,7 +15,7 @@ from .tree import _kinematic_tree, _numbered, _part, _part_points
 
 
 def find_articulation(
-    result: RunResult, *, estimator: JointEstimator, params: PartsParams | None = None
+    result: RunResult, *, estimator: JointEstimator, params: PartsParams | None = None, images: bool = True
 ) -> Articulation:
     """Parts and joints over the video of a finished run (see the package docstring).
 
@@ -27,12 +27,15 @@ def find_articulation(
     estimator : JointEstimator
         The joint estimator (``registry.create("joint_estimator", "bic")`` for the built-in one).
     params : PartsParams, or None for the defaults
+    images : False leaves out each frame's part image (step 6): parts and joints only
 
     Returns
     -------
     Articulation
     """
     params = PartsParams() if params is None else params
+    if images and not any(f.cloud is not None for f in result.frames):
+        raise ArtclassError("part images need the frames' clouds: run with keep_clouds=True")
     n_frames = int(result.sequence.get("n_frames") or len(result.frames))
     observations = _observations(result)
     if result.label == "articulated":
@@ -66,7 +69,7 @@ def find_articulation(
         params=params,
     )
     number = {t: n for n, t in enumerate(tree)}
-    if len(tree) > 1 and params.n_views:
+    if images and len(tree) > 1 and params.n_views:
         views = _relabelled(result, observations, views, tree, base_poses, params=params)
     joints = [
         PartJoint(number[link.parent], number[t], link.estimate, link.n_pairs)

@@ -46,12 +46,14 @@ def _observations(result: RunResult) -> list[_Observation]:
     for n, p in enumerate(result.pairs):
         if p.labels is None or not p.motions or p.decision == "skipped":
             continue
-        ev = p.evidence
-        if ev is not None:
-            cut = ev.n_source if ev.n_source is not None else len(ev.points)
-            sides = ((p.i, slice(0, cut), True), (p.j, slice(cut, len(ev.points)), False))
+        seen = p.points
+        if seen is not None:
+            cut = seen.n_source
+            sides = ((p.i, slice(0, cut), True), (p.j, slice(cut, len(seen.points)), False))
             for frame, part, forward in sides:
-                out.append(_Observation(n, frame, ev.pixels[part], ev.points[part], p.labels[part], forward))
+                out.append(
+                    _Observation(n, frame, seen.pixels[part], seen.points[part], p.labels[part], forward)
+                )
         elif p.i in clouds and clouds[p.i].pixels is not None:
             c = clouds[p.i]
             out.append(_Observation(n, p.i, c.pixels, c.points, p.labels[: len(c.points)], True))
@@ -74,7 +76,10 @@ def _frame_clouds(
     return out
 
 
-def _mask(result: RunResult, frame: int) -> np.ndarray:
+def _mask(result: RunResult, frame: int) -> np.ndarray | None:
+    """The frame's object mask; None for a run that kept no clouds (no part images are made then)."""
+    if not any(f.cloud is not None for f in result.frames):
+        return None
     cloud = result.frames[frame].cloud if frame < len(result.frames) else None
     view = getattr(cloud, "view", None)
     if view is not None and view.mask is not None:
@@ -96,15 +101,11 @@ def _has_depth(result: RunResult, frame: int) -> bool:
 
 def _noise(result: RunResult) -> float:
     """The pairs' median depth noise, metres."""
-    values = [p.evidence.noise_m for p in result.pairs if p.evidence is not None]
+    values = [p.points.noise_m for p in result.pairs if p.points is not None]
     return float(np.median(values)) if values else 0.0
 
 
 def _spacing(result: RunResult) -> float:
     """The pairs' median spacing of the sampled points on the object (pixel size times the stride), metres."""
-    values = [
-        p.evidence.pixel_m * p.evidence.info.get("stride_px", 1)
-        for p in result.pairs
-        if p.evidence is not None
-    ]
+    values = [p.points.pixel_m * p.points.stride_px for p in result.pairs if p.points is not None]
     return float(np.median(values)) if values else 0.0
