@@ -265,16 +265,10 @@ def _jump_scene():
     return [SceneMesh(p.vertices_m, p.triangles, -1, p, np.eye(4)) for p in (near, far)]
 
 
-def test_flying_pixels_only_at_depth_edges():
-    intr = Intrinsics.for_resolution(160, 120)
-    clean = render_clean(
-        _jump_scene(), T_camera_from_world=np.eye(4), intrinsics=intr, projector_baseline_m=0.0
-    )
-    edge_col = int(np.argmax(clean.depth_m[60] > 1.0))  # first column of the far wall
-    assert 60 < edge_col < 100
-    only_flying = dataclasses.replace(
-        NOISE_LEVELS["low"],
-        name="flying only",
+def _quiet(level):
+    """``level`` with every effect switched off (but a disparity bias, when one is given)."""
+    return dataclasses.replace(
+        level,
         axial_a_m=0.0,
         axial_b_per_m=0.0,
         disparity_subpixel=0.0,
@@ -284,8 +278,19 @@ def test_flying_pixels_only_at_depth_edges():
         random_drop_fraction=0.0,
         speckle_fraction=0.0,
         projector_shadow=False,
-        flying_fraction=1.0,
+        flying_fraction=0.0,
+        depth_step_m=0.0,
     )
+
+
+def test_flying_pixels_only_at_depth_edges():
+    intr = Intrinsics.for_resolution(160, 120)
+    clean = render_clean(
+        _jump_scene(), T_camera_from_world=np.eye(4), intrinsics=intr, projector_baseline_m=0.0
+    )
+    edge_col = int(np.argmax(clean.depth_m[60] > 1.0))  # first column of the far wall
+    assert 60 < edge_col < 100
+    only_flying = dataclasses.replace(_quiet(NOISE_LEVELS["low"]), name="flying only", flying_fraction=1.0)
     depth, _ = add_sensor_noise(clean, noise=only_flying, rng=np.random.default_rng(3))
     between = (depth > 0.805) & (depth < 1.195)  # neither surface: flying
     cols = np.nonzero(between)[1]
@@ -787,24 +792,6 @@ def test_hook_register_commands_sample(tmp_path, capsys):
 WILD = dict(noise="drawn", hand="drawn", texture="drawn", wild=True)
 
 
-def _quiet(level):
-    """``level`` with every effect but the disparity bias switched off."""
-    return dataclasses.replace(
-        level,
-        axial_a_m=0.0,
-        axial_b_per_m=0.0,
-        disparity_subpixel=0.0,
-        grazing_drop_prob=0.0,
-        edge_drop_prob=0.0,
-        lateral_fraction=0.0,
-        random_drop_fraction=0.0,
-        speckle_fraction=0.0,
-        projector_shadow=False,
-        flying_fraction=0.0,
-        depth_step_m=0.0,
-    )
-
-
 def test_structured_light_bias_field_is_smooth_and_grows_with_range():
     """A fixed disparity error over the image: its depth bias has the drawn RMS at 1 m, grows as z**2,
     and is smooth (neighbouring pixels agree far better than the field's spread)."""
@@ -1061,21 +1048,27 @@ def test_wrists_bend_and_arms_rise_away_from_the_camera():
     assert np.degrees(np.arccos(np.clip(d @ forearm, -1, 1))) >= 45.0 - 1e-6
 
 
+def _wild_preset(*, width: int, height: int, n_frames: int | None = None):
+    """The benchmark-wild plans (seed 0) planned at a small size: (plan, SynthSequence) pairs."""
+    for i, p in enumerate(preset_plans("benchmark-wild")):
+        kw = dict(noise=p.noise, texture=p.texture, hand=p.hand, wild=True)
+        yield (
+            p,
+            plan_sequence(
+                object_name=p.object_name,
+                motion=p.motion,
+                n_frames=n_frames or p.n_frames,
+                seed=i,
+                width=width,
+                height=height,
+                **kw,
+            ),
+        )
+
+
 def test_the_wild_preset_draws_every_holder_role():
     roles, kinds, sensors, two = set(), set(), set(), 0
-    for i, p in enumerate(preset_plans("benchmark-wild")):
-        seq = plan_sequence(
-            object_name=p.object_name,
-            motion=p.motion,
-            noise=p.noise,
-            n_frames=4,
-            seed=i,
-            width=64,
-            height=48,
-            texture=p.texture,
-            hand=p.hand,
-            wild=True,
-        )
+    for _, seq in _wild_preset(width=64, height=48, n_frames=4):
         holders = seq.truth["holders"]
         roles |= {h["role"] for h in holders}
         kinds.add(seq.meta["hand"])
@@ -1124,19 +1117,7 @@ def test_a_resting_hand_touches_the_still_object_and_a_close_pass_nears_the_came
 
 @pytest.mark.slow
 def test_randomised_arms_reach_out_of_the_picture():
-    for i, p in enumerate(preset_plans("benchmark-wild")):
-        seq = plan_sequence(
-            object_name=p.object_name,
-            motion=p.motion,
-            noise=p.noise,
-            n_frames=p.n_frames,
-            seed=i,
-            width=80,
-            height=60,
-            texture=p.texture,
-            hand=p.hand,
-            wild=True,
-        )
+    for p, seq in _wild_preset(width=80, height=60):
         for f in (0, p.n_frames - 1):
             hand = seq.render(f).hand
             if hand.any():
