@@ -10,8 +10,9 @@ mask.
 
 from __future__ import annotations
 
+import colorsys
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -340,8 +341,6 @@ _PATTERNS = ("plain", "stripes", "checker", "blobs")
 def any_colour(rng: np.random.Generator, *, value=(0.05, 0.95)) -> tuple[float, float, float]:
     """A colour of any hue and saturation, its value (brightness) drawn in ``value``: black, white
     and everything between."""
-    import colorsys
-
     return tuple(float(c) for c in colorsys.hsv_to_rgb(rng.uniform(), rng.uniform(), rng.uniform(*value)))
 
 
@@ -355,8 +354,6 @@ def _fabric(rng: np.random.Generator) -> dict:
 
 
 def _with_vertices(piece: Piece, vertices: np.ndarray) -> Piece:
-    from dataclasses import replace
-
     return replace(piece, vertices_m=vertices)
 
 
