@@ -37,6 +37,7 @@ from artclass_plugins.synth.render import (
     render_clean,
     room_meshes,
 )
+from artclass_plugins.synth.sensors import add_tof_noise, draw_sensor
 
 SMALL = dict(width=160, height=120)
 
@@ -85,7 +86,7 @@ def test_catalogue_has_required_objects():
     assert all(o.joint_type is None for o in rigid)
     for o in OBJECTS.values():
         assert 0.05 <= object_extent_m(o) <= 0.45, (o.name, object_extent_m(o))
-    assert set(MOTIONS) == {"articulate", "carry_articulate", "carry", "static"}
+    assert set(MOTIONS) == {"articulate", "carry_articulate", "carry", "static", "spin", "slide", "lift"}
     assert {"low", "high"} <= set(NOISE_LEVELS)
 
 
@@ -264,16 +265,10 @@ def _jump_scene():
     return [SceneMesh(p.vertices_m, p.triangles, -1, p, np.eye(4)) for p in (near, far)]
 
 
-def test_flying_pixels_only_at_depth_edges():
-    intr = Intrinsics.for_resolution(160, 120)
-    clean = render_clean(
-        _jump_scene(), T_camera_from_world=np.eye(4), intrinsics=intr, projector_baseline_m=0.0
-    )
-    edge_col = int(np.argmax(clean.depth_m[60] > 1.0))  # first column of the far wall
-    assert 60 < edge_col < 100
-    only_flying = dataclasses.replace(
-        NOISE_LEVELS["low"],
-        name="flying only",
+def _quiet(level):
+    """``level`` with every effect switched off (but a disparity bias, when one is given)."""
+    return dataclasses.replace(
+        level,
         axial_a_m=0.0,
         axial_b_per_m=0.0,
         disparity_subpixel=0.0,
@@ -283,8 +278,19 @@ def test_flying_pixels_only_at_depth_edges():
         random_drop_fraction=0.0,
         speckle_fraction=0.0,
         projector_shadow=False,
-        flying_fraction=1.0,
+        flying_fraction=0.0,
+        depth_step_m=0.0,
     )
+
+
+def test_flying_pixels_only_at_depth_edges():
+    intr = Intrinsics.for_resolution(160, 120)
+    clean = render_clean(
+        _jump_scene(), T_camera_from_world=np.eye(4), intrinsics=intr, projector_baseline_m=0.0
+    )
+    edge_col = int(np.argmax(clean.depth_m[60] > 1.0))  # first column of the far wall
+    assert 60 < edge_col < 100
+    only_flying = dataclasses.replace(_quiet(NOISE_LEVELS["low"]), name="flying only", flying_fraction=1.0)
     depth, _ = add_sensor_noise(clean, noise=only_flying, rng=np.random.default_rng(3))
     between = (depth > 0.805) & (depth < 1.195)  # neither surface: flying
     cols = np.nonzero(between)[1]
@@ -702,14 +708,14 @@ def test_smoke_preset(tmp_path):
 def test_benchmark_preset_is_balanced(preset, size):
     plans = preset_plans(preset)
     assert 60 <= len(plans) <= 70
-    assert set(PRESETS) == {"sample", "benchmark", "benchmark-vga", "benchmark-rs", "smoke"}
+    assert set(PRESETS) == {"sample", "benchmark", "benchmark-vga", "benchmark-rs", "smoke", "benchmark-wild"}
     labels = [MOTIONS[p.motion].label for p in plans]
     n = len(plans)
     assert 0.45 <= labels.count("articulated") / n <= 0.55
     assert 0.2 <= labels.count("rigid") / n <= 0.3
     assert 0.2 <= labels.count("static") / n <= 0.3
-    assert {p.object_name for p in plans} == set(OBJECTS)  # every object is in it
-    assert {p.motion for p in plans} == set(MOTIONS)
+    assert {p.object_name for p in plans} == set(OBJECTS) - {"kettle"}  # every object but the newest
+    assert {p.motion for p in plans} == {"articulate", "carry_articulate", "carry", "static"}
     assert {p.noise for p in plans} == {"low", "high"}
     assert {p.texture for p in plans} == {"textured", "plain"}
     assert 0.6 <= sum(p.hand != "none" for p in plans) / n <= 0.8  # most are handled
@@ -779,3 +785,365 @@ def test_hook_register_commands_sample(tmp_path, capsys):
     assert "refusing to overwrite" in capsys.readouterr().err
     assert main(["sample", str(out), "--preset", "smoke", "--seed", "3", "--overwrite"]) == 0
     assert _digest(out) == first
+
+
+# ---------------------------------------------------------------- randomised sequences (benchmark-wild)
+
+WILD = dict(noise="drawn", hand="drawn", texture="drawn", wild=True)
+
+
+def test_structured_light_bias_field_is_smooth_and_grows_with_range():
+    """A fixed disparity error over the image: its depth bias has the drawn RMS at 1 m, grows as z**2,
+    and is smooth (neighbouring pixels agree far better than the field's spread)."""
+    intr = Intrinsics.for_resolution(160, 120)
+    for seed in range(3):
+        sensor = draw_sensor("structured_light", np.random.default_rng(seed), intrinsics=intr)
+        assert 0.001 <= sensor.bias_rms_1m_m <= 0.004  # a few millimetres at 1 m
+        bias = sensor.disparity_bias_px(intr)
+        rms = {}
+        for z in (0.6, 1.0, 1.5):
+            clean = render_clean(_plane_scene(z), T_camera_from_world=np.eye(4), intrinsics=intr)
+            depth, _ = add_sensor_noise(
+                clean, noise=_quiet(sensor.level), rng=np.random.default_rng(0), disparity_bias_px=bias
+            )
+            err = depth.astype(float) - clean.depth_m
+            rms[z] = float(np.sqrt(np.mean(err**2)))
+            assert np.abs(np.diff(err, axis=1)).max() < 0.1 * np.ptp(err)  # a few cycles across at most
+        assert rms[1.0] == pytest.approx(sensor.bias_rms_1m_m, rel=0.05)
+        assert rms[1.5] / rms[0.6] == pytest.approx((1.5 / 0.6) ** 2, rel=0.1)
+    # with every other effect on, the bias still shows once the per-pixel noise is smoothed away
+    sensor = draw_sensor("structured_light", np.random.default_rng(7), intrinsics=intr)
+    smooth = {}
+    for z in (0.6, 1.5):
+        clean = render_clean(_plane_scene(z), T_camera_from_world=np.eye(4), intrinsics=intr)
+        depth, _ = add_sensor_noise(
+            clean,
+            noise=sensor.level,
+            rng=np.random.default_rng(1),
+            disparity_bias_px=sensor.disparity_bias_px(intr),
+        )
+        valid = (depth > 0).astype(np.float32)
+        err = np.where(depth > 0, depth - clean.depth_m, 0).astype(np.float32)
+        mean = cv2.blur(err, (15, 15)) / np.maximum(cv2.blur(valid, (15, 15)), 1e-6)
+        smooth[z] = float(np.sqrt(np.mean((mean - np.median(mean)) ** 2)))
+    assert smooth[1.5] > 2.5 * smooth[0.6]
+
+
+def test_structured_light_depth_takes_disparity_steps():
+    """The delivered depth lies on the disparity grid 1 / z = k s / (f b) (to the 1 mm unit)."""
+    intr = Intrinsics.for_resolution(160, 120)
+    level = draw_sensor("structured_light", np.random.default_rng(4), intrinsics=intr).level
+    clean = render_clean(_plane_scene(1.4, tilt_deg=20.0), T_camera_from_world=np.eye(4), intrinsics=intr)
+    depth, _ = add_sensor_noise(clean, noise=level, rng=np.random.default_rng(2))
+    z = depth[depth > 0].astype(float)
+    step_inv = level.disparity_subpixel / (level.focal_px * level.baseline_m)
+    k = 1.0 / (z * step_inv)
+    grid = 1.0 / (np.rint(k) * step_inv)
+    speckle = np.abs(z - np.median(z)) > 0.15
+    assert np.mean(np.abs(z - grid)[~speckle] <= 0.0005 + 1e-9) > 0.99
+    assert len(np.unique(np.rint(k[~speckle]))) >= 3  # a tilted plane spans several steps
+
+
+def _two_tone_plane(dark: float, light: float) -> list[SceneMesh]:
+    """A plane at 1 m facing the camera: its left half of reflectance ``dark``, its right ``light``."""
+    out = []
+    for x, value in ((-1.0, dark), (1.0, light)):
+        p = box((2.0, 4.0, 0.1), (x, 0.0, 1.05), (value, value, value), pattern="plain")
+        out.append(SceneMesh(p.vertices_m, p.triangles, -1, p, np.eye(4)))
+    return out
+
+
+def test_time_of_flight_fails_on_dark_surfaces():
+    """Amplitude is reflectance x cos / z**2: a 4.5 % surface at 1 m is noisy and mostly lost, a 60 %
+    one is kept and quiet."""
+    intr = Intrinsics.for_resolution(160, 120)
+    clean = render_clean(_two_tone_plane(0.045, 0.6), T_camera_from_world=np.eye(4), intrinsics=intr)
+    left, right = np.zeros((120, 160), bool), np.zeros((120, 160), bool)
+    left[:, 5:70], right[:, 90:155] = True, True
+    for seed in range(3):
+        sensor = dataclasses.replace(
+            draw_sensor("time_of_flight", np.random.default_rng(seed), intrinsics=intr), amplitude_min=0.04
+        )
+        depth, _ = add_tof_noise(clean, sensor=sensor, fx_px=intr.fx_px, rng=np.random.default_rng(seed))
+        kept = depth > 0
+        assert kept[left].mean() < 0.2 and kept[right].mean() > 0.95
+        noisy = depth[left & kept] - 1.0
+        assert np.std(noisy) > 2 * np.std(depth[right & kept] - 1.0)
+
+
+def test_time_of_flight_reads_concave_corners_too_far():
+    """Multipath: where the table meets the wall (a concave corner) the depth reads too far; on the
+    flat table and wall far from it, it reads true."""
+    from artclass_plugins.synth.render import WALL_Y_M
+
+    intr = Intrinsics.for_resolution(160, 120)
+    T_cw = look_at([0.0, WALL_Y_M - 0.75, 0.45], [0.0, WALL_Y_M, 0.0])
+    clean = render_clean(room_meshes(), T_camera_from_world=T_cw, intrinsics=intr, projector_baseline_m=0.0)
+    sensor = dataclasses.replace(
+        draw_sensor("time_of_flight", np.random.default_rng(0), intrinsics=intr),
+        sigma_1m_m=1e-7,
+        amplitude_min=1e-6,
+        wiggle_m=0.0,
+        flying_fraction=0.0,
+        edge_drop_prob=0.0,
+        random_drop_fraction=0.0,
+        multipath_gain=0.8,
+        depth_step_m=1e-6,
+    )
+    depth, _ = add_tof_noise(clean, sensor=sensor, fx_px=intr.fx_px, rng=np.random.default_rng(0))
+    pts = _backproject(clean.depth_m, intr)
+    T_wc = np.linalg.inv(T_cw)
+    world = pts @ T_wc[:3, :3].T + T_wc[:3, 3]
+    corner = np.hypot(world[..., 1] - WALL_Y_M, world[..., 2])  # distance to the corner line
+    ok = (clean.depth_m > 0) & (depth > 0)
+    err = depth - clean.depth_m
+    near, far = ok & (corner < 0.03), ok & (corner > 0.25)
+    assert near.sum() > 50 and far.sum() > 500
+    assert np.median(err[near]) > 0.003
+    assert np.abs(np.median(err[far])) < 0.0005
+
+
+def test_stated_intrinsics_are_off_the_rendered_ones_within_bounds():
+    from artclass_plugins.synth.sensors import draw_camera
+
+    focal, principal, offset = [], [], []
+    for seed in range(60):
+        cam = draw_camera(640, 480, np.random.default_rng(seed))
+        r, s = cam.rendered, cam.stated
+        focal += [s.fx_px / r.fx_px - 1, s.fy_px / r.fy_px - 1]
+        principal += [s.cx_px - r.cx_px, s.cy_px - r.cy_px]
+        offset.append(np.hypot(*cam.colour_offset_px))
+        assert 0.9 * 570 <= r.fx_px <= 1.1 * 570
+    assert np.max(np.abs(focal)) <= 0.035 and np.max(np.abs(focal)) > 0.025
+    assert np.max(np.abs(principal)) <= 5.0 and np.max(np.abs(principal)) > 4.0
+    assert max(offset) <= 2.0 and max(offset) > 1.5 and min(offset) < 0.5
+    # ...and the sequence's meta.json states them, while the truth keeps the rendered camera
+    seq = plan_sequence(object_name="mug", motion="static", n_frames=2, seed=3, **SMALL, **WILD)
+    stated, rendered = seq.truth["camera"]["stated"], seq.truth["camera"]["rendered"]
+    assert [seq.meta[k] for k in ("fx", "fy", "cx", "cy")] == pytest.approx(
+        [stated[k] for k in ("fx", "fy", "cx", "cy")], abs=1e-5
+    )
+    assert seq.meta["fx"] != pytest.approx(rendered["fx"], abs=1e-3)
+    assert seq.truth["sensor"]["fx_px"] == pytest.approx(seq.intrinsics.fx_px, abs=1e-5)
+    assert seq.intrinsics.fx_px == pytest.approx(rendered["fx"], abs=1e-5)
+
+
+def test_colour_is_offset_from_depth_by_the_drawn_pixels():
+    """Colour pixel (u + dx, v + dy) sees what depth pixel (u, v) sees: the noisy colour is the
+    depth-registered rendering moved by the drawn offset (measured by phase correlation)."""
+    for seed in (2, 5):
+        seq = plan_sequence(
+            object_name="cereal_box", motion="static", n_frames=2, seed=seed, width=320, height=240, **WILD
+        )
+        dx, dy = seq.truth["camera"]["colour_offset_px"]
+        frame = seq.render(0)
+        registered = cv2.cvtColor((frame.clean.rgb * 255).astype(np.float32), cv2.COLOR_RGB2GRAY)
+        seen = cv2.cvtColor(frame.rgb.astype(np.float32), cv2.COLOR_RGB2GRAY)
+        window = cv2.createHanningWindow(registered.shape[::-1], cv2.CV_32F)
+        (mx, my), _ = cv2.phaseCorrelate(registered, seen, window)
+        assert (mx, my) == pytest.approx((dx, dy), abs=0.15), (seed, (mx, my), (dx, dy))
+    assert np.hypot(dx, dy) > 0.3  # a draw that moves it
+
+
+def test_a_flip_of_180_degrees_in_12_frames_is_the_fastest_turn():
+    from artclass_plugins.synth.motion import MAX_TURN_DEG_PER_FRAME, draw_motion_style, make_trajectory
+
+    fastest = 0.0
+    for seed in range(80):
+        rng = np.random.default_rng(seed)
+        style = draw_motion_style("carry", 24, rng)
+        traj = make_trajectory(OBJECTS["cereal_box"], "carry", n_frames=24, rng=rng, style=style)
+        R = traj.T_world_from_object[:, :3, :3]
+        turns = [math.degrees(_rotation_angle(R[i].T @ R[i + 12])) for i in range(12)]
+        fastest = max(fastest, max(turns))
+        assert max(turns) <= 180.0 + 0.7  # the tremor's 0.3 degrees, twice
+        assert abs(style["angle_deg"]) <= MAX_TURN_DEG_PER_FRAME * style["frames"] + 1e-6
+    assert fastest > 170.0
+
+
+def test_spins_slides_and_lifts():
+    from artclass_plugins.synth.motion import draw_motion_style, make_trajectory
+
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        style = draw_motion_style("spin", 24, rng)
+        traj = make_trajectory(OBJECTS["can"], "spin", n_frames=24, rng=rng, style=style)
+        T = traj.T_world_from_object
+        axes = T[:, :3, 2]  # the can's own axis does not move, but the can turns by the drawn angle
+        np.testing.assert_allclose(axes, axes[:1].repeat(24, 0), atol=0.02)
+        turn = math.degrees(_rotation_angle(T[0, :3, :3].T @ T[-1, :3, :3]))
+        assert turn == pytest.approx(min(abs(style["angle_deg"]), 360 - abs(style["angle_deg"])), abs=1.0)
+        style = draw_motion_style("slide", 24, rng)
+        traj = make_trajectory(OBJECTS["book"], "slide", n_frames=24, rng=rng, style=style)
+        T = traj.T_world_from_object
+        np.testing.assert_allclose(T[:, 2, 3], 0.0, atol=1e-12)  # on the table...
+        np.testing.assert_allclose(
+            T[:, :3, 2], [[0.0, 0.0, 1.0]] * 24, atol=1e-12
+        )  # ...turning about its normal
+        assert np.linalg.norm(T[-1, :2, 3] - T[0, :2, 3]) > 0.03
+    with pytest.raises(ValueError, match="revolution"):
+        plan_sequence(object_name="book", motion="spin", noise="low", n_frames=4, seed=0)
+    # lifted off a stand that stays: the stand is never the object, and the object clears it once up
+    seq = plan_sequence(object_name="kettle", motion="lift", n_frames=24, seed=1, **SMALL, **WILD)
+    style, stand = seq.truth["motion_style"], seq.truth["stand"]
+    T = seq.trajectory.T_world_from_object
+    low = [
+        min(m.vertices_m[:, 2].min() for m in object_meshes(OBJECTS["kettle"], None, T[f])) for f in range(24)
+    ]
+    top = stand["height_m"] + 0.004
+    assert low[0] == pytest.approx(stand["height_m"], abs=1e-6)
+    assert min(low[style["start"] + style["lift_frames"] :]) > top
+    for f in (0, 23):
+        frame = seq.render(f)
+        on_stand = frame.clean.part_ids == -3
+        assert on_stand.sum() > 5 and not (on_stand & frame.mask).any()
+
+
+def test_randomised_hands_sleeves_gloves_and_grippers_vary():
+    import colorsys
+
+    from artclass_plugins.synth.hands import SLEEVE_STYLES, gripper_limb, hand_limb
+
+    limbs = [hand_limb(np.random.default_rng(s)) for s in range(80)]
+    assert {limb.style["sleeve"] for limb in limbs} == set(SLEEVE_STYLES)
+    assert 0.05 < np.mean(["glove" in limb.style for limb in limbs]) < 0.4
+    sleeves = [limb.style["sleeve_colour"] for limb in limbs if "sleeve_colour" in limb.style]
+    hsv = np.array([colorsys.rgb_to_hsv(*c) for c in sleeves])
+    assert len(np.unique(np.floor(hsv[hsv[:, 1] > 0.3, 0] * 6))) == 6  # every hue
+    assert hsv[:, 2].min() < 0.15 and hsv[:, 2].max() > 0.85  # dark and light
+    # rounded fingers: every finger ends in a ball
+    hand = limbs[0].hand
+    balls = [
+        p
+        for p in hand
+        if len(p.vertices_m) > 2
+        and np.ptp(np.linalg.norm(p.vertices_m - p.vertices_m.mean(0), axis=1)) < 1e-6
+    ]
+    assert len(balls) >= 15
+    bodies = np.array([gripper_limb(np.random.default_rng(s)).style["body"] for s in range(40)])
+    ghsv = np.array([colorsys.rgb_to_hsv(*c) for c in bodies])
+    assert len(np.unique(np.floor(ghsv[ghsv[:, 1] > 0.3, 0] * 6))) >= 5
+
+
+def test_wrists_bend_and_arms_rise_away_from_the_camera():
+    from artclass_plugins.synth.hands import MIN_ARM_ELEVATION_DEG, arm_poses, hand_limb
+
+    limb = hand_limb(np.random.default_rng(0))
+    T_wh = np.repeat(np.eye(4)[None], 24, axis=0)
+    T_wh[:, :3, :3] = rotation_about_axis((1, 0, 0), math.radians(150))  # the forearm (-z) points up, back
+    bends = []
+    for seed in range(10):
+        T_ha = arm_poses(limb, T_wh, np.random.default_rng(seed), bend_deg=30.0, sway_deg=20.0)
+        d = T_wh[0, :3, :3] @ T_ha[:, :3, :3] @ [0.0, 0.0, -1.0]
+        bend = np.degrees(np.arccos(np.clip(d @ (T_wh[0, :3, :3] @ [0.0, 0.0, -1.0]), -1, 1)))
+        bends.append(np.ptp(bend))
+        assert (np.degrees(np.arcsin(d[:, 2])) >= MIN_ARM_ELEVATION_DEG - 1e-6).all()
+        np.testing.assert_allclose(T_ha[:, :3, 3], [limb.wrist_m] * 24)
+    assert max(bends) > 10.0  # the wrist moves over the sequence
+    # an arm pointing straight at the camera is turned away from it
+    forearm = T_wh[0, :3, :3] @ [0.0, 0.0, -1.0]
+    eye = (T_wh[0] @ np.r_[limb.wrist_m, 1.0])[:3] + 0.8 * forearm
+    T_ha = arm_poses(limb, T_wh, np.random.default_rng(0), bend_deg=0.0, sway_deg=0.0, eye_world=eye)
+    d = T_wh[0, :3, :3] @ T_ha[0, :3, :3] @ [0.0, 0.0, -1.0]
+    assert np.degrees(np.arccos(np.clip(d @ forearm, -1, 1))) >= 45.0 - 1e-6
+
+
+def _wild_preset(*, width: int, height: int, n_frames: int | None = None):
+    """The benchmark-wild plans (seed 0) planned at a small size: (plan, SynthSequence) pairs."""
+    for i, p in enumerate(preset_plans("benchmark-wild")):
+        kw = dict(noise=p.noise, texture=p.texture, hand=p.hand, wild=True)
+        yield (
+            p,
+            plan_sequence(
+                object_name=p.object_name,
+                motion=p.motion,
+                n_frames=n_frames or p.n_frames,
+                seed=i,
+                width=width,
+                height=height,
+                **kw,
+            ),
+        )
+
+
+def test_the_wild_preset_draws_every_holder_role():
+    roles, kinds, sensors, two = set(), set(), set(), 0
+    for _, seq in _wild_preset(width=64, height=48, n_frames=4):
+        holders = seq.truth["holders"]
+        roles |= {h["role"] for h in holders}
+        kinds.add(seq.meta["hand"])
+        sensors.add(seq.meta["noise"])
+        two += sum(h["kind"] == "hand" for h in holders) == 2
+        if seq.meta["hand"] == "gripper":
+            from artclass_plugins.segmenters.hands import parse_hsv
+
+            assert len(parse_hsv(seq.meta["gripper_hsv"])) >= 1
+    assert roles == {"grasp", "rest", "pass", "pass_close"}
+    assert kinds == {"none", "hand", "gripper"} and sensors == {"structured_light", "time_of_flight"}
+    assert two >= 3
+
+
+def test_a_resting_hand_touches_the_still_object_and_a_close_pass_nears_the_camera():
+    found = set()
+    for seed in range(40):
+        seq = plan_sequence(
+            object_name="cereal_box",
+            motion="static",
+            n_frames=6,
+            seed=seed,
+            hand="hand",
+            width=64,
+            height=48,
+            noise="drawn",
+            texture="drawn",
+            wild=True,
+        )
+        for h in seq.holders:
+            if h.role in found:
+                continue
+            found.add(h.role)
+            world = [np.concatenate([m.vertices_m for m in seq.meshes(f) if m.part == -2]) for f in range(6)]
+            obj = np.concatenate([m.vertices_m for m in seq.meshes(0) if m.part >= 0])
+            if h.role == "rest":
+                palm = h.T_world_from_holder[:, :3, 3]
+                assert np.ptp(palm, axis=0).max() < 0.004  # it rests: a tremor of a millimetre or two
+                hand_low = np.concatenate([place[:, 2] for place in world]).min()
+                assert abs(hand_low - obj[:, 2].max()) < 0.01 or hand_low < obj[:, 2].max()
+            if h.role == "pass_close":
+                eye = np.linalg.inv(seq.trajectory.T_camera_from_world[0])[:3, 3]
+                assert min(np.linalg.norm(w - eye, axis=1).min() for w in world) < 0.35
+    assert {"rest", "pass_close"} <= found
+
+
+@pytest.mark.slow
+def test_randomised_arms_reach_out_of_the_picture():
+    for p, seq in _wild_preset(width=80, height=60):
+        for f in (0, p.n_frames - 1):
+            hand = seq.render(f).hand
+            if hand.any():
+                assert hand[0].any() or hand[-1].any() or hand[:, 0].any() or hand[:, -1].any(), (p.name, f)
+
+
+@pytest.mark.slow
+def test_randomised_sequences_repeat_by_seed(tmp_path):
+    kw = dict(object_name="laptop", motion="carry_articulate", n_frames=3, width=80, height=60, **WILD)
+    a = _digest(generate_sequence(tmp_path / "a", seed=11, **kw))
+    b = _digest(generate_sequence(tmp_path / "b", seed=11, **kw))
+    c = _digest(generate_sequence(tmp_path / "c", seed=12, **kw))
+    assert a == b
+    assert {"meta.json", "truth.json", "depth/000000.png", "rgb/000000.png"} <= {k for k in a if a[k] != c[k]}
+    meta = json.loads((tmp_path / "a" / "meta.json").read_text())
+    assert meta["noise"] in ("structured_light", "time_of_flight") and meta["generator"].endswith("0.4.0")
+    seq = FolderReader().sequences(tmp_path / "a")[0]  # read as any sequence, with its truth
+    assert seq.pair_truth(0, 2) in ("AM", "RM", None)
+    with pytest.raises(ValueError, match="randomised"):
+        plan_sequence(object_name="mug", motion="carry", n_frames=2, seed=0, noise="low", wild=True)
+
+
+def test_the_wild_preset_is_balanced():
+    plans = preset_plans("benchmark-wild")
+    labels = [MOTIONS[p.motion].label for p in plans]
+    assert len(plans) == 70 and len({p.name for p in plans}) == 70
+    assert (labels.count("articulated"), labels.count("rigid"), labels.count("static")) == (35, 18, 17)
+    assert {p.object_name for p in plans} == set(OBJECTS) and {p.motion for p in plans} == set(MOTIONS)
+    assert all((p.width, p.height, p.n_frames) == (640, 480, 24) and p.wild for p in plans)

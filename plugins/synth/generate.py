@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
-from .hands import HOLDER_KINDS, colour_box, grasp_pose, holder_pieces, wave_path
+from .hands import HOLDER_KINDS, Holder, colour_box, grasp_pose, holder_pieces, wave_path
 from .motion import MOTIONS, Trajectory, make_trajectory
 from .objects import OBJECTS, ObjectSpec, part_poses
 from .render import (
@@ -23,6 +24,8 @@ from .render import (
     render_clean,
     room_meshes,
 )
+from .sensors import StructuredLight, add_tof_noise, shift_colour
+from .wild import SCENE_STREAM, SceneDraw, check_wild_arguments, draw_scene, plan_wild
 from .write import DEPTH_SCALE, prepare_sequence_dir, write_frame, write_json
 
 __all__ = [
@@ -35,7 +38,7 @@ __all__ = [
     "plan_sequence",
 ]
 
-GENERATOR_VERSION = "0.3.1"
+GENERATOR_VERSION = "0.4.0"
 
 #: Surface variants: ``textured`` pieces carry their printed pattern, ``plain`` ones are uniform
 #: colours with shading only.
@@ -80,26 +83,6 @@ class SynthFrame:
 
 
 @dataclass
-class Holder:
-    """A hand or gripper in a sequence: its meshes and its pose in every frame.
-
-    Attributes
-    ----------
-    kind : {"hand", "gripper"}
-    pieces : tuple of Piece
-        Meshes in the holder frame.
-    T_world_from_holder : ndarray, shape (N, 4, 4)
-    holds : int or None
-        The part it holds, or None for a hand moving in front of the object.
-    """
-
-    kind: str
-    pieces: tuple
-    T_world_from_holder: np.ndarray
-    holds: int | None
-
-
-@dataclass
 class SynthSequence:
     """A planned sequence: metadata, ground truth and a frame renderer.
 
@@ -112,9 +95,14 @@ class SynthSequence:
         and frame are added by ``generate_sequence``).
     trajectory : Trajectory
     intrinsics : Intrinsics
+        The rendered camera (a randomised sequence's ``meta.json`` states other intrinsics).
     object_name, noise, texture : str
     seed : int
     holders : list of Holder
+    scene : SceneDraw or None
+        A randomised sequence's draw (sensor, camera, lighting, ...); None for the fixed presets.
+    props : list of SceneMesh
+        Things in the scene that are not the object (a stand it is lifted from), world frame.
     """
 
     meta: dict
@@ -126,6 +114,8 @@ class SynthSequence:
     seed: int
     texture: str = "textured"
     holders: list = field(default_factory=list)
+    scene: SceneDraw | None = None
+    props: list = field(default_factory=list)
 
     @property
     def n_frames(self) -> int:
@@ -152,19 +142,52 @@ class SynthSequence:
         if self.texture == "plain":
             for m in meshes:
                 m.piece = replace(m.piece, pattern="plain")
+        if self.scene is not None and self.scene.albedo_scale != 1.0:
+            k = self.scene.albedo_scale
+            for m in meshes:
+                m.piece = replace(
+                    m.piece,
+                    colour=tuple(k * c for c in m.piece.colour),
+                    colour2=tuple(k * c for c in m.piece.colour2),
+                )
         for h in self.holders:
             meshes += place_pieces(h.pieces, h.T_world_from_holder[index], HAND)
-        return room_meshes() + meshes
+            if h.arm_pieces:
+                meshes += place_pieces(
+                    h.arm_pieces, h.T_world_from_holder[index] @ h.T_holder_from_arm[index], HAND
+                )
+        return room_meshes() + meshes + self.props
+
+    @cached_property
+    def _disparity_bias_px(self) -> np.ndarray | None:
+        sensor = None if self.scene is None else self.scene.sensor
+        return sensor.disparity_bias_px(self.intrinsics) if isinstance(sensor, StructuredLight) else None
 
     def render(self, index: int) -> SynthFrame:
         """Render frame ``index`` (noise drawn from a generator seeded by (seed, 1, index))."""
+        rng = np.random.default_rng([self.seed, 1, index])
+        T_cw = self.trajectory.T_camera_from_world[index]
+        if self.scene is None:
+            clean = render_clean(self.meshes(index), T_camera_from_world=T_cw, intrinsics=self.intrinsics)
+            depth_m, rgb = add_sensor_noise(clean, noise=NOISE_LEVELS[self.noise], rng=rng)
+            return SynthFrame(index, rgb, depth_m, clean.mask, clean)
+        sc = self.scene
+        structured = isinstance(sc.sensor, StructuredLight)
         clean = render_clean(
             self.meshes(index),
-            T_camera_from_world=self.trajectory.T_camera_from_world[index],
+            T_camera_from_world=T_cw,
             intrinsics=self.intrinsics,
+            projector_baseline_m=sc.sensor.level.baseline_m if structured else 0.0,
+            ambient=sc.ambient,
+            light_dir_camera=sc.light_dir_camera,
         )
-        rng = np.random.default_rng([self.seed, 1, index])
-        depth_m, rgb = add_sensor_noise(clean, noise=NOISE_LEVELS[self.noise], rng=rng)
+        seen = replace(clean, rgb=shift_colour(clean.rgb, sc.camera.colour_offset_px))
+        if structured:
+            depth_m, rgb = add_sensor_noise(
+                seen, noise=sc.sensor.level, rng=rng, disparity_bias_px=self._disparity_bias_px
+            )
+        else:
+            depth_m, rgb = add_tof_noise(seen, sensor=sc.sensor, fx_px=self.intrinsics.fx_px, rng=rng)
         return SynthFrame(index, rgb, depth_m, clean.mask, clean)
 
     def part_visibility(self, frame: SynthFrame) -> dict:
@@ -299,6 +322,7 @@ def plan_sequence(
     height: int = 480,
     texture: str = "textured",
     hand: str = "none",
+    wild: bool = False,
 ) -> SynthSequence:
     """Draw the trajectory and ground truth of a sequence without rendering it.
 
@@ -313,12 +337,15 @@ def plan_sequence(
         raise ValueError(f"object_name={object_name!r} is not one of {sorted(OBJECTS)}")
     if motion not in MOTIONS:
         raise ValueError(f"motion={motion!r} is not one of {sorted(MOTIONS)}")
-    if noise not in NOISE_LEVELS:
-        raise ValueError(f"noise={noise!r} is not one of {sorted(NOISE_LEVELS)}")
-    if texture not in TEXTURES:
-        raise ValueError(f"texture={texture!r} is not one of {TEXTURES}")
-    if hand not in HANDS:
-        raise ValueError(f"hand={hand!r} is not one of {HANDS}")
+    if wild:
+        check_wild_arguments(noise=noise, hand=hand, texture=texture, hands=HANDS, textures=TEXTURES)
+    else:
+        if noise not in NOISE_LEVELS:
+            raise ValueError(f"noise={noise!r} is not one of {sorted(NOISE_LEVELS)}")
+        if texture not in TEXTURES:
+            raise ValueError(f"texture={texture!r} is not one of {TEXTURES}")
+        if hand not in HANDS:
+            raise ValueError(f"hand={hand!r} is not one of {HANDS}")
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"seed={seed!r} must be a non-negative integer")
     if not isinstance(n_frames, (int, np.integer)) or n_frames < 2:
@@ -330,34 +357,67 @@ def plan_sequence(
             f"motion={motion!r} needs an articulated object; {object_name!r} is rigid "
             f"(articulated: {sorted(k for k, v in OBJECTS.items() if v.joint is not None)})"
         )
-    intr = Intrinsics.for_resolution(int(width), int(height))
-    traj = make_trajectory(spec, motion, n_frames=int(n_frames), rng=np.random.default_rng([int(seed), 0]))
-    holders = _plan_holders(spec, motion, hand, traj, np.random.default_rng([int(seed), 3]))
+    if m.needs_tag and m.needs_tag not in spec.tags:
+        raise ValueError(
+            f"motion={motion!r} needs a {m.needs_tag} object; {object_name!r} is not one "
+            f"({sorted(k for k, v in OBJECTS.items() if m.needs_tag in v.tags)} are)"
+        )
+    seed, n = int(seed), int(n_frames)
+    scene = None
+    props: list = []
+    if wild:
+        scene = draw_scene(
+            spec=spec,
+            motion=motion,
+            n_frames=n,
+            width=int(width),
+            height=int(height),
+            rng=np.random.default_rng([seed, SCENE_STREAM]),
+            noise=noise,
+            hand=hand,
+            texture=texture,
+        )
+        drawn = plan_wild(spec, motion, n, seed, scene)
+        intr, stated = scene.camera.rendered, scene.camera.stated
+        traj, holders, props = drawn.trajectory, drawn.holders, drawn.props
+        noise, texture, hand = scene.sensor.kind, scene.texture, scene.holder_kind
+        boxes = drawn.gripper_hsv
+        sensor = scene.sensor.record(intr)
+    else:
+        intr = stated = Intrinsics.for_resolution(int(width), int(height))
+        traj = make_trajectory(spec, motion, n_frames=n, rng=np.random.default_rng([seed, 0]))
+        holders = _plan_holders(spec, motion, hand, traj, np.random.default_rng([seed, 3]))
+        level = NOISE_LEVELS[noise]
+        # the rig knows its grippers' colours, as a robot's owner would measure them once: a box a colour
+        boxes = [colour_box(h.pieces, rgb_sigma=level.rgb_sigma) for h in holders if h.kind == "gripper"]
+        sensor = {
+            "fx_px": intr.fx_px,
+            "axial_a_m": level.axial_a_m,
+            "axial_b_per_m": level.axial_b_per_m,
+            "axial_reference_m": 0.4,
+            "depth_step_m": 1.0 / DEPTH_SCALE,
+        }
 
     T_co = traj.T_camera_from_object
     meta = {
-        "fx": intr.fx_px,
-        "fy": intr.fy_px,
-        "cx": intr.cx_px,
-        "cy": intr.cy_px,
+        "fx": stated.fx_px,
+        "fy": stated.fy_px,
+        "cx": stated.cx_px,
+        "cy": stated.cy_px,
         "depth_scale": DEPTH_SCALE,
         "label": m.label,
         "object": object_name,
         "motion": motion,
         "noise": noise,
-        "seed": int(seed),
+        "seed": seed,
         "generator": f"artclass synth {GENERATOR_VERSION}",
         "joint_type": spec.joint_type,
         "texture": texture,
         "hand": hand,
     }
-    level = NOISE_LEVELS[noise]
-    # the rig knows its grippers' colours, as a robot's owner would measure them once: a box a colour
-    boxes = [colour_box(h.pieces, rgb_sigma=level.rgb_sigma) for h in holders if h.kind == "gripper"]
     if boxes:
         meta["gripper_hsv"] = "; ".join(dict.fromkeys(boxes))
     q = traj.joint_positions
-    n = len(T_co)
     truth = {
         "joint_type": spec.joint_type,
         "joint_positions": [None] * n if q is None else _floats(q[:, 0]),
@@ -386,18 +446,30 @@ def plan_sequence(
             [_nested(T) for T in [T_co[i] @ P for P in part_poses(spec, None if q is None else q[i])]]
             for i in range(n)
         ],
-        "sensor": {
-            "fx_px": intr.fx_px,
-            "axial_a_m": level.axial_a_m,
-            "axial_b_per_m": level.axial_b_per_m,
-            "axial_reference_m": 0.4,
-            "depth_step_m": 1.0 / DEPTH_SCALE,
-        },
+        "sensor": sensor,
         "holders": [
             {"kind": h.kind, "holds": None if h.holds is None else spec.parts[h.holds].name} for h in holders
         ],
     }
-    return SynthSequence(meta, truth, traj, intr, object_name, noise, int(seed), texture, holders)
+    if scene is not None:
+        for entry, h in zip(truth["holders"], holders):
+            entry.update(role=h.role, style=h.style)
+        truth.update(
+            camera=scene.camera.record(),
+            scene=scene.record(),
+            motion_style=scene.motion_style,
+            stand=None
+            if scene.stand is None
+            else dict(
+                scene.stand, camera0_from_stand=_nested(traj.T_camera_from_world[0] @ _stand_pose(props))
+            ),
+        )
+    return SynthSequence(meta, truth, traj, intr, object_name, noise, seed, texture, holders, scene, props)
+
+
+def _stand_pose(props: list) -> np.ndarray:
+    """``T_world_from_stand`` of the props placed by ``plan_wild`` (their texture frame)."""
+    return np.linalg.inv(props[0].T_local_from_world)
 
 
 def generate_sequence(
@@ -412,6 +484,7 @@ def generate_sequence(
     height: int = 480,
     texture: str = "textured",
     hand: str = "none",
+    wild: bool = False,
     overwrite: bool = False,
 ) -> Path:
     """Render a synthetic RGB-D sequence and write it in the native folder format.
@@ -422,10 +495,11 @@ def generate_sequence(
         Sequence folder to create; a non-empty folder is refused unless ``overwrite``.
     object_name : str
         A key of ``OBJECTS``.
-    motion : {"articulate", "carry_articulate", "carry", "static"}
-        The first two need an articulated object.
+    motion : {"articulate", "carry_articulate", "carry", "static", "spin", "slide", "lift"}
+        The first two need an articulated object, ``spin`` a body of revolution, ``slide`` a flat
+        object; ``lift`` starts the object on a stand that stays.
     noise : {"none", "low", "high"}
-        Sensor noise level (see ``NOISE_LEVELS``).
+        Sensor noise level (see ``NOISE_LEVELS``); see ``wild`` for randomised sensors.
     n_frames : int
         Number of frames, >= 2.
     seed : int
@@ -439,6 +513,12 @@ def generate_sequence(
         Who handles the object: a hand or gripper holds the moving part while a joint moves
         and the base while the object is carried, and moves in front of a static object
         without touching it. It hides the object and is never in its mask.
+    wild : bool
+        Randomise everything else from the seed (see ``artclass_plugins.synth.wild``): the sensor
+        (``noise`` is then ``"drawn"``, ``"structured_light"`` or ``"time_of_flight"``), the camera
+        and the intrinsics stated for it, the colour-depth offset, the lighting, the speeds, and the
+        holders (``hand`` and ``texture`` may then be ``"drawn"`` too): one or two hands with any
+        sleeve, glove or skin, or grippers of any colour, grasping, resting or passing.
     overwrite : bool
         Replace the sequence files in an existing non-empty ``out_dir``.
 
@@ -464,6 +544,7 @@ def generate_sequence(
         height=height,
         texture=texture,
         hand=hand,
+        wild=wild,
     )
     out = prepare_sequence_dir(out_dir, overwrite=overwrite)
     visibility, valid_px, points = [], [], []

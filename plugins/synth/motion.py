@@ -9,7 +9,16 @@ import numpy as np
 
 from .objects import ObjectSpec, object_extent_m, object_points_m, rotation_about_axis
 
-__all__ = ["MOTIONS", "MotionSpec", "Trajectory", "ease_in_out", "look_at", "make_trajectory"]
+__all__ = [
+    "MAX_TURN_DEG_PER_FRAME",
+    "MOTIONS",
+    "MotionSpec",
+    "Trajectory",
+    "draw_motion_style",
+    "ease_in_out",
+    "look_at",
+    "make_trajectory",
+]
 
 
 @dataclass(frozen=True)
@@ -25,6 +34,8 @@ class MotionSpec:
     needs_joint : bool
         Only for articulated objects.
     description : str
+    needs_tag : str or None
+        Only for objects with this tag (``ObjectSpec.tags``).
     """
 
     name: str
@@ -33,6 +44,7 @@ class MotionSpec:
     moves_object: bool
     needs_joint: bool
     description: str
+    needs_tag: str | None = None
 
 
 #: Motion kinds by name.
@@ -49,7 +61,35 @@ MOTIONS: dict[str, MotionSpec] = {
     "static": MotionSpec(
         "static", "static", False, False, False, "nothing moves; the camera jitters by at most 1 mm"
     ),
+    "spin": MotionSpec(
+        "spin",
+        "rigid",
+        False,
+        True,
+        False,
+        "a body of revolution turns about its own axis, standing on the table or in the air",
+        needs_tag="revolution",
+    ),
+    "slide": MotionSpec(
+        "slide",
+        "rigid",
+        False,
+        True,
+        False,
+        "a flat object slides along the table, turning about its normal",
+        needs_tag="flat",
+    ),
+    "lift": MotionSpec(
+        "lift",
+        "rigid",
+        False,
+        True,
+        False,
+        "the object is lifted off a stand, which stays on the table, and carried",
+    ),
 }
+#: The motions of the first generator versions, drawn by ``make_trajectory`` as they always were.
+FIXED_MOTIONS = ("articulate", "carry_articulate", "carry", "static")
 
 
 @dataclass
@@ -139,7 +179,16 @@ def _unit(v):
     return v / np.linalg.norm(v)
 
 
-def make_trajectory(spec: ObjectSpec, motion: str, *, n_frames: int, rng: np.random.Generator) -> Trajectory:
+def make_trajectory(
+    spec: ObjectSpec,
+    motion: str,
+    *,
+    n_frames: int,
+    rng: np.random.Generator,
+    style: dict | None = None,
+    pivot: np.ndarray | None = None,
+    stand_height_m: float = 0.0,
+) -> Trajectory:
     """Draw a smooth, realistic trajectory for one sequence.
 
     Parameters
@@ -150,6 +199,15 @@ def make_trajectory(spec: ObjectSpec, motion: str, *, n_frames: int, rng: np.ran
     n_frames : int
         At least 2.
     rng : numpy.random.Generator
+    style : dict, optional
+        Speeds and timings from ``draw_motion_style``. Without it, the first four motions are drawn
+        as the first generator versions drew them (10-40 degree carries over the whole sequence, one
+        way joints) and the others take a style drawn from ``rng``.
+    pivot : ndarray, shape (4, 4), optional
+        ``T_object_from_holder`` of the hand or gripper that holds the base: a flip turns the object
+        about its forearm (the approach axis through the grasp point), as a wrist turns.
+    stand_height_m : float
+        The object starts on a stand of this height (``lift``).
 
     Returns
     -------
@@ -160,8 +218,14 @@ def make_trajectory(spec: ObjectSpec, motion: str, *, n_frames: int, rng: np.ran
     m = MOTIONS[motion]
     if m.needs_joint and spec.joint is None:
         raise ValueError(f"motion={motion!r} needs an articulated object; {spec.name!r} is rigid")
+    if m.needs_tag and m.needs_tag not in spec.tags:
+        raise ValueError(f"motion={motion!r} needs a {m.needs_tag} object; {spec.name!r} is not one")
     if n_frames < 2:
         raise ValueError(f"n_frames={n_frames} must be >= 2")
+    if style is not None or motion not in FIXED_MOTIONS:
+        if style is None:
+            style = draw_motion_style(motion, n_frames, rng)
+        return _styled_trajectory(spec, motion, n_frames, rng, style, pivot, stand_height_m)
     n = n_frames
     t = np.linspace(0.0, 1.0, n)
 
@@ -231,3 +295,237 @@ def make_trajectory(spec: ObjectSpec, motion: str, *, n_frames: int, rng: np.ran
                 d *= 0.001 / norm
             T_cw_all[i, :3, 3] += d
     return Trajectory(T_wo, q, T_cw_all)
+
+
+# ---------------------------------------------------------------- randomised speeds and motions
+
+#: The fastest mean turn of a sequence: a 180-degree flip within 12 frames (0.4 s at 30 frames/s).
+MAX_TURN_DEG_PER_FRAME = 15.0
+#: Shares of carries that flip the object (90-180 degrees), of joints that go out and back (open,
+#: then close), of spins in the air rather than on the table.
+FLIP_P = 0.35
+OUT_AND_BACK_P = 0.35
+SPIN_IN_AIR_P = 0.4
+
+
+def _window(rng: np.random.Generator, n: int, frac: tuple[float, float], min_frames: float) -> dict:
+    """A motion's start frame and length in frame intervals: ``frac`` of the sequence, at least
+    ``min_frames``, within it."""
+    frames = int(np.clip(round(rng.uniform(*frac) * (n - 1)), max(1, math.ceil(min_frames)), n - 1))
+    return {"start": int(rng.integers(0, n - frames)), "frames": frames}
+
+
+def _turn(angle_deg: float, n: int) -> float:
+    """``angle_deg`` within what ``MAX_TURN_DEG_PER_FRAME`` allows over ``n`` frames (sign kept)."""
+    top = MAX_TURN_DEG_PER_FRAME * (n - 1)
+    return float(np.clip(angle_deg, -top, top))
+
+
+def draw_motion_style(motion: str, n_frames: int, rng: np.random.Generator, *, held: bool = False) -> dict:
+    """Speeds and timings of a motion, drawn (``truth.json`` keeps them as ``motion_style``).
+
+    Every rotation is at most ``MAX_TURN_DEG_PER_FRAME`` on average over its window, so the fastest
+    is a 180-degree flip within 12 frames. ``carry`` (and ``carry_articulate``) turns the object by
+    10-60 degrees over most of the sequence, or (``FLIP_P``) flips it by 90-180 degrees within 12-20
+    frames; joints move one way or (``OUT_AND_BACK_P``) out and back, over half the sequence or more;
+    ``spin`` turns a body of revolution by 45-360 degrees about its axis (at most 180 when a hand
+    turns it: a wrist's reach), on the table or in the air tilted by up to 30 degrees; ``slide`` moves
+    a flat object 5-25 cm and turns it by up to 90 degrees; ``lift`` raises the object 3-10 cm off
+    its stand within 4-8 frames, then carries it 5-20 cm, turning it by up to 45 degrees.
+
+    Parameters
+    ----------
+    motion : str
+        A key of ``MOTIONS``.
+    n_frames : int
+    rng : numpy.random.Generator
+    held : bool
+        A hand or gripper holds the object.
+    """
+    n = n_frames
+    style: dict = {}
+    if MOTIONS[motion].moves_joint:
+        style["joint"] = dict(
+            schedule="out_and_back" if rng.random() < OUT_AND_BACK_P else "one_way",
+            **_window(rng, n, (0.5, 1.0), 2),
+        )
+    if motion in ("carry", "carry_articulate"):
+        flip = bool(rng.random() < FLIP_P)
+        angle = _turn(rng.uniform(90.0, 180.0) if flip else rng.uniform(10.0, 60.0), n)
+        frac = (12 / max(n - 1, 1), 20 / max(n - 1, 1)) if flip else (0.6, 1.0)
+        window = _window(rng, n, frac, abs(angle) / MAX_TURN_DEG_PER_FRAME)
+        style.update(
+            flip=flip, angle_deg=angle, distance_m=rng.uniform(0.0, 0.1) if flip else rng.uniform(0.03, 0.2)
+        )
+        style.update(window)
+    elif motion == "spin":
+        angle = _turn(rng.uniform(45.0, 180.0 if held else 360.0), n)
+        in_air = bool(rng.random() < SPIN_IN_AIR_P)
+        style.update(angle_deg=angle, in_air=in_air, tilt_deg=rng.uniform(0.0, 30.0) if in_air else 0.0)
+        style.update(_window(rng, n, (0.5, 1.0), angle / MAX_TURN_DEG_PER_FRAME))
+    elif motion == "slide":
+        angle = _turn(rng.uniform(-90.0, 90.0), n)
+        style.update(angle_deg=angle, distance_m=rng.uniform(0.05, 0.25))
+        style.update(_window(rng, n, (0.5, 1.0), abs(angle) / MAX_TURN_DEG_PER_FRAME))
+    elif motion == "lift":
+        start = int(rng.integers(0, max(1, round(0.35 * (n - 1))) + 1))
+        lift = int(np.clip(rng.integers(4, 9), 1, max(1, n - 1 - start)))
+        angle = _turn(rng.uniform(0.0, 45.0), n)
+        style.update(
+            start=start,
+            lift_frames=lift,
+            height_m=rng.uniform(0.03, 0.10),
+            angle_deg=angle,
+            distance_m=rng.uniform(0.05, 0.2),
+        )
+    return {k: (round(float(v), 6) if isinstance(v, float | np.floating) else v) for k, v in style.items()}
+
+
+def _progress(n: int, start: int, frames: int) -> np.ndarray:
+    """Eased progress 0 -> 1 from frame ``start`` over ``frames`` intervals, per frame."""
+    return ease_in_out((np.arange(n) - start) / max(frames, 1))
+
+
+def _styled_joint(j, n: int, rng: np.random.Generator, moving: bool, style: dict | None) -> np.ndarray:
+    """A joint's positions: its start and travel drawn as ``_joint_schedule`` draws them, moved over
+    the style's window, one way or out and back."""
+    q0, travel = rng.uniform(*j.rest), rng.uniform(*j.travel)
+    if not moving:
+        return np.full(n, q0)
+    lo, hi = j.limits
+    up_ok, down_ok = q0 + travel <= hi, q0 - travel >= lo
+    if up_ok and down_ok:
+        sign = 1.0 if rng.random() < 0.5 else -1.0
+    else:
+        sign = 1.0 if up_ok or (not down_ok and hi - q0 >= q0 - lo) else -1.0
+        travel = min(travel, max(hi - q0, q0 - lo))
+    start, frames = style["start"], style["frames"]
+    if style["schedule"] == "out_and_back":
+        half = max(frames // 2, 1)
+        s = _progress(n, start, half) - _progress(n, start + half, max(frames - half, 1))
+    else:
+        s = _progress(n, start, frames)
+    return q0 + sign * travel * s
+
+
+def _about(point, axis, angle_rad: float) -> np.ndarray:
+    """A turn by ``angle_rad`` about the line through ``point`` along ``axis``, 4x4."""
+    R = rotation_about_axis(axis, angle_rad)
+    return _pose(R, np.asarray(point, float) - R @ np.asarray(point, float))
+
+
+def _lowest_z(spec: ObjectSpec, q, T_world_from_object: np.ndarray) -> float:
+    pts = object_points_m(spec, q)
+    return float(np.min(pts @ T_world_from_object[2, :3] + T_world_from_object[2, 3]))
+
+
+def _styled_trajectory(
+    spec: ObjectSpec,
+    motion: str,
+    n: int,
+    rng: np.random.Generator,
+    style: dict,
+    pivot: np.ndarray | None,
+    stand_height_m: float,
+) -> Trajectory:
+    m = MOTIONS[motion]
+    t = np.linspace(0.0, 1.0, n)
+    q = None
+    if spec.joints:
+        q = np.stack(
+            [_styled_joint(j, n, rng, m.moves_joint, style.get("joint")) for j in spec.joints], axis=1
+        )
+    qs = [None if q is None else q[i] for i in range(n)]
+    T_start = _pose(
+        rotation_about_axis((0, 0, 1), math.radians(rng.uniform(-50.0, 50.0))),
+        (rng.uniform(-0.03, 0.03), rng.uniform(-0.05, 0.0), stand_height_m),
+    )
+    pts_mid = object_points_m(spec, qs[n // 2])
+    centre = 0.5 * (pts_mid.min(0) + pts_mid.max(0))
+    T_wo = np.repeat(T_start[None], n, axis=0)
+    reach = 0.0
+    # Hand tremor: a smooth wobble of ~1.5 mm and ~0.3 degrees while the object is held in the air.
+    wob_f, wob_ph, wob_ax = (
+        rng.uniform(1.0, 2.5, size=3),
+        rng.uniform(0, 2 * math.pi, size=3),
+        _unit(rng.normal(size=3)),
+    )
+
+    def wobble(i: int) -> np.ndarray:
+        R = rotation_about_axis(
+            wob_ax, math.radians(0.3) * math.sin(2 * math.pi * wob_f[0] * t[i] + wob_ph[1])
+        )
+        return _pose(R, 0.0015 * np.sin(2 * math.pi * wob_f * t[i] + wob_ph))
+
+    if motion in ("carry", "carry_articulate"):
+        s = _progress(n, style["start"], style["frames"])
+        angle = math.radians(style["angle_deg"])
+        if style["flip"] and pivot is not None:  # about the forearm: the wrist turns
+            axis, point = pivot[:3, 2], pivot[:3, 3]
+        else:
+            axis, point = _unit([rng.normal(0, 0.6), rng.normal(0, 0.6), 1.0]), centre
+            if style["flip"]:
+                axis = _unit(rng.normal(size=3))
+        direction = _unit(rng.normal(size=3) * [1.0, 0.6, 0.5])
+        for i in range(n):
+            T_wo[i] = (
+                _pose(np.eye(3), direction * style["distance_m"] * s[i])
+                @ T_start
+                @ _about(point, axis, angle * s[i])
+                @ wobble(i)
+            )
+        T_wo[:, 2, 3] += rng.uniform(0.02, 0.08) - min(_lowest_z(spec, qs[i], T_wo[i]) for i in range(n))
+        reach = style["distance_m"]
+    elif motion == "spin":
+        s = _progress(n, style["start"], style["frames"])
+        spin = [_about((0, 0, 0), (0, 0, 1), math.radians(style["angle_deg"]) * s[i]) for i in range(n)]
+        if style["in_air"]:
+            tilt = _about(centre, _unit([rng.normal(), rng.normal(), 0.0]), math.radians(style["tilt_deg"]))
+            drift = _unit(rng.normal(size=3)) * rng.uniform(0.0, 0.05)
+            for i in range(n):
+                T_wo[i] = _pose(np.eye(3), drift * s[i]) @ T_start @ tilt @ spin[i] @ wobble(i)
+            T_wo[:, 2, 3] += rng.uniform(0.02, 0.08) - min(_lowest_z(spec, qs[i], T_wo[i]) for i in range(n))
+        else:
+            T_wo = np.stack([T_start @ S for S in spin])
+    elif motion == "slide":
+        s = _progress(n, style["start"], style["frames"])
+        direction = np.r_[_unit(rng.normal(size=2)), 0.0]
+        point = np.array([centre[0], centre[1], 0.0])
+        for i in range(n):
+            turn = _about(point, (0, 0, 1), math.radians(style["angle_deg"]) * s[i])
+            T_wo[i] = _pose(np.eye(3), direction * style["distance_m"] * s[i]) @ T_start @ turn
+        reach = style["distance_m"]
+    elif motion == "lift":
+        up = _progress(n, style["start"], style["lift_frames"])
+        end = style["start"] + style["lift_frames"]
+        away = _progress(n, end, max(n - 1 - end, 1))
+        axis = _unit([rng.normal(0, 0.6), rng.normal(0, 0.6), 1.0])
+        direction = _unit(rng.normal(size=3) * [1.0, 0.6, 0.3] + [0.0, 0.0, 0.3])
+        for i in range(n):
+            turn = _about(centre, axis, math.radians(style["angle_deg"]) * away[i])
+            shift = (
+                np.array([0.0, 0.0, style["height_m"] * up[i]]) + direction * style["distance_m"] * away[i]
+            )
+            T_wo[i] = _pose(np.eye(3), shift) @ T_start @ turn @ (wobble(i) if up[i] > 0 else np.eye(4))
+        # Once lifted, the object clears its stand by at least 1 cm (raise the lift where a turn would
+        # dip it); before the lift it stands on it exactly.
+        lifted = [i for i in range(n) if up[i] >= 1.0]
+        need = max([stand_height_m + 0.01 - _lowest_z(spec, qs[i], T_wo[i]) for i in lifted] + [0.0])
+        T_wo[:, 2, 3] += need * up
+        reach = style["distance_m"]
+    elif m.moves_object:
+        raise ValueError(f"motion={motion!r} has no styled trajectory")
+
+    centres = np.array([T_wo[i, :3, :3] @ centre + T_wo[i, :3, 3] for i in range(n)])
+    target = centres.mean(0)
+    distance = float(np.clip((object_extent_m(spec) + reach) / 0.36 * rng.uniform(0.85, 1.35), 0.5, 1.4))
+    elev, azim = math.radians(rng.uniform(18.0, 55.0)), math.radians(rng.uniform(-45.0, 45.0))
+    eye = target + distance * np.array(
+        [math.cos(elev) * math.sin(azim), -math.cos(elev) * math.cos(azim), math.sin(elev)]
+    )
+    T_cw = np.repeat(look_at(eye, target, roll_rad=math.radians(rng.uniform(-5.0, 5.0)))[None], n, axis=0)
+    if motion == "static":  # tripod jitter, at most 1 mm
+        for i in range(1, n):
+            d = rng.normal(0.0, 0.0003, size=3)
+            T_cw[i, :3, 3] += d * min(1.0, 0.001 / max(float(np.linalg.norm(d)), 1e-12))
+    return Trajectory(T_wo, q, T_cw)

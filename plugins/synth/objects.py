@@ -35,6 +35,7 @@ __all__ = [
     "object_extent_m",
     "part_poses",
     "rotation_about_axis",
+    "stand_pieces",
 ]
 
 #: Texture patterns a piece may carry (evaluated in its part frame).
@@ -133,6 +134,9 @@ class ObjectSpec:
         Part 0 is the base; part ``k >= 1`` (articulated objects only) hangs on ``joints[k - 1]``.
     joints : tuple of Joint
         One per part after the base; empty for rigid objects.
+    tags : tuple of str
+        Shapes that motions need: ``"revolution"`` (a body of revolution about the object's z axis,
+        which can be spun about it) and ``"flat"`` (lies flat on the table and can slide on it).
     """
 
     name: str
@@ -140,6 +144,7 @@ class ObjectSpec:
     description: str
     parts: tuple[Part, ...] = field(repr=False)
     joints: tuple[Joint, ...] = ()
+    tags: tuple[str, ...] = ()
 
     def __post_init__(self):
         if len(self.joints) != len(self.parts) - 1:
@@ -651,7 +656,11 @@ def _mug() -> ObjectSpec:
     coffee = cylinder(0.036, 0.002, (0, 0, 0.088), (0.25, 0.15, 0.08), pattern="plain", resolution=24)
     handle = torus(0.028, 0.007, (0.045, 0, 0.05), col, axis=(0, 1, 0), pattern="plain")
     return ObjectSpec(
-        "mug", "rigid", "mug: cylinder and a ring handle", (Part("mug", (body, coffee, handle)),)
+        "mug",
+        "rigid",
+        "mug: cylinder and a ring handle",
+        (Part("mug", (body, coffee, handle)),),
+        tags=("revolution",),
     )
 
 
@@ -679,7 +688,9 @@ def _can() -> ObjectSpec:
         resolution=24,
     )
     top = cylinder(0.030, 0.004, (0, 0, 0.117), (0.75, 0.76, 0.78), pattern="plain", resolution=24)
-    return ObjectSpec("can", "rigid", "drinks can (rigid cylinder)", (Part("can", (body, top)),))
+    return ObjectSpec(
+        "can", "rigid", "drinks can (rigid cylinder)", (Part("can", (body, top)),), tags=("revolution",)
+    )
 
 
 def _bottle() -> ObjectSpec:
@@ -699,7 +710,13 @@ def _bottle() -> ObjectSpec:
         cylinder(0.013, 0.05, (0, 0, 0.215), green, pattern="plain", resolution=16),
         cylinder(0.015, 0.018, (0, 0, 0.245), (0.85, 0.15, 0.15), pattern="plain", resolution=16),
     )
-    return ObjectSpec("bottle", "rigid", "bottle (rigid, rotationally symmetric)", (Part("bottle", pieces),))
+    return ObjectSpec(
+        "bottle",
+        "rigid",
+        "bottle (rigid, rotationally symmetric)",
+        (Part("bottle", pieces),),
+        tags=("revolution",),
+    )
 
 
 def _drill() -> ObjectSpec:
@@ -799,6 +816,7 @@ def _book() -> ObjectSpec:
                 ),
             ),
         ),
+        tags=("flat",),
     )
 
 
@@ -826,6 +844,7 @@ def _plate() -> ObjectSpec:
                 ),
             ),
         ),
+        tags=("flat", "revolution"),
     )
 
 
@@ -850,6 +869,7 @@ def _ruler() -> ObjectSpec:
                 ),
             ),
         ),
+        tags=("flat",),
     )
 
 
@@ -1069,6 +1089,36 @@ def _folding_ruler() -> ObjectSpec:
     )
 
 
+def _kettle() -> ObjectSpec:
+    steel, black = (0.70, 0.71, 0.74), (0.10, 0.10, 0.11)
+    body = cylinder(
+        0.075, 0.17, (0, 0, 0.085), steel, resolution=28, pattern="stripes", cell_m=0.03, contrast=0.1
+    )
+    v = body.vertices_m.copy()
+    v[:, :2] *= (1.0 - 0.18 * v[:, 2] / 0.17)[:, None]  # narrower towards the top
+    body = Piece(v, body.triangles, body.colour, body.colour2, body.pattern, body.cell_m)
+    pieces = (
+        body,
+        cylinder(0.048, 0.012, (0, 0, 0.176), black, resolution=24, pattern="plain"),  # lid
+        sphere(0.012, (0, 0, 0.188), black, resolution=8, pattern="plain"),  # knob
+        box(
+            (0.022, 0.03, 0.14), (0.105, 0, 0.10), black, pattern="checker", cell_m=0.01, contrast=0.2
+        ),  # grip
+        box((0.05, 0.026, 0.02), (0.085, 0, 0.16), black, pattern="plain"),
+        box((0.05, 0.026, 0.02), (0.085, 0, 0.04), black, pattern="plain"),
+        cone(
+            0.018, 0.07, (-0.06, 0, 0.12), steel, axis=(-0.8, 0, 0.6), resolution=12, pattern="plain"
+        ),  # spout
+    )
+    return ObjectSpec(
+        "kettle",
+        "rigid",
+        "electric kettle: a body of revolution with a handle and a spout, lifted off its power base",
+        (Part("kettle", pieces),),
+        tags=("revolution",),
+    )
+
+
 _BUILDERS = (
     _laptop,
     _drawer,
@@ -1091,6 +1141,7 @@ _BUILDERS = (
     _slide_case,
     _desk_lamp,
     _folding_ruler,
+    _kettle,
 )
 
 
@@ -1126,3 +1177,29 @@ def object_extent_m(spec: ObjectSpec) -> float:
     """Largest side of the axis-aligned bounding box at the joint's rest midpoint, metres."""
     pts = object_points_m(spec, spec.rest_positions())
     return float(np.max(pts.max(0) - pts.min(0)))
+
+
+def stand_pieces(spec: ObjectSpec, colour, *, height_m: float, margin_m: float) -> tuple[Piece, ...]:
+    """A stand that ``spec`` rests on and is lifted from (a kettle's power base, a coaster, a charging
+    pad, a tray): its top at ``z = height_m``, ``margin_m`` beyond the object's footprint, a disc
+    under a body of revolution and a slab under anything else. It is not part of the object.
+
+    Parameters
+    ----------
+    spec : ObjectSpec
+    colour : tuple of 3 floats in [0, 1]
+    height_m, margin_m : float
+    """
+    pts = object_points_m(spec, spec.rest_positions())
+    foot = pts[pts[:, 2] <= pts[:, 2].min() + 0.01]
+    kw = dict(pattern="checker", cell_m=0.02, contrast=0.08)
+    if "revolution" in spec.tags:
+        r = float(np.max(np.linalg.norm(foot[:, :2], axis=1))) + margin_m
+        disc = cylinder(r, height_m, (0.0, 0.0, height_m / 2), colour, resolution=32, **kw)
+        post = cylinder(
+            0.012, 0.004, (0.0, 0.0, height_m + 0.002), (0.3, 0.3, 0.32), resolution=10, pattern="plain"
+        )
+        return (disc, post)
+    lo, hi = foot[:, :2].min(0) - margin_m, foot[:, :2].max(0) + margin_m
+    size = (float(hi[0] - lo[0]), float(hi[1] - lo[1]), height_m)
+    return (box(size, (float(lo[0] + hi[0]) / 2, float(lo[1] + hi[1]) / 2, height_m / 2), colour, **kw),)

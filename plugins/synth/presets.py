@@ -1,4 +1,5 @@
-"""Named sets of sequences: ``sample``, ``smoke`` and the benchmark at three camera resolutions."""
+"""Named sets of sequences: ``sample``, ``smoke``, the benchmark at three camera resolutions, and the
+randomised benchmark ``benchmark-wild``."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from pathlib import Path
 from .generate import GENERATOR_VERSION, HANDS, TEXTURES, generate_sequence
 from .motion import MOTIONS
 from .objects import OBJECTS
+from .wild import DRAWN
 from .write import write_json
 
 __all__ = ["PRESETS", "SequencePlan", "generate_set", "preset_plans"]
@@ -27,15 +29,17 @@ class SequencePlan:
     height: int
     texture: str = "textured"
     hand: str = "none"
+    wild: bool = False
 
     def __post_init__(self):
         if self.object_name not in OBJECTS:
             raise ValueError(f"plan {self.name!r}: unknown object {self.object_name!r}")
         if self.motion not in MOTIONS:
             raise ValueError(f"plan {self.name!r}: unknown motion {self.motion!r}")
-        if self.texture not in TEXTURES:
+        drawn = (DRAWN,) if self.wild else ()
+        if self.texture not in TEXTURES + drawn:
             raise ValueError(f"plan {self.name!r}: unknown texture {self.texture!r}")
-        if self.hand not in HANDS:
+        if self.hand not in HANDS + drawn:
             raise ValueError(f"plan {self.name!r}: unknown hand {self.hand!r}")
 
 
@@ -128,6 +132,53 @@ def _smoke() -> list[SequencePlan]:
     ]
 
 
+# The randomised benchmark: these objects and motions; sensor, camera, holders, speeds, surface and
+# lighting drawn from each sequence's seed.
+_WILD_ROWS = (
+    [(obj, "articulate") for obj in _ARTICULATED + _NEW_ARTICULATED + ("slide_case",) for _ in range(2)]
+    + [
+        (obj, "carry_articulate")
+        for obj in _CARRIED_ARTICULATING
+        + ("scissors", "slide_case", "folding_ruler", "laptop", "pliers", "box_lid")
+    ]
+    + [(obj, "carry") for obj in ("cereal_box", "drill", "book", "laptop", "pliers", "box_lid", "banana")]
+    + [(obj, "lift") for obj in ("kettle", "mug", "cereal_box")]
+    + [(obj, "spin") for obj in ("mug", "can", "bottle", "kettle", "plate")]
+    + [(obj, "slide") for obj in ("book", "plate", "ruler")]
+    + [
+        (obj, "static")
+        for obj in (
+            "mug",
+            "drill",
+            "cereal_box",
+            "bottle",
+            "laptop",
+            "microwave",
+            "globe",
+            "drawer",
+            "book",
+            "plate",
+            "scissors",
+            "desk_lamp",
+            "monitor",
+            "folding_ruler",
+            "slide_case",
+            "kettle",
+            "can",
+        )
+    ]
+)
+
+
+def _wild(width: int = 640, height: int = 480) -> list[SequencePlan]:
+    return [
+        SequencePlan(
+            f"{i:02d}_{obj}_{motion}", obj, motion, DRAWN, 24, width, height, DRAWN, DRAWN, wild=True
+        )
+        for i, (obj, motion) in enumerate(_WILD_ROWS)
+    ]
+
+
 #: Preset name -> one-line description.
 PRESETS: dict[str, str] = {
     "sample": "4 sequences, 320x240, 16 frames, low noise: what sample_data/ holds",
@@ -138,6 +189,11 @@ PRESETS: dict[str, str] = {
     "of YCB-Video and RBO",
     "benchmark-rs": "the benchmark at 848x480 with a RealSense-like camera (fx = 615)",
     "smoke": "4 tiny sequences, 160x120, 8 frames, for tests",
+    "benchmark-wild": "70 sequences, 640x480, 24 frames (35 articulated, 18 rigid, 17 static; 22 objects, "
+    "spins, slides, lifts off a stand, flips of up to 180 degrees in 12 frames) with everything else drawn "
+    "from each sequence's seed: a structured-light sensor with a depth bias field or a time-of-flight one, "
+    "intrinsics stated a few percent off, colour 0-2 px off depth, lighting, and no holder, one or two hands "
+    "(any sleeve, glove, skin) or grippers of any colour, grasping, resting or passing",
 }
 _PLANS = {
     "sample": _sample,
@@ -145,6 +201,7 @@ _PLANS = {
     "benchmark-vga": lambda: _benchmark(640, 480),
     "benchmark-rs": lambda: _benchmark(848, 480),
     "smoke": _smoke,
+    "benchmark-wild": _wild,
 }
 
 
@@ -163,7 +220,7 @@ def generate_set(out_root: str | Path, *, preset: str, seed: int = 0, overwrite:
     out_root : str or Path
         Created if missing. Files in it other than the preset's sequence
         folders and ``index.json`` are left alone.
-    preset : {"sample", "smoke", "benchmark", "benchmark-vga", "benchmark-rs"}
+    preset : {"sample", "smoke", "benchmark", "benchmark-vga", "benchmark-rs", "benchmark-wild"}
     seed : int
         Set seed; sequence ``i`` gets seed ``seed * 1000 + i`` (recorded in its meta.json).
     overwrite : bool
@@ -207,10 +264,14 @@ def generate_set(out_root: str | Path, *, preset: str, seed: int = 0, overwrite:
             height=plan.height,
             texture=plan.texture,
             hand=plan.hand,
+            wild=plan.wild,
             overwrite=overwrite,
         )
         out.append(p)
         entry = asdict(plan)
+        if plan.wild:  # what was drawn
+            meta = json.loads((p / "meta.json").read_text())
+            entry.update(noise=meta["noise"], texture=meta["texture"], hand=meta["hand"])
         entry.update(
             seed=seq_seed, label=MOTIONS[plan.motion].label, joint_type=OBJECTS[plan.object_name].joint_type
         )

@@ -24,6 +24,7 @@ from .objects import ObjectSpec, Piece, part_poses
 from .objects import box as _box
 
 __all__ = [
+    "PROP",
     "CleanFrame",
     "Intrinsics",
     "NOISE_LEVELS",
@@ -47,11 +48,15 @@ REALSENSE_FOCAL_PX = 615.0
 PROJECTOR_BASELINE_M = 0.075
 #: The wall behind the object.
 WALL_Y_M = 0.62
-#: ``SceneMesh.part`` of the room and of a hand or gripper (object parts are 0, 1, ...).
+#: ``SceneMesh.part`` of the room, of a hand or gripper, and of a prop that is not the object (a stand
+#: the object is lifted from); object parts are 0, 1, ...
 ROOM = -1
 HAND = -2
+PROP = -3
 #: Ambient share of the lighting (the rest is a directional light near the camera).
 AMBIENT = 0.35
+#: Direction the light travels, camera frame (from above left of the camera, into the scene).
+LIGHT_DIR_CAMERA = (-0.35, -0.55, -1.0)
 
 
 @dataclass(frozen=True)
@@ -135,6 +140,13 @@ class NoiseLevel:
     depth_step_m: float = field(
         default=0.0, metadata={"help": "depth quantisation of the delivered depth, metres (0: none)"}
     )
+    baseline_m: float = field(
+        default=PROJECTOR_BASELINE_M,
+        metadata={"help": "projector-camera baseline b of the disparity, metres"},
+    )
+    focal_px: float = field(
+        default=REFERENCE_FOCAL_PX, metadata={"help": "focal length f of the disparity, pixels"}
+    )
 
     def __post_init__(self):
         for name in (
@@ -156,6 +168,10 @@ class NoiseLevel:
                 f"NoiseLevel {self.name!r}: need 0 <= grazing_start_deg "
                 f"({self.grazing_start_deg}) <= grazing_end_deg "
                 f"({self.grazing_end_deg}) <= 90"
+            )
+        if self.baseline_m <= 0 or self.focal_px <= 0:
+            raise ValueError(
+                f"NoiseLevel {self.name!r}: baseline_m={self.baseline_m} and focal_px={self.focal_px} must be > 0"
             )
 
     def axial_sigma_m(self, depth_m: np.ndarray) -> np.ndarray:
@@ -352,6 +368,8 @@ class CleanFrame:
         |cos| of the angle between the viewing ray and the surface normal.
     shadowed : ndarray, shape (H, W), bool
         Surface points the pattern projector cannot see.
+    albedo : ndarray, shape (H, W), float32 in [0, 1], or None
+        Luminance of the unshaded surface colour (its reflectance; 0 where nothing is hit).
     """
 
     depth_m: np.ndarray
@@ -359,6 +377,7 @@ class CleanFrame:
     part_ids: np.ndarray
     cos_incidence: np.ndarray
     shadowed: np.ndarray
+    albedo: np.ndarray | None = None
 
     @property
     def mask(self) -> np.ndarray:
@@ -378,6 +397,7 @@ def render_clean(
     intrinsics: Intrinsics,
     projector_baseline_m: float = PROJECTOR_BASELINE_M,
     ambient: float = AMBIENT,
+    light_dir_camera=LIGHT_DIR_CAMERA,
 ) -> CleanFrame:
     """Ray-cast ``meshes`` through a pinhole camera.
 
@@ -391,6 +411,8 @@ def render_clean(
         Projector offset along camera +x used for the shadow map; 0 disables it.
     ambient : float
         Ambient share of the lighting (the rest is a directional light near the camera).
+    light_dir_camera : array_like, shape (3,)
+        Direction the directional light travels, camera frame (need not be unit length).
 
     Returns
     -------
@@ -444,7 +466,7 @@ def render_clean(
     facing = -np.sign(ndotd)  # flips normals to face the camera
 
     R_wc = R_cw.T
-    light_dir = R_wc @ (np.array([-0.35, -0.55, -1.0]) / np.linalg.norm([-0.35, -0.55, -1.0]))
+    light_dir = R_wc @ (np.asarray(light_dir_camera, float) / np.linalg.norm(light_dir_camera))
     diffuse = np.clip(facing * _dot3(normals, light_dir.astype(np.float32)), 0.0, 1.0)
     shade = ambient + (1.0 - ambient) * diffuse
 
@@ -479,7 +501,8 @@ def render_clean(
         # Occluded when something is hit more than 3 mm before the surface point itself.
         shadowed[hit] = pt < 1.0 - 0.003 / length
 
-    return CleanFrame(depth, rgb.astype(np.float32), part_ids, cos_inc, shadowed)
+    albedo = (base @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)).reshape(h, w)
+    return CleanFrame(depth, rgb.astype(np.float32), part_ids, cos_inc, shadowed, albedo)
 
 
 def _depth_edges(depth_m: np.ndarray) -> np.ndarray:
@@ -517,13 +540,15 @@ def add_sensor_noise(
     *,
     noise: NoiseLevel,
     rng: np.random.Generator,
+    disparity_bias_px: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Turn a clean rendering into what a structured-light RGB-D sensor would deliver.
 
     Steps, in order: grazing-angle dropouts, projector shadows, lateral jitter,
     flying pixels (a depth between the foreground's and the background's) and
     dropouts next to depth discontinuities, axial Gaussian noise ``sigma(z)``,
-    disparity quantisation (step grows with z**2), random dropouts, speckle
+    a fixed disparity bias over the image (when given), disparity quantisation
+    (step grows with z**2), random dropouts, speckle
     outliers, range limits, and rounding to the delivered depth unit (1 mm);
     colour gets Gaussian noise.
 
@@ -533,6 +558,10 @@ def add_sensor_noise(
     noise : NoiseLevel
     rng : numpy.random.Generator
         The only source of randomness: the same state gives the same output.
+    disparity_bias_px : ndarray, shape (H, W), optional
+        A disparity error, pixels of ``noise.focal_px``, fixed over the image (a residual of the
+        sensor's calibration): it moves depth by ``z**2 * bias / (focal_px * baseline_m)``, a bias
+        that grows with the square of the range.
 
     Returns
     -------
@@ -584,8 +613,11 @@ def add_sensor_noise(
 
     # Axial noise (Nguyen et al. 2012) and disparity quantisation.
     z = z + rng.normal(0.0, 1.0, size=(h, w)) * noise.axial_sigma_m(z)
+    if disparity_bias_px is not None:  # 1 / z = d / (f b): a disparity error d' adds d' / (f b) to 1 / z
+        zz = np.where(z > 1e-3, z, 1.0)
+        z = np.where(z > 1e-3, 1.0 / (1.0 / zz + disparity_bias_px / (noise.focal_px * noise.baseline_m)), z)
     if noise.disparity_subpixel > 0:
-        step_inv_m = noise.disparity_subpixel / (REFERENCE_FOCAL_PX * PROJECTOR_BASELINE_M)
+        step_inv_m = noise.disparity_subpixel / (noise.focal_px * noise.baseline_m)
         zz = np.where(z > 1e-3, z, 1.0)
         z = np.where(z > 1e-3, 1.0 / (np.rint((1.0 / zz) / step_inv_m) * step_inv_m), z)
 
