@@ -35,6 +35,7 @@ class SequenceOutcome:
     pair_correct_legacy: int = 0  # against the reader's earlier pair truth, where it has one
     pair_total_legacy: int = 0
     n_pairs: int = 0
+    n_undecided: int = 0  # pairs no model explained (counted as wrong in the pair accuracy)
     seconds: float = 0.0
     joints: dict[str, Any] | None = None  # parts and joints against the truth (sequences with joint truth)
     observable: bool | None = (
@@ -92,6 +93,7 @@ class Evaluation:
             f1=f1s,
             pair_accuracy=(sum(o.pair_correct for o in outs) / pair_total) if pair_total else None,
             pair_total=pair_total,
+            pairs_undecided=sum(o.n_undecided for o in outs),
             pair_accuracy_legacy=(sum(o.pair_correct_legacy for o in outs) / legacy_total)
             if legacy_total
             else None,
@@ -227,6 +229,7 @@ def score_labels(o: SequenceOutcome, pipeline: Pipeline, seq: Sequence, result: 
     o.pair_total_legacy = sum(t is not None for _, t in legacy)
     o.pair_correct_legacy = sum(p.decision == t for p, t in legacy)
     o.n_pairs = len(result.pairs)
+    o.n_undecided = sum(p.decision == "undecided" for p in result.pairs)
 
 
 def _observable(seq: Sequence, params) -> bool | None:
@@ -397,6 +400,9 @@ def markdown(evals: list[Evaluation]) -> str:
         rows.append(("pair_accuracy_legacy", "pair accuracy % (earlier joint-state truth)"))
     for key, label in rows:
         lines.append(f"| {label} | " + " | ".join(_pct(m[key]) for m in ms) + " |")
+    lines.append(
+        "| pairs undecided (counted as wrong) | " + " | ".join(str(m["pairs_undecided"]) for m in ms) + " |"
+    )
     for c in LABELS:
         if c in ms[0]["per_class_accuracy"]:
             lines.append(

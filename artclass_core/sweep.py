@@ -47,7 +47,13 @@ from .types import DECISIONS, Sequence
 DASK_HINT = "pip install 'artclass[dask]'"
 KEY_COLUMNS = ("path", "sequence", "recipe")
 TABLE_SUFFIXES = (".parquet", ".csv")
-DECISION_LETTERS = {"AM": "A", "RM": "R", "NM": "N", "skipped": "-"}  # the ``decisions`` column
+DECISION_LETTERS = {
+    "AM": "A",
+    "RM": "R",
+    "NM": "N",
+    "undecided": "?",
+    "skipped": "-",
+}  # the ``decisions`` column
 
 
 @dataclass(frozen=True)

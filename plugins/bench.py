@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from artclass_core import Frame, Sequence, hookimpl
+from artclass_core.types import DECISIONS
 
 STAGES = ("read", "segment", "preprocess", "register", "decide")
 FRAME_STAGES = ("read", "segment", "preprocess")
@@ -236,7 +237,7 @@ def measure_run(spec: dict) -> dict:
         spec=spec,
         n_frames=len(seq),
         n_pairs=len(result.pairs),
-        n_decided=sum(p.decision != "skipped" for p in result.pairs),
+        n_decided=sum(p.decision in DECISIONS for p in result.pairs),
         label=result.label,
         timing_s=dict(result.timing_s),
         wall_s=wall,

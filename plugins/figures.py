@@ -37,6 +37,7 @@ from plotly.subplots import make_subplots
 from artclass_core import Cloud, Frame, PairResult, RunResult
 from artclass_core.geometry import transform
 from artclass_core.sweep import summary, swept_names
+from artclass_core.types import DECISIONS
 
 __all__ = [
     "DECISION_COLOURS",
@@ -53,13 +54,25 @@ __all__ = [
     "sweep_figure",
 ]
 
-DECISION_COLOURS = {"AM": "#E4572E", "RM": "#2E86AB", "NM": "#57A773", "skipped": "#B8B8B8"}
+DECISION_COLOURS = {
+    "AM": "#E4572E",
+    "RM": "#2E86AB",
+    "NM": "#57A773",
+    "undecided": "#8E7DBE",
+    "skipped": "#B8B8B8",
+}
 LABEL_COLOURS = {
     "articulated": DECISION_COLOURS["AM"],
     "rigid": DECISION_COLOURS["RM"],
     "static": DECISION_COLOURS["NM"],
 }
-DECISION_NAMES = {"AM": "articulated motion", "RM": "rigid motion", "NM": "no motion", "skipped": "skipped"}
+DECISION_NAMES = {
+    "AM": "articulated motion",
+    "RM": "rigid motion",
+    "NM": "no motion",
+    "undecided": "no model explains it",
+    "skipped": "skipped",
+}
 # Distinct, colour-blind-friendly colours for motion clusters (Okabe-Ito, then Tableau).
 CLUSTER_COLOURS = (
     "#0072B2",
@@ -77,7 +90,7 @@ CLUSTER_COLOURS = (
 )
 SOURCE_COLOUR = "#5B8DB8"
 TARGET_COLOUR = "#E8A33D"
-_LEVELS = ["skipped", "NM", "RM", "AM"]
+_LEVELS = ["skipped", "undecided", "NM", "RM", "AM"]
 _FONT = dict(family="Inter, Segoe UI, Helvetica, Arial, sans-serif", size=13)
 
 
@@ -140,12 +153,13 @@ def decision_timeline(result: RunResult, *, selected: int | None = None) -> go.F
 
     Returns
     -------
-    Figure with, on the left, one marker per pair at its decision level (``skipped`` < NM < RM < AM)
+    Figure with, on the left, one marker per pair at its decision level (``skipped`` < ``undecided`` <
+    NM < RM < AM)
     in trace ``"pair decision"`` (``customdata`` = pair index, x = the pair's first frame), the
     moving max-count filtered decisions in trace ``"filtered (w = ...)"``, the per-pair ground truth
     (if known) in ``"ground truth"`` (these two take no hover or clicks: the pair markers carry
     everything, so a click always lands on a pair); on the right the class fractions. The title
-    gives the label.
+    gives the label, and its subtitle the reason for it.
     """
     w = result.params.get("pipeline", {}).get("w")
     k = result.params.get("pipeline", {}).get("k")
@@ -158,7 +172,7 @@ def decision_timeline(result: RunResult, *, selected: int | None = None) -> go.F
     )
     pairs = result.pairs
     xs = [p.i for p in pairs]
-    decided = [p for p in pairs if p.decision != "skipped"]
+    decided = [p for p in pairs if p.decision in DECISIONS]
     filtered = (
         dict(zip((p.i for p in decided), result.filtered)) if len(result.filtered) == len(decided) else {}
     )
@@ -180,7 +194,10 @@ def decision_timeline(result: RunResult, *, selected: int | None = None) -> go.F
                 size=13,
                 color=[DECISION_COLOURS[p.decision] for p in pairs],
                 line=dict(width=1, color="white"),
-                symbol=["x-thin-open" if p.decision == "skipped" else "circle" for p in pairs],
+                symbol=[
+                    {"skipped": "x-thin-open", "undecided": "diamond-open"}.get(p.decision, "circle")
+                    for p in pairs
+                ],
             ),
             customdata=list(range(len(pairs))),
             hovertext=hover,
@@ -221,7 +238,7 @@ def decision_timeline(result: RunResult, *, selected: int | None = None) -> go.F
         fig.add_vline(x=pairs[selected].i, line=dict(color="#888888", width=1.5, dash="dash"), row=1, col=1)
     _fraction_bars(fig, result, row=1, col=2)
     fig.update_yaxes(
-        type="category", categoryorder="array", categoryarray=_LEVELS, range=[-0.5, 3.5], row=1, col=1
+        type="category", categoryorder="array", categoryarray=_LEVELS, range=[-0.5, 4.5], row=1, col=1
     )
     fig.update_xaxes(
         title_text=f"pair (i, i + {k}): first frame i" if k else "first frame i of the pair",
@@ -240,7 +257,12 @@ def decision_timeline(result: RunResult, *, selected: int | None = None) -> go.F
         height=330,
         title=dict(
             text=f"{html.escape(str(result.sequence.get('name', '')))}: <b style='color:{colour}'>{result.label}</b>"
-            f"{truth_text}",
+            f"{truth_text}"
+            + (
+                f"<br><span style='font-size:12px'>{html.escape(result.reason)}</span>"
+                if result.reason
+                else ""
+            ),
             x=0.01,
         ),
         legend=dict(orientation="h", yanchor="bottom", y=1.02, xanchor="right", x=0.78),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -28,6 +29,22 @@ def test_decision_timeline(laptop_run):
     assert fig.layout.shapes and fig.layout.shapes[0].x0 == laptop_run.pairs[1].i
     assert figures.selected_pair_index(laptop_run, laptop_run.pairs[2].i) == 2
     assert figures.selected_pair_index(laptop_run, "nonsense") is None
+
+
+def test_decision_timeline_shows_undecided_pairs_and_the_reason(laptop_run):
+    run = dataclasses.replace(
+        laptop_run,
+        pairs=[dataclasses.replace(laptop_run.pairs[0], decision="undecided"), *laptop_run.pairs[1:]],
+        filtered=laptop_run.filtered[1:],
+        reason="no part moves about a joint <over> the video",
+    )
+    decisions = next(t for t in figures.decision_timeline(run).data if t.name == "pair decision")
+    assert decisions.y[0] == "undecided" and decisions.marker.symbol[0] == "diamond-open"
+    assert "no model explains it" in decisions.hovertext[0]
+    assert (
+        "no part moves about a joint &lt;over&gt; the video"
+        in figures.decision_timeline(run).layout.title.text
+    )
 
 
 def test_motion_arrows_one_cone_per_matched_cell(laptop_run):

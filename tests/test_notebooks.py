@@ -136,6 +136,7 @@ def test_01_quickstart():
     assert _snapshot(SAMPLE_DATA) == before, "the notebook wrote into sample_data/"
     text = _text(nb)
     assert "label: articulated  (ground truth: articulated)" in text
+    assert "why: " in text and "moves about a revolute joint" in text  # the video-level reason
     figures = _figures(nb)
     names = [{t.get("name") for t in f["data"]} for f in figures]
     assert any("pair decision" in n for n in names), "no decision timeline was shown"

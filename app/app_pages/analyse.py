@@ -13,6 +13,7 @@ from app import state, uploads
 from artclass_core import ArtclassError, InputError, Sequence
 from artclass_core.articulation import Articulation
 from artclass_core.config import JOINT_ESTIMATOR, PART_FINDER
+from artclass_core.types import DECISIONS
 from artclass_plugins import figures
 
 log = logging.getLogger("artclass.app")
@@ -127,7 +128,8 @@ def _sync_pair_with_click(result) -> None:
 
 def show_result(seq: Sequence, config, result) -> None:
     pairs = result.pairs
-    decided = [p for p in pairs if p.decision != "skipped"]
+    decided = [p for p in pairs if p.decision in DECISIONS]
+    undecided = sum(p.decision == "undecided" for p in pairs)
     truth = seq.label
     c1, c2, c3, c4 = st.columns(4)
     c1.metric("Label", result.label)
@@ -137,7 +139,12 @@ def show_result(seq: Sequence, config, result) -> None:
         delta=None if not truth else ("correct" if result.label in seq.accepted_labels else "wrong"),
         delta_color="normal" if truth and result.label in seq.accepted_labels else "inverse",
     )
-    c3.metric("Pairs decided", f"{len(decided)} / {len(pairs)}")
+    c3.metric(
+        "Pairs decided",
+        f"{len(decided)} / {len(pairs)}",
+        help=f"{undecided} undecided (no model explains them: a motion beyond what registration reaches), "
+        f"{len(pairs) - len(decided) - undecided} skipped.",
+    )
     c4.metric(
         "Run time",
         f"{result.timing_s.get('total', 0.0):.2f} s",
@@ -145,6 +152,7 @@ def show_result(seq: Sequence, config, result) -> None:
         f"{result.timing_s.get('frames', 0):.2f} s, registration {result.timing_s.get('register', 0):.2f} s, "
         f"decisions {result.timing_s.get('decide', 0):.2f} s).",
     )
+    st.markdown(f"**Why {result.label}:** {result.reason}")
     if not pairs:
         st.info("No pairs to show.")
         return
@@ -177,8 +185,8 @@ def show_result(seq: Sequence, config, result) -> None:
         st.warning(f"Pair {pair.i} → {pair.j} was skipped: {pair.reason}")
         motion = None
     else:
-        if pair.decision == "skipped":
-            st.warning(f"Pair {pair.i} → {pair.j} was skipped: {pair.reason}")
+        if pair.decision in ("skipped", "undecided"):
+            st.warning(f"Pair {pair.i} → {pair.j} was {pair.decision}: {pair.reason}")
         if pair.evidence is not None and pair.labels is not None:
             motion = figures.motion_parts(pair, target.cloud)
             st.plotly_chart(motion, key="an_motion", config={"displaylogo": False}, theme=None)
