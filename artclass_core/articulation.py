@@ -14,6 +14,7 @@ from typing import Any
 import cv2
 import numpy as np
 from scipy.ndimage import distance_transform_edt
+from scipy.spatial.transform import Rotation
 
 from .types import RunResult
 
@@ -59,6 +60,24 @@ class JointEstimate:
     def state_unit(self) -> str:
         """``"m"`` for a prismatic joint, ``"rad"`` otherwise."""
         return "m" if self.type == "prismatic" else "rad"
+
+    def motion(self, state) -> np.ndarray:
+        """The motion of the child, in the parent's coordinates, from state 0 to ``state``: (4, 4) for
+        one state, (N, 4, 4) for states (N,) (the identity where a state is not finite, and for a
+        joint without an axis)."""
+        states = np.asarray(state, float)
+        q = np.where(np.isfinite(states), states, 0.0).reshape(-1)
+        T = np.tile(np.eye(4), (len(q), 1, 1))
+        if self.axis_direction is not None:
+            d = np.asarray(self.axis_direction, float)
+            if self.type == "prismatic":
+                T[:, :3, 3] = q[:, None] * d
+            else:
+                R = Rotation.from_rotvec(q[:, None] * d).as_matrix()
+                c = np.asarray(self.axis_point_m, float)
+                pitch = self.info.get("pitch_m_per_rad", 0.0)
+                T[:, :3, :3], T[:, :3, 3] = R, c - R @ c + q[:, None] * d * pitch
+        return T.reshape(states.shape + (4, 4))
 
     def summary(self, *, up: np.ndarray) -> str:
         """One readable line, e.g. ``"revolute joint, axis 2 deg from vertical, 0-74 deg over the video"``.

@@ -6,12 +6,22 @@ video is articulated only when a part is tracked across pairs and a joint (prism
 over the whole trajectory explains its motion relative to the base better than no motion does: the
 selection of Sturm, Stachniss & Burgard (JAIR 2011) between the rigid model and the joint models, made
 by the run's part finder (its kinematic tree) and joint estimator.
+
+A joint that leaves its parent's surface where it was tells nothing either: a body of revolution
+turning about its own axis (a kettle spun by its handle), a surface sliding along itself (a ruler along
+its length) looks still in depth, while it may turn or slide with the part. The rigid object explains
+such a video as well as the joint does.
 """
 
 from __future__ import annotations
 
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .articulation import Articulation, PartJoint
 from .config import JOINT_ESTIMATOR, PART_FINDER
 from .errors import ArtclassError
+from .geometry import transform
 from .plugins import Registry
 from .types import RunResult
 
@@ -20,6 +30,9 @@ JOINT_MODELS = ("prismatic", "revolute", "screw")
 #: A joint is told from a trajectory: two pairs' relative motions fit some joint almost always (a line
 #: or an axis through two poses); each further pair tests it.
 MIN_PAIRS = 3
+#: A parent whose points, moved by a step of its joint, land on its own surface for at least this share
+#: (of those the step moves) is symmetric under the joint: it may move with the part unseen.
+SYMMETRIC_SHARE = 0.5
 
 
 def joints_over_video(
@@ -38,5 +51,40 @@ def joints_over_video(
     joints = [j for j in articulation.joints if j.estimate.type in JOINT_MODELS and j.n_pairs >= MIN_PAIRS]
     if not joints:
         return False, f"{shown}, but no part moves about a joint over the video"
-    j = max(joints, key=lambda j: j.n_pairs)
+    told = [j for j in joints if not symmetric_parent(result, articulation, j)]
+    if not told:
+        j = joints[0]
+        return False, (
+            f"{shown}, but the {j.estimate.type} joint of part {j.child} leaves its parent's surface "
+            f"where it was (a body turning about its own axis, or sliding along itself): the whole "
+            f"object may move as one"
+        )
+    j = max(told, key=lambda j: j.n_pairs)
     return True, f"{shown}; part {j.child} moves about a {j.estimate.type} joint over {j.n_pairs} pairs"
+
+
+def symmetric_parent(result: RunResult, articulation: Articulation, joint: PartJoint) -> bool:
+    """Whether the joint's typical step (the median change of its state over the run's pairs) could
+    move the parent unseen: it moves no point of the parent by what a pair can see (three noise
+    sigmas and a pixel), or it leaves at least :data:`SYMMETRIC_SHARE` of those it moves so on the
+    parent's surface (within three noise sigmas of the tangent plane at the nearest point, and three
+    point spacings of that point)."""
+    parent, states = articulation.parts[joint.parent].points_m, joint.estimate.states
+    steps = [abs(states[p.j] - states[p.i]) for p in result.pairs if p.j < len(states)]
+    steps = [s for s in steps if np.isfinite(s) and s > 0]
+    seen = [p.points for p in result.pairs if p.points is not None]
+    if len(parent) < 10 or not steps or not seen:
+        return False
+    noise = 3 * float(np.median([s.noise_m for s in seen]))
+    moved = transform(parent, joint.estimate.motion(float(np.median(steps))))
+    far = np.linalg.norm(moved - parent, axis=1) > noise + float(np.median([s.pixel_m for s in seen]))
+    if not far.any():
+        return True
+    tree = cKDTree(parent)
+    neighbours = parent[tree.query(parent, k=8)[1]]  # (N, 8, 3)
+    spread = neighbours - neighbours.mean(axis=1, keepdims=True)
+    normals = np.linalg.eigh(np.einsum("nki,nkj->nij", spread, spread))[1][:, :, 0]
+    spacing = float(np.median(np.linalg.norm(neighbours[:, 1] - parent, axis=1)))
+    gap, nearest = tree.query(moved[far])
+    across = np.abs(np.einsum("ni,ni->n", moved[far] - parent[nearest], normals[nearest]))
+    return float(np.mean((gap <= 3 * spacing) & (across <= noise))) >= SYMMETRIC_SHARE

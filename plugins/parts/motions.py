@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from artclass_core.articulation import JointEstimate
 
@@ -40,18 +39,6 @@ def _translation(v: np.ndarray) -> np.ndarray:
 
 
 def joint_motion(estimate: JointEstimate, state) -> np.ndarray:
-    """The motion of the child, in the parent's coordinates, from state 0 to ``state``: (4, 4) for
-    one state, (N, 4, 4) for states (N,) (the identity where a state is not finite)."""
-    states = np.asarray(state, float)
-    q = np.where(np.isfinite(states), states, 0.0).reshape(-1)
-    T = np.tile(np.eye(4), (len(q), 1, 1))
-    if estimate.axis_direction is not None:
-        d = np.asarray(estimate.axis_direction, float)
-        if estimate.type == "prismatic":
-            T[:, :3, 3] = q[:, None] * d
-        else:
-            R = Rotation.from_rotvec(q[:, None] * d).as_matrix()
-            c = np.asarray(estimate.axis_point_m, float)
-            pitch = estimate.info.get("pitch_m_per_rad", 0.0)
-            T[:, :3, :3], T[:, :3, 3] = R, c - R @ c + q[:, None] * d * pitch
-    return T.reshape(states.shape + (4, 4))
+    """The motion of the child, in the parent's coordinates, from state 0 to ``state``
+    (:meth:`JointEstimate.motion`)."""
+    return estimate.motion(state)

@@ -1,0 +1,64 @@
+"""The video's label: a joint whose parent looks the same after the joint's step tells nothing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from artclass_core.articulation import Articulation, JointEstimate, Part, PartJoint
+from artclass_core.types import PairPoints, PairResult, RunResult
+from artclass_core.video import symmetric_parent
+
+N_FRAMES, K = 20, 5
+
+
+def _run() -> RunResult:
+    """Pairs (i, i + K) with the noise of a Kinect at 0.8 m (1 mm) and a pixel of 1.4 mm."""
+    seen = PairPoints(np.zeros((0, 2), int), np.zeros((0, 3)), 0, 0.001, 0.0014, 1)
+    pairs = [PairResult(i, i + K, "AM", points=seen) for i in range(N_FRAMES - K)]
+    return RunResult({}, "articulated", {}, pairs, [], [], {}, {}, {})
+
+
+def _joint(parent: np.ndarray, kind: str, axis, at, step: float) -> tuple[RunResult, Articulation, PartJoint]:
+    states = step / K * np.arange(N_FRAMES)
+    e = JointEstimate(kind, np.asarray(axis, float), np.asarray(at, float), states, np.ones(N_FRAMES, bool))
+    parts = [Part(0, "base", -1, parent, [0], len(parent)), Part(1, "part1", 0, parent[:5], [0], 5)]
+    joint = PartJoint(0, 1, e, N_FRAMES - K)
+    return _run(), Articulation(parts, [joint], np.tile(np.eye(4), (N_FRAMES, 1, 1)), {}), joint
+
+
+def _half_cylinder(radius_m=0.06, height_m=0.15, spacing_m=0.003) -> np.ndarray:
+    """The half of a vertical cylinder (axis y, through (0, 0, 0.8)) that faces a camera at the origin."""
+    angles = np.arange(-np.pi / 2, np.pi / 2, spacing_m / radius_m)
+    ys = np.arange(-height_m / 2, height_m / 2, spacing_m)
+    a, y = np.meshgrid(angles, ys)
+    return np.column_stack([radius_m * np.sin(a.ravel()), y.ravel(), 0.8 - radius_m * np.cos(a.ravel())])
+
+
+def _plane(size_m=0.25, spacing_m=0.003) -> np.ndarray:
+    """A laptop's base: a horizontal plate, its hinge along x at z = 0.8, reaching away from the camera."""
+    x, z = np.meshgrid(np.arange(-size_m / 2, size_m / 2, spacing_m), np.arange(0, size_m, spacing_m))
+    return np.column_stack([x.ravel(), np.full(x.size, 0.1), 0.8 + z.ravel()])
+
+
+@pytest.mark.parametrize("step_rad", [0.1, 0.5])
+def test_a_body_of_revolution_turning_about_its_axis_is_symmetric(step_rad):
+    """A kettle's body under its handle's revolute joint about the body's axis: the step moves the
+    visible half of the cylinder along itself."""
+    assert symmetric_parent(*_joint(_half_cylinder(), "revolute", (0, 1, 0), (0, 0, 0.8), step_rad))
+
+
+@pytest.mark.parametrize("step_rad", [0.05, 0.3])
+def test_a_laptop_base_under_its_lid_hinge_is_not(step_rad):
+    assert not symmetric_parent(*_joint(_plane(), "revolute", (1, 0, 0), (0, 0.1, 0.8), step_rad))
+
+
+def test_a_step_no_pair_could_see_on_the_parent_tells_nothing():
+    """0.01 rad moves the plate's far edge by 2.5 mm, less than three noise sigmas and a pixel."""
+    assert symmetric_parent(*_joint(_plane(), "revolute", (1, 0, 0), (0, 0.1, 0.8), 0.01))
+
+
+def test_a_plate_sliding_along_itself_is_symmetric_and_a_box_pulled_out_of_it_is_not():
+    plate = _plane()
+    assert symmetric_parent(*_joint(plate, "prismatic", (1, 0, 0), (0, 0, 0), 0.02))  # along the plate
+    assert not symmetric_parent(*_joint(plate, "prismatic", (0, 1, 0), (0, 0, 0), 0.02))  # across it
