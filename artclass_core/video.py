@@ -7,10 +7,11 @@ over the whole trajectory explains its motion relative to the base better than n
 selection of Sturm, Stachniss & Burgard (JAIR 2011) between the rigid model and the joint models, made
 by the run's part finder (its kinematic tree) and joint estimator.
 
-A joint that leaves its parent's surface where it was tells nothing either: a body of revolution
-turning about its own axis (a kettle spun by its handle), a surface sliding along itself (a ruler along
-its length) looks still in depth, while it may turn or slide with the part. The rigid object explains
-such a video as well as the joint does.
+A turning joint that leaves its parent's surface where it was tells nothing either: a body of
+revolution turning about its own axis (a kettle spun by its handle) looks still in depth, while it may
+turn with the part; so does a plate turning in its own plane (a carried ruler). The rigid object
+explains such a video as well as the joint does. A sliding joint is kept: a drawer's carcass shows
+where it ends.
 """
 
 from __future__ import annotations
@@ -51,13 +52,14 @@ def joints_over_video(
     joints = [j for j in articulation.joints if j.estimate.type in JOINT_MODELS and j.n_pairs >= MIN_PAIRS]
     if not joints:
         return False, f"{shown}, but no part moves about a joint over the video"
-    told = [j for j in joints if not symmetric_parent(result, articulation, j)]
+    told = [
+        j for j in joints if j.estimate.type == "prismatic" or not symmetric_parent(result, articulation, j)
+    ]
     if not told:
         j = joints[0]
         return False, (
             f"{shown}, but the {j.estimate.type} joint of part {j.child} leaves its parent's surface "
-            f"where it was (a body turning about its own axis, or sliding along itself): the whole "
-            f"object may move as one"
+            f"where it was (a body turning about its own axis): the whole object may turn as one"
         )
     j = max(told, key=lambda j: j.n_pairs)
     return True, f"{shown}; part {j.child} moves about a {j.estimate.type} joint over {j.n_pairs} pairs"
