@@ -76,8 +76,15 @@ def find_articulation(
         for t, link in tree.items()
         if link.estimate is not None
     ]
+    children = {t: [c for c, child in tree.items() if child.parent == t] for t in tree}
+    shared = {
+        t: set.intersection(*(set(points.get(c, {})) for c in cs)) if cs else set()
+        for t, cs in children.items()
+    }
     parts = [
-        _part(number[t], number.get(link.parent, -1), points.get(t, {}), link, size.get(t, 0))
+        _part(
+            number[t], number.get(link.parent, -1), points.get(t, {}), link, size.get(t, 0), shown=shared[t]
+        )
         for t, link in tree.items()
     ]
     return Articulation(parts, joints, base_poses, _numbered(views, number))

@@ -129,10 +129,14 @@ def _reach(
     return max(farthest(np.ascontiguousarray(points), centre) for points, centre in clouds)
 
 
-def _part(index: int, parent: int, own: dict[int, np.ndarray], link: _Link, n_labelled: int) -> Part:
-    """A part, its points from the frame where it shows most (among the frames where it is placed),
-    brought back to state 0."""
+def _part(
+    index: int, parent: int, own: dict[int, np.ndarray], link: _Link, n_labelled: int, *, shown: set[int]
+) -> Part:
+    """A part, its points from the frame where it shows most (among the frames where it is placed, and
+    of those where its children are ``shown`` apart from it, if any: where a pair saw the object move
+    as one body, the base's points hold its parts too), brought back to state 0."""
     frames = [f for f in own if np.isfinite(link.placement[f]).all()] or list(own)
+    frames = [f for f in frames if f in shown] or frames
     cloud = np.zeros((0, 3))
     if frames:
         f = max(frames, key=lambda f: len(own[f]))
