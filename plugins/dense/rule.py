@@ -6,12 +6,15 @@ squared residual in noise units (``(r / sigma)^2``, at most ``noise_factor^2``);
 sends into free space, or onto something that is not the object, costs the most; a point it hides
 behind something (a hand) or out of view costs half of that, since it is no evidence either way.
 Where the colour image has texture, the distance between where the motion and where optical flow
-put the point adds a cost of the same kind.
+put the point adds a cost of the same kind. Sigma is measured on the pair: the spread of the second
+differences of the best single motion's residuals at ``noise_lag_rad`` (:func:`field_noise`), which
+holds the error a real sensor correlates over many pixels; and so many points make one independent
+observation (A: 1 for an uncorrelated field), in which every count below is made.
 
 Selection: motions are added one at a time, the one that lowers the total cost most first, while
-the saving pays for the motion's six parameters (BIC: ``6 ln N``), the points it explains better
-than the motions already chosen are at least ``min_part_share`` of the seen points (staying still,
-which is no fit, needs only ``min_part_points``), and those points form one region of the image
+the saving pays for the motion's six parameters (BIC: ``A 6 ln (N / A)``), the points it explains
+better than the motions already chosen are at least ``min_part_share`` of the seen points (staying
+still, which is no fit, needs only ``min_part_points``), and those points form one region of the image
 rather than a scatter; then each selected motion in turn is swapped for the hypothesis that
 explains the points best with the others. Each point then takes the selected motion that explains
 it best: that labelling is the pair's part segmentation, and a part whose points are mixed with
@@ -23,9 +26,13 @@ base explains, and the base fails points the part explains, in depth or, unless 
 a fit of the whole object, in optical flow) are AM; one motion is RM when it moves the median point
 by as much and explains in depth points that staying still fails, else NM. A motion fails a point in
 depth when it misses it by more than ``noise_factor`` sigma plus half a pixel (the look-up rounds to
-the nearest pixel, up to half a pixel off the surface where the surface is steep): a still object on
-a shaking camera, half hidden by a moving hand, misses a slide along itself by less. Too few points
-seen in both frames: skipped.
+the nearest pixel, up to half a pixel off the surface where the surface is steep: a still object on
+a shaking camera, half hidden by a moving hand, misses a slide along itself by less), plus
+``calibration_error`` times how far the motion's rotation moves it about the object's centre (a
+calibration a few percent off bends a rigid motion by that much). Too few points seen in both
+frames: skipped. A pair whose kept motions fail most of its points, or whose parts none of the
+optical flow follows (its spread beyond ``noise_factor`` times ``flow_sigma_px``), is undecided: no
+model explains it.
 """
 
 from __future__ import annotations
@@ -334,14 +341,14 @@ class DenseRule(DecisionRule):
             flow_sigma_px=flow_px or self.params.flow_sigma_px,
         )
 
-    def noise(self, ev: MotionEvidence, seen: np.ndarray) -> tuple[float, float, np.ndarray]:
-        """The depth and flow noise of the pair, and the costs under them.
+    def noise(self, ev: MotionEvidence, seen: np.ndarray) -> tuple[float, float, np.ndarray, int]:
+        """The depth and flow noise of the pair, the costs under them, and the points that make one
+        independent observation.
 
         The depth noise is that of the residual field of the single motion that explains the pair
-        best (:func:`field_noise`, never below the frames' own noise); how many points it correlates
-        is kept as :attr:`area`, the points that make one independent observation. The flow noise is
-        the robust spread of each seen point's flow misfit under the motion the selection gives it
-        (never below ``flow_sigma_px``)."""
+        best (:func:`field_noise`, never below the frames' own noise), and so is the number of
+        points its error correlates. The flow noise is the robust spread of each seen point's flow
+        misfit under the motion the selection gives it (never below ``flow_sigma_px``)."""
         costs = self.costs(ev)
         best = int(np.argmin(costs.sum(axis=1)))
         forward = ev.forward
@@ -354,9 +361,8 @@ class DenseRule(DecisionRule):
             lag_px=self.params.noise_lag_rad * fx,
             floor_m=ev.noise_m,
         )
-        sigma = float(np.nanmax([field, ev.noise_m]))
-        self.area = int(round(area))
-        chosen = self.choose(ev, costs, seen)
+        sigma, area = float(np.nanmax([field, ev.noise_m])), int(round(area))
+        chosen = self.choose(ev, costs, seen, area=area)
         owner = np.asarray(chosen)[np.argmin(costs[chosen], axis=0)]
         point = np.arange(len(owner))
         f = ev.flow_px[owner, point][seen & np.isfinite(ev.flow_px[owner, point])]
@@ -365,12 +371,13 @@ class DenseRule(DecisionRule):
             if len(f) >= 10
             else self.params.flow_sigma_px
         )
-        return sigma, flow, self.costs(ev, sigma, flow)
+        return sigma, flow, self.costs(ev, sigma, flow), area
 
-    def choose(self, ev: MotionEvidence, costs: np.ndarray, seen: np.ndarray) -> list[int]:
-        """The hypotheses selected for the seen points (indices into ``ev.motions``)."""
+    def choose(self, ev: MotionEvidence, costs: np.ndarray, seen: np.ndarray, *, area: int = 1) -> list[int]:
+        """The hypotheses selected for the seen points (indices into ``ev.motions``), ``area`` points
+        making one independent observation."""
         p = self.params
-        n, area = int(seen.sum()), getattr(self, "area", 1)
+        n = int(seen.sum())
         return select(
             costs[:, seen],
             _layout(ev)[seen],
@@ -388,7 +395,7 @@ class DenseRule(DecisionRule):
         forward = ev.forward
         if not seen.any():
             return RuleDecision("skipped", [], reason="no point lands on the target surface under any motion")
-        noise, flow_noise, costs = self.noise(ev, seen)
+        noise, flow_noise, costs, area = self.noise(ev, seen)
         first = int(np.argmin(costs.sum(axis=1)))
         share = float((ev.status[first, forward] == SURFACE).mean()) if forward.any() else 0.0
         if share < p.min_seen_share:
@@ -399,7 +406,7 @@ class DenseRule(DecisionRule):
                 f"(alpha = {p.min_seen_share:g})",
                 info=dict(seen_share=share),
             )
-        chosen = self.choose(ev, costs, seen)
+        chosen = self.choose(ev, costs, seen, area=area)
         labels = np.where(seen, np.asarray(chosen)[np.argmin(costs[chosen], axis=0)], -1)
         threshold = p.noise_factor * noise + ev.pixel_m
         base = chosen[0]
@@ -414,7 +421,7 @@ class DenseRule(DecisionRule):
         )
         layout, stride = _layout(ev), int(ev.info.get("stride_px", 1))
         coherence = label_coherence(decisive, layout, stride)
-        misfit, area = p.noise_factor**2, self.area
+        misfit = p.noise_factor**2
 
         def least(h: int, area: int = area) -> int:
             """The points motion ``h`` must explain on its own (``area`` points to an independent
@@ -490,7 +497,7 @@ class DenseRule(DecisionRule):
         info = dict(
             noise_m=round(noise, 6),
             frame_noise_m=round(ev.noise_m, 6),
-            correlated_points=self.area,
+            correlated_points=area,
             flow_noise_px=round(flow_noise, 3),
             threshold_m=round(threshold, 6),
             seen_share=round(share, 4),
