@@ -1,6 +1,6 @@
 """The pipeline: frames -> masks -> clouds -> pairs (i, i + k) -> registrations -> pair decisions ->
-moving max-count filter -> sequence label. A pair that shows no motion is compared again over
-slow_factor k frames, and replaced when the longer pair shows one.
+moving max-count filter -> the video's label (:mod:`~artclass_core.video`). A pair that shows no
+motion is compared again over slow_factor k frames, one that no model explains over k/2 frames.
 
 Each step is a method of :class:`Pipeline`; :meth:`Pipeline.run` streams a whole sequence, holding
 only the clouds that pending pairs need. The pieces live in their own modules:
@@ -17,7 +17,6 @@ import time
 from collections import Counter
 from collections.abc import Iterable
 from functools import partial
-from typing import Any
 
 from . import cells as _cells
 from .cache import StageCache
@@ -290,23 +289,9 @@ class Pipeline(FrameSteps, RedecideSteps):
         )
         return self._summarise(info, self.segmenter_name(sequence), frames, pairs, timing)
 
-    def _summarise(
-        self,
-        sequence_info: dict[str, Any],
-        segmenter: str,
-        frames: list[FrameResult],
-        pairs: list[PairResult],
-        timing: dict[str, float],
-    ) -> RunResult:
+    def _summarise(self, info: dict, segmenter: str, frames: list, pairs: list, timing: dict) -> RunResult:
         plugins, params = self.config.record(self.registry, segmenter=segmenter)
-        by_joints = self.params.video_joints and self.rule.needs == "motions"
-        return labelled_result(
-            sequence_info,
-            frames,
-            pairs,
-            w=self.params.w,
-            params=params,
-            plugins=plugins,
-            timing=timing,
-            confirm=partial(joints_over_video, self.registry) if by_joints else None,
-        )
+        joints = self.params.video_joints and self.rule.needs == "motions"
+        confirm = partial(joints_over_video, self.registry) if joints else None
+        record = dict(params=params, plugins=plugins, timing=timing, confirm=confirm)
+        return labelled_result(info, frames, pairs, w=self.params.w, **record)
