@@ -11,7 +11,8 @@ A turning joint that leaves its parent's surface where it was tells nothing eith
 revolution turning about its own axis (a kettle spun by its handle) looks still in depth, while it may
 turn with the part; so does a plate turning in its own plane (a carried ruler). The rigid object
 explains such a video as well as the joint does. A sliding joint is kept: a drawer's carcass shows
-where it ends.
+where it ends. And a joint keeps its parts in contact: two bodies that separate (a kettle lifted off
+its base) are two objects.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from .types import RunResult
 
 #: Joint models that make an object articulated: one degree of freedom along a trajectory.
 JOINT_MODELS = ("prismatic", "revolute", "screw")
+#: A part farther than this from its parent at an end of its travel is not held by a joint.
+CONTACT_M = 0.03
 #: A joint is told from a trajectory: two pairs' relative motions fit some joint almost always (a line
 #: or an axis through two poses); each further pair tests it.
 MIN_PAIRS = 3
@@ -50,19 +53,37 @@ def joints_over_video(
     except ArtclassError as exc:
         return False, f"{shown}, but no part could be tracked over the video ({exc})"
     joints = [j for j in articulation.joints if j.estimate.type in JOINT_MODELS and j.n_pairs >= MIN_PAIRS]
-    if not joints:
-        return False, f"{shown}, but no part moves about a joint over the video"
-    told = [
-        j for j in joints if j.estimate.type == "prismatic" or not symmetric_parent(result, articulation, j)
-    ]
-    if not told:
-        j = joints[0]
-        return False, (
-            f"{shown}, but the {j.estimate.type} joint of part {j.child} leaves its parent's surface "
-            f"where it was (a body turning about its own axis): the whole object may turn as one"
-        )
-    j = max(told, key=lambda j: j.n_pairs)
+    tests = (
+        ("no part moves about a joint over the video", lambda j: True),
+        (
+            f"the part leaves its parent (by over {CONTACT_M * 100:g} cm): two bodies that separate",
+            lambda j: not separated(articulation, j),
+        ),
+        (
+            "the joint turns its parent within its own surface (a body about its own axis): the "
+            "whole object may turn as one",
+            lambda j: j.estimate.type == "prismatic" or not symmetric_parent(result, articulation, j),
+        ),
+    )
+    for why, keeps in tests:
+        joints = [j for j in joints if keeps(j)]
+        if not joints:
+            return False, f"{shown}, but {why}"
+    j = max(joints, key=lambda j: j.n_pairs)
     return True, f"{shown}; part {j.child} moves about a {j.estimate.type} joint over {j.n_pairs} pairs"
+
+
+def separated(articulation: Articulation, joint: PartJoint) -> bool:
+    """Whether the part, moved by its joint to an end of the states seen, is nowhere within
+    :data:`CONTACT_M` of its parent's points: a joint keeps its parts in contact at every state (a
+    hinge, a slide in its guide); an object lifted off its stand does not."""
+    child, parent = articulation.parts[joint.child].points_m, articulation.parts[joint.parent].points_m
+    states = joint.estimate.states[np.isfinite(joint.estimate.states)]
+    if not len(child) or not len(parent) or not len(states):
+        return False
+    tree = cKDTree(parent)
+    ends = (float(states.min()), float(states.max()))
+    return any(tree.query(transform(child, joint.estimate.motion(s)))[0].min() > CONTACT_M for s in ends)
 
 
 def symmetric_parent(result: RunResult, articulation: Articulation, joint: PartJoint) -> bool:

@@ -7,7 +7,7 @@ import pytest
 
 from artclass_core.articulation import Articulation, JointEstimate, Part, PartJoint
 from artclass_core.types import PairPoints, PairResult, RunResult
-from artclass_core.video import symmetric_parent
+from artclass_core.video import separated, symmetric_parent
 
 N_FRAMES, K = 20, 5
 
@@ -62,3 +62,17 @@ def test_a_plate_sliding_along_itself_is_symmetric_and_a_box_pulled_out_of_it_is
     plate = _plane()
     assert symmetric_parent(*_joint(plate, "prismatic", (1, 0, 0), (0, 0, 0), 0.02))  # along the plate
     assert not symmetric_parent(*_joint(plate, "prismatic", (0, 1, 0), (0, 0, 0), 0.02))  # across it
+
+
+def test_a_part_lifted_off_its_parent_is_no_joint_and_a_hinged_lid_is():
+    """A kettle lifted 10 cm off its base (a prismatic 'joint' that parts the bodies) and a lid on a
+    hinge along the base's far edge (in contact at every state)."""
+    base = _plane()
+    lifted = base[::5] + (0, -0.005, 0)  # a body resting on the plate, lifted 38 cm over the video
+    run, art, joint = _joint(base, "prismatic", (0, -1, 0), (0, 0, 0), 0.1)
+    art.parts[1] = Part(1, "part1", 0, lifted, [0], len(lifted))
+    assert separated(art, joint)
+    lid = base + (0, 0, base[:, 2].max() - 0.8)  # continues the plate beyond the hinge at its far edge
+    run, art, joint = _joint(base, "revolute", (1, 0, 0), (0, 0.1, base[:, 2].max()), 0.3)
+    art.parts[1] = Part(1, "part1", 0, lid, [0], len(lid))
+    assert not separated(art, joint)
