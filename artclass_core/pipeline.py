@@ -284,7 +284,7 @@ class Pipeline(FrameSteps, RedecideSteps):
             name=sequence.name,
             path=str(sequence.path),
             object=sequence.object_name,
-            n_frames=len(sequence),
+            n_frames=len(frames),
             truth=sequence.label,
         )
         return self._summarise(info, self.segmenter_name(sequence), frames, pairs, timing)

@@ -161,7 +161,6 @@ def classify_live(
                 frames[pairs[-1].i].cloud = None
             pairs.append(pair)
             result = pipeline.summarise(sequence, frames, pairs, timing)
-            result.sequence["n_frames"] = len(frames)
             yield LiveUpdate(pair, result, first, frames[pair.j], len(frames))
 
     try:

@@ -77,10 +77,11 @@ def _frame_clouds(
 
 
 def _mask(result: RunResult, frame: int) -> np.ndarray | None:
-    """The frame's object mask; None for a run that kept no clouds (no part images are made then)."""
-    if not any(f.cloud is not None for f in result.frames):
-        return None
+    """The frame's object mask; None for a frame whose cloud is not kept (no part image is made for it:
+    a run without ``keep_clouds``, or the frames a live run has let go)."""
     cloud = result.frames[frame].cloud if frame < len(result.frames) else None
+    if cloud is None:
+        return None
     view = getattr(cloud, "view", None)
     if view is not None and view.mask is not None:
         return view.mask

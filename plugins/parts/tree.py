@@ -171,9 +171,12 @@ def _part_points(
 
 
 def _numbered(views: dict, number: dict[int, int]) -> dict:
-    """The frames' track labellings as part numbers, keeping the points of the parts only."""
+    """The frames' track labellings as part numbers, keeping the points of the parts only (and the
+    frames whose mask is kept)."""
     out = {}
     for frame, (pixels, tracks, mask, stride) in views.items():
+        if mask is None:
+            continue
         lookup = np.full(int(tracks.max(initial=-1)) + 2, -1)
         for t, n in number.items():
             if t < len(lookup) - 1:
