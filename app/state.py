@@ -71,6 +71,15 @@ def data_roots() -> list[Path]:
     return uploads.data_roots(sys.argv[1:], default=[samples_dir()])
 
 
+def path_input(where, label: str, key: str, help: str) -> Path | None:
+    """A text box for a path on this machine (``where``: ``st``, ``st.sidebar`` or a column), first
+    holding the first data root; the path typed, or None when it lies outside the data roots."""
+    roots = data_roots()
+    st.session_state.setdefault(key, str(roots[0]) if roots else "")
+    text = where.text_input(label, key=key, help=f"{help} Allowed under: " + ", ".join(map(str, roots)))
+    return uploads.confine(text, roots)
+
+
 def _stamp(path: str | Path) -> int:
     """Changes when files are added to or removed from the folder (part of the cache keys)."""
     try:

@@ -48,15 +48,9 @@ def choose_sequence(reg) -> Sequence | None:
         name = sb.selectbox("Sample", names, key="an_sample", format_func=labels.get)
         return samples[names.index(name)]
     if source == SOURCES[1]:
-        roots = state.data_roots()
-        st.session_state.setdefault("an_folder", str(roots[0]) if roots else "")
-        text = sb.text_input(
-            "Folder",
-            key="an_folder",
-            help="A sequence folder (PATH#NAME picks one of several). "
-            "Allowed under: " + ", ".join(str(r) for r in roots),
+        path = state.path_input(
+            sb, "Folder", "an_folder", "A sequence folder (PATH#NAME picks one of several)."
         )
-        path = uploads.confine(text, roots)
         found = state.open_path(path)
     else:
         upload = sb.file_uploader("Sequence as a zip (native folder format)", type=["zip"], key="an_upload")

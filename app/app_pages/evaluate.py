@@ -8,7 +8,7 @@ import logging
 import pandas as pd
 import streamlit as st
 
-from app import state, uploads
+from app import state
 from artclass_core import ArtclassError, Config, InputError, Sequence
 from artclass_core.evaluate import Evaluation, evaluate, markdown
 from artclass_core.sweep import read_table, summary
@@ -58,14 +58,7 @@ def main() -> None:
     ):
         show_sweep()
         return
-    roots = state.data_roots()
-    st.session_state.setdefault("ev_folder", str(roots[0]) if roots else "")
     c1, c2 = st.columns([3, 1])
-    text = c1.text_input(
-        "Folder of labelled sequences",
-        key="ev_folder",
-        help="Searched recursively. Allowed under: " + ", ".join(str(r) for r in roots),
-    )
     rules = [NO_COMPARE] + reg.names("rule")
     if st.session_state.get("ev_compare") not in rules:
         st.session_state["ev_compare"] = NO_COMPARE
@@ -75,10 +68,10 @@ def main() -> None:
         key="ev_compare",
         help="Also evaluate this decision rule with the same settings, side by side.",
     )
+    folder = state.path_input(c1, "Folder of labelled sequences", "ev_folder", "Searched recursively.")
     if config is None:
         st.error(str(config_error))
         return
-    folder = uploads.confine(text, roots)
     sequences, errors = state.find(folder, labelled_only=True)
     for err in errors:
         st.warning(f"Skipped: {err}")

@@ -7,7 +7,7 @@ import logging
 
 import streamlit as st
 
-from app import state, uploads
+from app import state
 from artclass_core import ArtclassError, Config
 from artclass_plugins import figures
 from artclass_plugins.live import classify_live, open_source
@@ -26,15 +26,12 @@ def sidebar(reg) -> tuple[str | None, Config, int]:
     source = sb.radio("Source", choices, key="lv_source", label_visibility="collapsed")
     path = None
     if source == SOURCES[0]:
-        roots = state.data_roots()
-        st.session_state.setdefault("lv_path", str(roots[0]) if roots else "")
-        text = sb.text_input(
+        path = state.path_input(
+            sb,
             "Recording",
-            key="lv_path",
-            help="A ROS or RealSense bag (.bag, .db3, .mcap, a ROS 2 bag folder) or a sequence folder. "
-            "Allowed under: " + ", ".join(str(r) for r in roots),
+            "lv_path",
+            "A ROS or RealSense bag (.bag, .db3, .mcap, a ROS 2 bag folder) or a sequence folder.",
         )
-        path = uploads.confine(text, roots)
     segmenters = [n for n in reg.names("segmenter") if n != "mask"]
     st.session_state.setdefault("lv_segmenter", MASK_FREE if MASK_FREE in segmenters else segmenters[0])
     segmenter = sb.selectbox(
