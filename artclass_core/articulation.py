@@ -238,4 +238,4 @@ def forget_clouds(result: RunResult) -> None:
     for f in result.frames:
         f.cloud = None
     for p in result.pairs:
-        p.evidence = None
+        p.release()

@@ -57,6 +57,17 @@ def with_shorter(pair: PairResult, shorter: PairResult) -> PairResult:
     return pair
 
 
+def chosen_pair(over: Callable[[int], PairResult | None], *, k: int, far: int) -> PairResult:
+    """The pair decided for a frame i: ``over(k)``, the pair (i, i + k); when no model explains it,
+    :func:`with_shorter` the pair (i, i + k/2); when it shows no motion, :func:`with_longer` the pair
+    (i, i + far). ``over(n)`` gives the pair (i, i + n), or None where the frames do not reach."""
+    pair = over(k)
+    if pair.decision == "undecided" and k > 1:
+        return with_shorter(pair, over(k // 2))
+    longer = over(far) if pair.decision == "NM" and far != k else None
+    return pair if longer is None else with_longer(pair, longer)
+
+
 def sequence_label(filtered: Iterable[str]) -> str:
     """``articulated`` if any filtered decision is AM, else ``rigid`` if any is RM, else ``static``."""
     seen = set(filtered)

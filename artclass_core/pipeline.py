@@ -23,7 +23,7 @@ from .cache import StageCache
 from .config import STAGES, Config, _fitting
 from .errors import InputError, ParamError
 from .frames import FrameSteps
-from .labels import fractions, labelled_result, max_count_filter, sequence_label, with_longer, with_shorter
+from .labels import chosen_pair, fractions, labelled_result, max_count_filter, sequence_label
 from .plugins import Registry
 from .redecide import RedecideSteps
 from .scheduler import Progress, add_time, single_threaded_open3d, stream_pairs
@@ -96,8 +96,8 @@ class Pipeline(FrameSteps, RedecideSteps):
         def done(first: FrameResult, pair: PairResult) -> None:
             for p in (pair, pair.other) if pair.other else (pair,):
                 p.truth = sequence.pair_truth(p.i, p.j)
-                if not keep_clouds:
-                    p.evidence, p.scratch = None, {}
+            if not keep_clouds:
+                pair.release()
             pairs.append(pair)
             if not keep_clouds:
                 first.cloud = None
@@ -112,7 +112,7 @@ class Pipeline(FrameSteps, RedecideSteps):
             done=done,
             frame=lambda i, t: self._raw_frame(sequence, i, t, cache),  # steps 1, 2
             finish=self._finish_frame,
-            pair=lambda a, after, t: self._pair(sequence, a, after, t, cache),
+            pair=lambda a, after, t: self.pair_for(sequence, a, after, t, cache),
             reach=k * self.params.slow_factor,
         )  # 3, 4
         if all(f.skipped for f in frames):
@@ -209,28 +209,25 @@ class Pipeline(FrameSteps, RedecideSteps):
             scratch=scratch,
         )
 
-    def _pair(
+    def pair_for(
         self,
         sequence: Sequence,
         a: FrameResult,
         after: tuple[FrameResult, ...],
         timing: dict[str, float],
-        cache: StageCache | None,
+        cache: StageCache | None = None,
     ) -> PairResult:
         """The pair (i, i + k) of frame ``a`` (frame i), given the frames ``after`` it; or, when that pair
         shows no motion and the frames reach, the pair (i, i + slow_factor k) if it shows one; or, when
         no model explains it, the pair (i, i + k/2) if one does."""
         k, far = self.params.k, self.params.k * self.params.slow_factor
 
-        def over(n: int) -> PairResult:
+        def over(n: int) -> PairResult | None:
+            if len(after) < n:
+                return None
             return self.pair_of(sequence, a, after[n - 1], after[: n - 1], timing, cache)
 
-        pair = over(k)
-        if pair.decision == "undecided" and k > 1:
-            return with_shorter(pair, over(k // 2))
-        if pair.decision != "NM" or far == k or len(after) < far:
-            return pair
-        return with_longer(pair, over(far))
+        return chosen_pair(over, k=k, far=far)
 
     def pair_of(
         self,

@@ -9,7 +9,7 @@ import time
 from .cache import StageCache
 from .config import AUTO_SEGMENTER, Config, depends_on
 from .errors import ArtclassError
-from .labels import with_longer
+from .labels import chosen_pair
 from .params import PipelineParams, as_dict
 from .plugins import Registry
 from .scheduler import each
@@ -104,23 +104,23 @@ class RedecideSteps:
                 )
             return self.frame(sequence, m, cache=cache)
 
-        def register_longer(i: int) -> PairResult | None:
-            """The pair (i, i + slow_factor k), registered now (the run did not need it)."""
-            if far == k or i + far not in frames:
-                return None
-            between = tuple(frames[m] for m in range(i + 1, i + far))
-            new = self.pair_of(sequence, frame(i), frame(i + far), between, {}, cache)
-            new.truth = None if sequence is None else sequence.pair_truth(new.i, new.j)
-            return new
-
         def again(p: PairResult) -> tuple[PairResult, float]:
             t0 = time.perf_counter()
-            shorter, longer = (p.other, p) if p.other is not None and p.other.j < p.j else (p, p.other)
-            new = decide(shorter)
-            if new.decision == "NM":
-                longer = register_longer(p.i) if longer is None else decide(longer)
-                new = new if longer is None else with_longer(new, longer)
-            return new, time.perf_counter() - t0
+            kept = {q.j - q.i: q for q in (p, p.other) if q is not None}
+
+            def over(n: int) -> PairResult | None:
+                """The pair (i, i + n): the run's, decided again, or registered now if the run did not
+                need it."""
+                if n in kept:
+                    return decide(kept[n])
+                if p.i + n not in frames:
+                    return None
+                between = tuple(frames[m] for m in range(p.i + 1, p.i + n))
+                new = self.pair_of(sequence, frame(p.i), frame(p.i + n), between, {}, cache)
+                new.truth = None if sequence is None else sequence.pair_truth(new.i, new.j)
+                return new
+
+            return chosen_pair(over, k=k, far=far), time.perf_counter() - t0
 
         done = each(again, result.pairs, workers)
         timing = {"decide": sum(seconds for _, seconds in done)}

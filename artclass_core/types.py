@@ -397,6 +397,12 @@ class PairResult:
         if self.points is None and self.evidence is not None:
             self.points = PairPoints.of(self.evidence)
 
+    def release(self) -> None:
+        """Let go of the motion evidence and the rule's scratch, of this pair and of :attr:`other` (the
+        labelled points stay in :attr:`points`): a run that keeps no clouds cannot re-decide it."""
+        for p in (self, self.other) if self.other is not None else (self,):
+            p.evidence, p.scratch = None, {}
+
     def to_dict(self, *, cells: bool = True) -> dict[str, Any]:
         d = dict(
             i=self.i,

@@ -375,6 +375,37 @@ def test_redecide_with_another_rule_and_back(registry, hinge):
     assert fingerprint(back) == fingerprint(first)
 
 
+def test_redecide_tries_the_shorter_pair_as_a_fresh_run_does(hinge):
+    """A rule that leaves the pairs (i, i + 2) undecided: re-deciding a run under it decides the pairs
+    (i, i + 1) instead, as a run under it does, and re-deciding back restores the first run."""
+    from types import SimpleNamespace
+
+    from artclass_core import hookimpl, load_registry
+    from artclass_plugins.rules.paper import PaperRule
+
+    class OneFrameAtMost(PaperRule):
+        name = "one_frame_at_most"
+
+        def decide(self, cells, *, source, target, **kw):
+            out = super().decide(cells, source=source, target=target, **kw)
+            if target.frame_index - source.frame_index > 1:
+                out = dataclasses.replace(out, decision="undecided", reason="beyond reach")
+            return out
+
+    @hookimpl
+    def register_rules(register):
+        register(OneFrameAtMost)
+
+    registry = load_registry(extra_plugins=(SimpleNamespace(register_rules=register_rules),))
+    first = Pipeline(registry, config()).run(hinge, keep_clouds=True)
+    limited = config(rule="one_frame_at_most")
+    redecided = Pipeline(registry, limited).redecide(first)
+    fresh = Pipeline(registry, limited).run(hinge, keep_clouds=True)
+    assert {p.j - p.i for p in fresh.pairs} == {1}
+    assert fingerprint(redecided) == fingerprint(fresh)
+    assert fingerprint(Pipeline(registry, config()).redecide(fresh)) == fingerprint(first)
+
+
 def test_redecide_from_the_cache(registry):
     seq = make_sequence("hinge", n_frames=6)
     cache = StageCache()

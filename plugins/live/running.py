@@ -19,7 +19,6 @@ from pathlib import Path
 import cv2
 
 from artclass_core import Config, Frame, InputError, Pipeline, Sequence
-from artclass_core.labels import with_longer
 from artclass_core.plugins import Registry
 from artclass_core.types import FrameResult, PairResult, RunResult
 
@@ -155,9 +154,9 @@ def classify_live(
         # Pair i is decided once frame i + far is in (the longer pair's), or at the end with i + k.
         while len(pending) > far or (at_end and len(pending) > k):
             first = pending.popleft()
-            pair = _pair(pipeline, sequence, first, tuple(pending), k=k, far=far, timing=timing)
+            pair = pipeline.pair_for(sequence, first, tuple(pending), timing)
             if pairs:  # the previous pair's evidence and first cloud served its 3D view
-                pairs[-1].evidence, pairs[-1].scratch = None, {}
+                pairs[-1].release()
                 frames[pairs[-1].i].cloud = None
             pairs.append(pair)
             result = pipeline.summarise(sequence, frames, pairs, timing)
@@ -176,17 +175,6 @@ def classify_live(
         sequence.stop()
     if not frames:
         raise InputError("the source sent no frame", path=source.path)
-
-
-def _pair(pipeline, sequence, first, after, *, k, far, timing) -> PairResult:
-    """The pair (i, i + k) of frame ``first``, or (i, i + far) when the shorter one shows no motion and
-    the longer one does (what :meth:`Pipeline.run` decides for each frame)."""
-    pair = pipeline.pair_of(sequence, first, after[k - 1], after[: k - 1], timing, None)
-    if pair.decision != "NM" or far == k or len(after) < far:
-        return pair
-    return with_longer(
-        pair, pipeline.pair_of(sequence, first, after[far - 1], after[: far - 1], timing, None)
-    )
 
 
 # -- recording --------------------------------------------------------------------------------------
