@@ -32,6 +32,12 @@ def _reader(registry: Registry, name: str, values: Mapping[str, str]):
     return registry.create("reader", name, dataclasses.replace(params, **changes) if changes else params)
 
 
+def _opened(found: list[Sequence], reader: str, values: Mapping[str, str]) -> list[Sequence]:
+    for s in found:
+        s.opened_with = (reader, tuple(sorted(values.items())))
+    return found
+
+
 def open_sequences(
     registry: Registry,
     path: str | Path,
@@ -52,7 +58,9 @@ def open_sequences(
         raise InputError("no such file or folder", path=path)
     names = [reader] if reader else registry.names("reader")
     for name in names:
-        found = _reader(registry, name, reader_values or {}).sequences(path)
+        found = _opened(
+            _reader(registry, name, reader_values or {}).sequences(path), name, reader_values or {}
+        )
         if found:
             break
     else:
@@ -86,7 +94,7 @@ def find_sequences(
     if not root.is_dir():
         raise InputError("no such folder", path=root)
     names = [reader] if reader else registry.names("reader")
-    readers = [_reader(registry, n, reader_values or {}) for n in names]
+    readers = {n: _reader(registry, n, reader_values or {}) for n in names}
     out: list[Sequence] = []
     errors: list[InputError] = []
     visited: set[str] = set()
@@ -97,9 +105,9 @@ def find_sequences(
             continue
         visited.add(real)
         dirs.sort()
-        for r in readers:
+        for name, r in readers.items():
             try:
-                found = r.sequences(Path(here))
+                found = _opened(r.sequences(Path(here)), name, reader_values or {})
             except InputError as exc:
                 errors.append(exc)
                 dirs.clear()

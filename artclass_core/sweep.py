@@ -138,18 +138,26 @@ def grid_settings(
 
 @dataclass(frozen=True)
 class SequenceSource:
-    """Where a worker finds a sequence: a path it can see, the sequence's name there, and the reader."""
+    """Where a worker finds a sequence: a path it can see, the sequence's name there, the reader and the
+    reader parameters it was opened with."""
 
     path: str
     name: str
     reader: str | None = None
+    reader_values: tuple[tuple[str, str], ...] = ()
 
     @classmethod
     def of(cls, sequence: Sequence, *, reader: str | None = None) -> SequenceSource:
-        return cls(*_where(sequence), reader)
+        opened_by, values = sequence.opened_with
+        return cls(*_where(sequence), opened_by or reader, values)
 
     def open(self, registry: Registry) -> Sequence:
-        found = [s for s in open_sequences(registry, self.path, reader=self.reader) if s.name == self.name]
+        values = dict(self.reader_values)
+        found = [
+            s
+            for s in open_sequences(registry, self.path, reader=self.reader, reader_values=values)
+            if s.name == self.name
+        ]
         if not found:
             raise InputError(f"no sequence named {self.name!r} here", path=self.path)
         return found[0]

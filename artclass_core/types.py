@@ -97,6 +97,9 @@ class Sequence:
     """
 
     cache_frames = 8
+    #: The reader that opened the sequence and the reader parameters it was given (name, value pairs),
+    #: so that a worker elsewhere opens it the same way; set by :func:`~artclass_core.open_sequences`.
+    opened_with: tuple[str | None, tuple[tuple[str, str], ...]] = (None, ())
 
     def __init__(
         self,

@@ -428,6 +428,21 @@ def test_tum_associations_and_given_intrinsics(tmp_path):
         REGISTRY.create("reader", "tum", tum_mod.TumParams(fx=600)).sequences(seq)
 
 
+def test_a_worker_opens_a_sequence_with_the_reader_values_it_was_opened_with(tmp_path):
+    # A Dask worker re-opens each sequence from its path: with the reader parameters given here.
+    from artclass_core import find_sequences, open_sequences
+    from artclass_core.sweep import SequenceSource
+
+    seq = write_tum(tmp_path, "desk")
+    values = dict(fx="600", fy="601", cx="300", cy="200")
+    opened = open_sequences(REGISTRY, seq, reader_values=values) + find_sequences(
+        REGISTRY, tmp_path, labelled_only=False, reader_values=values
+    )[0]
+    for s in opened:
+        again = SequenceSource.of(s).open(REGISTRY)
+        assert s.opened_with[0] == "tum" and again.intrinsics.fx == s.intrinsics.fx == 600
+
+
 def test_tum_bad_list_line_is_named(tmp_path):
     seq = write_tum(tmp_path)
     (seq / "rgb.txt").write_text("# fine\n1305031102.0 rgb/a.png\nnot-a-time rgb/b.png\n")
