@@ -435,9 +435,10 @@ def test_a_worker_opens_a_sequence_with_the_reader_values_it_was_opened_with(tmp
 
     seq = write_tum(tmp_path, "desk")
     values = dict(fx="600", fy="601", cx="300", cy="200")
-    opened = open_sequences(REGISTRY, seq, reader_values=values) + find_sequences(
-        REGISTRY, tmp_path, labelled_only=False, reader_values=values
-    )[0]
+    opened = (
+        open_sequences(REGISTRY, seq, reader_values=values)
+        + find_sequences(REGISTRY, tmp_path, labelled_only=False, reader_values=values)[0]
+    )
     for s in opened:
         again = SequenceSource.of(s).open(REGISTRY)
         assert s.opened_with[0] == "tum" and again.intrinsics.fx == s.intrinsics.fx == 600
