@@ -20,7 +20,7 @@ from functools import partial
 
 from . import cells as _cells
 from .cache import StageCache
-from .config import STAGES, Config, _fitting
+from .config import PART_FINDER, STAGES, Config, _fitting
 from .errors import InputError, ParamError
 from .frames import FrameSteps
 from .labels import chosen_pair, fractions, labelled_result, max_count_filter, sequence_label
@@ -288,7 +288,8 @@ class Pipeline(FrameSteps, RedecideSteps):
 
     def _summarise(self, info: dict, segmenter: str, frames: list, pairs: list, timing: dict) -> RunResult:
         plugins, params = self.config.record(self.registry, segmenter=segmenter)
-        joints = self.params.video_joints and self.rule.needs == "motions"
+        finder = self.registry.create("part_finder", PART_FINDER)
+        joints = self.params.video_joints and finder.works_on(self.rule)
         confirm = partial(joints_over_video, self.registry) if joints else None
         record = dict(params=params, plugins=plugins, timing=timing, confirm=confirm)
         return labelled_result(info, frames, pairs, w=self.params.w, **record)

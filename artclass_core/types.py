@@ -317,6 +317,11 @@ class MotionEvidence:
         out[: len(self.points) if self.n_source is None else self.n_source] = True
         return out
 
+    @property
+    def stride_px(self) -> int:
+        """The points' grid step, pixels (the registrar's ``info["stride_px"]``; 1 when not given)."""
+        return int(self.info.get("stride_px", 1))
+
 
 @dataclass(frozen=True)
 class PairPoints:
@@ -343,8 +348,7 @@ class PairPoints:
 
     @classmethod
     def of(cls, ev: MotionEvidence) -> PairPoints:
-        n = len(ev.points) if ev.n_source is None else ev.n_source
-        return cls(ev.pixels, ev.points, n, ev.noise_m, ev.pixel_m, int(ev.info.get("stride_px", 1)))
+        return cls(ev.pixels, ev.points, int(ev.forward.sum()), ev.noise_m, ev.pixel_m, ev.stride_px)
 
 
 @dataclass

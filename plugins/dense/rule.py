@@ -310,7 +310,7 @@ def _layout(ev: MotionEvidence) -> np.ndarray:
     pixels = ev.pixels.copy()
     forward = ev.forward
     if not forward.all():
-        pixels[~forward, 0] += pixels[:, 0].max() + 8 * int(ev.info.get("stride_px", 1))
+        pixels[~forward, 0] += pixels[:, 0].max() + 8 * ev.stride_px
     return pixels
 
 
@@ -357,7 +357,7 @@ class DenseRule(DecisionRule):
         field, area = field_noise(
             residual,
             ev.pixels[forward],
-            int(ev.info.get("stride_px", 1)),
+            ev.stride_px,
             lag_px=self.params.noise_lag_rad * fx,
             floor_m=ev.noise_m,
         )
@@ -385,7 +385,7 @@ class DenseRule(DecisionRule):
             misfit=p.noise_factor**2,
             min_points=max(p.min_part_points * area, int(p.min_part_share * n)),
             min_coherence=p.min_coherence,
-            stride=int(ev.info.get("stride_px", 1)),
+            stride=ev.stride_px,
             min_still_points=p.min_part_points * area,
         )
 
@@ -419,7 +419,7 @@ class DenseRule(DecisionRule):
             if len(chosen) > 1
             else labels
         )
-        layout, stride = _layout(ev), int(ev.info.get("stride_px", 1))
+        layout, stride = _layout(ev), ev.stride_px
         coherence = label_coherence(decisive, layout, stride)
         misfit = p.noise_factor**2
 

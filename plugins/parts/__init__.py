@@ -69,7 +69,6 @@ from artclass_core.interfaces import JointEstimator, PartFinder
 from .base import chain_interleaved, chain_pair_motions
 from .finder import find_articulation
 from .joints import estimate_joint, frame_states, smooth_misfit
-from .motions import joint_motion
 from .params import PartsParams
 
 
@@ -101,6 +100,5 @@ __all__ = [
     "estimate_joint",
     "find_articulation",
     "frame_states",
-    "joint_motion",
     "smooth_misfit",
 ]

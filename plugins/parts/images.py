@@ -12,7 +12,6 @@ from artclass_core.articulation import JointEstimate
 from artclass_core.geometry import transform
 
 from .base import _interpolated
-from .motions import joint_motion
 from .observations import _frame_clouds, _has_depth, _mask, _noise, _Observation, _spacing, _stride
 from .params import PartsParams
 from .tree import _Link
@@ -284,7 +283,7 @@ def _track_states(
         known = np.isfinite(e.states)
         # a chain's outer part, where its own state is known and its parent's was just found
         again = known & np.isnan(placements[t]).any(axis=(1, 2)) & np.isfinite(parent).all(axis=(1, 2))
-        placements[t][again] = parent[again] @ joint_motion(e, e.states[again])
+        placements[t][again] = parent[again] @ e.motion(e.states[again])
         local = {
             f: transform(clouds[f][1][part == t], np.linalg.inv(base_poses[f] @ placements[t][f]))
             for f, part in labels.items()
@@ -303,7 +302,7 @@ def _track_states(
         found = np.flatnonzero(np.isfinite(states))
         guessed[todo] |= np.isnan(states[todo])
         states[todo] = np.interp(todo, found, states[found])
-        placements[t][todo] = parent[todo] @ joint_motion(e, states[todo])
+        placements[t][todo] = parent[todo] @ e.motion(states[todo])
     return placements, guessed
 
 
@@ -368,7 +367,7 @@ def _looked_up_states(
     else:
         step = spacing
     grid = np.arange(seen.min() - span, seen.max() + span + step, step)
-    motions = joint_motion(e, grid)  # (G, 4, 4)
+    motions = e.motion(grid)  # (G, 4, 4)
     out = np.full(len(todo), np.nan)
     for n, f in enumerate(todo):
         near = sorted(local, key=lambda g: abs(g - f))[: params.n_views]

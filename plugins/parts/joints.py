@@ -13,7 +13,7 @@ from artclass_core import RunResult
 from artclass_core.articulation import JointEstimate
 from artclass_core.interfaces import JointEstimator
 
-from .motions import _translation, joint_motion
+from .motions import _translation
 
 
 def frame_states(
@@ -123,7 +123,7 @@ def _pair_residuals(
     """How far each pair's relative motion (4, 4) is from the joint's motion over the pair's change of
     state ``deltas`` (K,): the part's centre ``centre_m`` moved by the difference (metres), then the
     rotation vector of the difference (radians), (K, 6)."""
-    predicted = joint_motion(estimate, deltas)
+    predicted = estimate.motion(deltas)
     error = np.linalg.inv(predicted) @ np.stack(motions)
     moved = error[:, :3, :3] @ centre_m + error[:, :3, 3] - centre_m
     return np.hstack([moved, Rotation.from_matrix(error[:, :3, :3]).as_rotvec()])

@@ -1,11 +1,9 @@
-"""Rigid-motion algebra: twists, screw motions and a joint's motion at a state."""
+"""Rigid-motion algebra: twists and screw motions."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
-
-from artclass_core.articulation import JointEstimate
 
 
 def _V(w: np.ndarray) -> np.ndarray:
@@ -36,9 +34,3 @@ def _translation(v: np.ndarray) -> np.ndarray:
     T = np.eye(4)
     T[:3, 3] = v
     return T
-
-
-def joint_motion(estimate: JointEstimate, state) -> np.ndarray:
-    """The motion of the child, in the parent's coordinates, from state 0 to ``state``
-    (:meth:`JointEstimate.motion`)."""
-    return estimate.motion(state)

@@ -12,7 +12,6 @@ from artclass_core.geometry import transform
 from artclass_core.interfaces import JointEstimator
 
 from .joints import _pair_joint, _relative_motions
-from .motions import joint_motion
 from .observations import _mask, _Observation, _stride
 from .params import PartsParams
 
@@ -102,7 +101,7 @@ def _placement(parent: np.ndarray, estimate: JointEstimate) -> np.ndarray:
     state (NaN where the state is unknown)."""
     known = np.isfinite(estimate.states)
     out = np.full_like(parent, np.nan)
-    out[known] = parent[known] @ joint_motion(estimate, estimate.states[known])
+    out[known] = parent[known] @ estimate.motion(estimate.states[known])
     return out
 
 
