@@ -16,13 +16,11 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
-
 from artclass_core import Config, Frame, InputError, Pipeline, Sequence
 from artclass_core.plugins import Registry
 from artclass_core.types import FrameResult, PairResult, RunResult
 
-from ..synth.write import depth_to_uint16, write_json
+from ..synth.write import DEPTH_SCALE, write_json, write_rgbd
 from .sources import FrameSource
 
 #: The length of a sequence whose end is not known (a camera): segmenters that compare a frame with a
@@ -48,7 +46,7 @@ class LiveSequence(Sequence):
             path=source.path,
             intrinsics=source.intrinsics,
             n_frames=source.n_frames or UNBOUNDED,
-            meta=dict(getattr(source, "meta", {}) or {}, live=True),
+            meta=dict(live=True),
         )
         self.source, self.keep, self.record = source, keep, record
         self.received = 0  # frames sent by the source so far
@@ -179,8 +177,6 @@ def classify_live(
 
 # -- recording --------------------------------------------------------------------------------------
 
-DEPTH_UNITS_PER_METRE = 1000  # millimetres, as the RealSense SDK and ROS (REP 118) store depth
-
 
 def _start_recording(folder: Path, source: FrameSource) -> None:
     """An empty folder for a recording in the native layout (an existing non-empty one is refused,
@@ -191,15 +187,12 @@ def _start_recording(folder: Path, source: FrameSource) -> None:
     for sub in ("rgb", "depth"):
         (folder / sub).mkdir(parents=True, exist_ok=True)
     k = source.intrinsics
-    meta = dict(fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy, depth_scale=DEPTH_UNITS_PER_METRE, object=source.name)
+    meta = dict(fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy, depth_scale=DEPTH_SCALE, object=source.name)
     write_json(folder / "meta.json", dict(meta, recorded_from=str(source.path)))
 
 
 def _record_frame(folder: Path, frame: Frame) -> None:
-    name = f"{frame.index:06d}.png"
-    ok = cv2.imwrite(str(folder / "rgb" / name), cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
-    ok &= cv2.imwrite(
-        str(folder / "depth" / name), depth_to_uint16(frame.depth_m, depth_scale=DEPTH_UNITS_PER_METRE)
-    )
-    if not ok:
-        raise InputError(f"could not write frame {name}", path=folder)
+    try:
+        write_rgbd(folder, frame.index, rgb=frame.rgb, depth_m=frame.depth_m, depth_scale=DEPTH_SCALE)
+    except OSError as exc:
+        raise InputError(f"could not write frame {frame.index}: {exc}", path=folder) from None

@@ -200,8 +200,8 @@ def open_source(
             )
         return RealSenseSource()
     if player == "auto":
-        recording = Path(path).exists() and is_realsense_recording(Path(path))
-        player = "sdk" if recording and has_realsense() else "reader"
+        recording = has_realsense() and Path(path).exists() and is_realsense_recording(Path(path))
+        player = "sdk" if recording else "reader"
     if player == "sdk":
         if not Path(path).is_file():
             raise InputError("not a RealSense recording file", path=path)

@@ -96,6 +96,15 @@ def _imwrite(path: Path, image: np.ndarray) -> None:
         raise OSError(f"could not write {path}")
 
 
+def write_rgbd(
+    seq_dir: str | Path, index: int, *, rgb: np.ndarray, depth_m: np.ndarray, depth_scale: int
+) -> None:
+    """Write frame ``index``'s colour (RGB order) and depth (metres) into ``rgb/`` and ``depth/``."""
+    name = f"{index:06d}.png"
+    _imwrite(Path(seq_dir) / "rgb" / name, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    _imwrite(Path(seq_dir) / "depth" / name, depth_to_uint16(depth_m, depth_scale=depth_scale))
+
+
 def write_frame(
     seq_dir: str | Path,
     index: int,
@@ -130,8 +139,7 @@ def write_frame(
         raise ValueError(f"rgb must be uint8 of shape (H, W, 3), got {rgb.dtype} {rgb.shape}")
     if depth_m.shape != rgb.shape[:2] or mask.shape != rgb.shape[:2]:
         raise ValueError(f"depth {depth_m.shape} and mask {mask.shape} must match rgb {rgb.shape[:2]}")
-    _imwrite(seq / "rgb" / name, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    _imwrite(seq / "depth" / name, depth_to_uint16(depth_m, depth_scale=depth_scale))
+    write_rgbd(seq, index, rgb=rgb, depth_m=depth_m, depth_scale=depth_scale)
     mask = np.asarray(mask, dtype=bool)
     _imwrite(seq / "mask" / name, np.where(mask, 255, 0).astype(np.uint8))
     hand = np.zeros_like(mask) if hand is None else np.asarray(hand, dtype=bool)
