@@ -481,10 +481,7 @@ def decode_colour(msg, *, topic: str) -> np.ndarray:
         if bgr is None:
             raise InputError(f"a compressed image on {topic} could not be decoded ({msg.format})")
         return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-    if msg.encoding not in COLOUR_ENCODINGS:
-        raise InputError(
-            f"unknown colour encoding {msg.encoding!r} on {topic} (expected {', '.join(COLOUR_ENCODINGS)})"
-        )
+    _known("colour", msg.encoding, COLOUR_ENCODINGS, topic=topic)
     channels, conversion = COLOUR_ENCODINGS[msg.encoding]
     image = _pixels(msg, channels, "u1", topic=topic)
     return np.ascontiguousarray(image) if conversion is None else cv2.cvtColor(image, conversion)
@@ -496,10 +493,7 @@ def decode_depth(msg, *, units_m: float, topic: str) -> np.ndarray:
     ``units_m`` are the metres per unit of 16-bit depth."""
     if hasattr(msg, "format"):
         return _decode_compressed_depth(msg, units_m=units_m, topic=topic)
-    if msg.encoding not in DEPTH_ENCODINGS:
-        raise InputError(
-            f"unknown depth encoding {msg.encoding!r} on {topic} (expected {', '.join(DEPTH_ENCODINGS)})"
-        )
+    _known("depth", msg.encoding, DEPTH_ENCODINGS, topic=topic)
     dtype, scale = DEPTH_ENCODINGS[msg.encoding]
     values = _pixels(msg, 1, dtype, topic=topic)
     if scale is None:
@@ -831,16 +825,16 @@ class BagReader(Reader):
 
 def _check_encodings(colour: ImageTopic, depth: ImageTopic, *, path: Path) -> None:
     """A one-line error for an encoding the reader cannot decode, before any frame is read."""
-    if not colour.compressed and colour.encoding not in COLOUR_ENCODINGS:
+    for kind, topic, table in (("colour", colour, COLOUR_ENCODINGS), ("depth", depth, DEPTH_ENCODINGS)):
+        if not topic.compressed:
+            _known(kind, topic.encoding, table, topic=topic.name, path=path)
+
+
+def _known(kind: str, encoding: str, table: dict, *, topic: str, path: Path | None = None) -> None:
+    """A one-line error for a ``kind`` (colour, depth) encoding not in ``table``."""
+    if encoding not in table:
         raise InputError(
-            f"unknown colour encoding {colour.encoding!r} on {colour.name} "
-            f"(expected {', '.join(COLOUR_ENCODINGS)})",
-            path=path,
-        )
-    if not depth.compressed and depth.encoding not in DEPTH_ENCODINGS:
-        raise InputError(
-            f"unknown depth encoding {depth.encoding!r} on {depth.name} (expected {', '.join(DEPTH_ENCODINGS)})",
-            path=path,
+            f"unknown {kind} encoding {encoding!r} on {topic} (expected {', '.join(table)})", path=path
         )
 
 
