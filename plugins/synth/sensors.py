@@ -373,7 +373,13 @@ def _colour(rgb: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarr
 
 
 def multipath_bias_m(
-    depth_m: np.ndarray, *, fx_px: float, scale_m: float, gain: float, max_m: float
+    depth_m: np.ndarray,
+    *,
+    fx_px: float,
+    scale_m: float,
+    gain: float,
+    max_m: float,
+    edges: np.ndarray | None = None,
 ) -> np.ndarray:
     """How much farther a time-of-flight sensor reads each pixel because of light scattered into it
     from its neighbourhood, metres, shape (H, W).
@@ -382,7 +388,8 @@ def multipath_bias_m(
     median depth) sits in a concave corner, which neighbouring surfaces light: it reads ``gain`` times
     that depth difference farther, at most ``max_m``. Flat and convex surfaces (a pixel at or in
     front of its neighbourhood) read true, and neighbourhoods that cross a depth edge are left out
-    (the background behind an object's silhouette is not a corner it lights).
+    (the background behind an object's silhouette is not a corner it lights). ``edges`` is
+    ``_depth_edges(depth_m)`` when the caller has it already.
     """
     valid = depth_m > 0
     if not valid.any():
@@ -401,7 +408,7 @@ def multipath_bias_m(
     )
     mean = cv2.resize(mean, (w, h), interpolation=cv2.INTER_LINEAR)
     behind = np.clip(z - mean, 0.0, None)
-    edges = _depth_edges(depth_m).astype(np.uint8)
+    edges = (_depth_edges(depth_m) if edges is None else edges).astype(np.uint8)
     near_edge = cv2.distanceTransform(1 - edges, cv2.DIST_L2, 3) <= 2 * sigma_px
     return np.where(valid & ~near_edge, np.minimum(gain * behind, max_m), 0.0)
 
@@ -428,6 +435,7 @@ def add_tof_noise(
     rgb8 = _colour(frame.rgb, sensor.rgb_sigma, rng)
     albedo = frame.albedo if frame.albedo is not None else frame.rgb.mean(axis=2)
     amplitude = albedo * frame.cos_incidence / np.maximum(z, 0.05) ** 2
+    edges = _depth_edges(z)  # of the clean depth: the multipath bias and the edge effects both use it
 
     z = z + multipath_bias_m(
         z,
@@ -435,12 +443,12 @@ def add_tof_noise(
         scale_m=sensor.multipath_scale_m,
         gain=sensor.multipath_gain,
         max_m=sensor.multipath_max_m,
+        edges=edges,
     )
     z = np.where(
         valid, z + sensor.wiggle_m * np.sin(2 * math.pi * z / sensor.wiggle_period_m + sensor.wiggle_phase), 0
     )
 
-    edges = _depth_edges(frame.depth_m.astype(np.float64))
     z = _flying_pixels(z, edges, fraction=sensor.flying_fraction, rng=rng)
     keep = valid & ~(edges & (rng.random((h, w)) < sensor.edge_drop_prob))
 
