@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
-from .render import CleanFrame, Intrinsics, NoiseLevel, _depth_edges, _flying_pixels
+from .render import CleanFrame, Intrinsics, NoiseLevel, _depth_edges, _flying_pixels, _noisy_colour
 
 __all__ = [
     "SENSOR_KINDS",
@@ -365,13 +365,6 @@ def draw_sensor(kind: str, rng: np.random.Generator, *, intrinsics: Intrinsics):
     raise ValueError(f"sensor kind={kind!r} is not one of {SENSOR_KINDS}")
 
 
-def _colour(rgb: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
-    out = rgb.astype(np.float64) * 255.0
-    if sigma > 0:
-        out = out + rng.normal(0.0, sigma, size=out.shape)
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
-
-
 def multipath_bias_m(
     depth_m: np.ndarray,
     *,
@@ -432,7 +425,7 @@ def add_tof_noise(
     z = frame.depth_m.astype(np.float64).copy()
     h, w = z.shape
     valid = z > 0
-    rgb8 = _colour(frame.rgb, sensor.rgb_sigma, rng)
+    rgb8 = _noisy_colour(frame.rgb, sensor.rgb_sigma, rng)
     albedo = frame.albedo if frame.albedo is not None else frame.rgb.mean(axis=2)
     amplitude = albedo * frame.cos_incidence / np.maximum(z, 0.05) ** 2
     edges = _depth_edges(z)  # of the clean depth: the multipath bias and the edge effects both use it
