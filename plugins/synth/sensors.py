@@ -43,6 +43,7 @@ __all__ = [
     "bias_field_1m",
     "draw_camera",
     "draw_sensor",
+    "sensor_header",
     "shift_colour",
 ]
 
@@ -62,6 +63,18 @@ def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
 
 def _rounded(d: dict, digits: int = 6) -> dict:
     return {k: round(v, digits) if isinstance(v, float) else v for k, v in d.items()}
+
+
+def sensor_header(*, fx_px: float, axial_a_m: float, axial_b_per_m: float, depth_step_m: float) -> dict:
+    """The first keys of ``truth.json`` ``sensor``, the ones the observable pair truth reads: the
+    focal length and the axial noise ``a + b (z - 0.4)**2``, metres, and the delivered depth unit."""
+    return {
+        "fx_px": fx_px,
+        "axial_a_m": axial_a_m,
+        "axial_b_per_m": axial_b_per_m,
+        "axial_reference_m": 0.4,
+        "depth_step_m": depth_step_m,
+    }
 
 
 # ------------------------------------------------------------------ camera
@@ -181,11 +194,12 @@ class StructuredLight:
         """``truth.json`` ``sensor``: the keys the observable pair truth reads, then the draw."""
         lv = self.level
         out = {
-            "fx_px": intrinsics.fx_px,
-            "axial_a_m": lv.axial_a_m,
-            "axial_b_per_m": lv.axial_b_per_m,
-            "axial_reference_m": 0.4,
-            "depth_step_m": lv.depth_step_m,
+            **sensor_header(
+                fx_px=intrinsics.fx_px,
+                axial_a_m=lv.axial_a_m,
+                axial_b_per_m=lv.axial_b_per_m,
+                depth_step_m=lv.depth_step_m,
+            ),
             "kind": self.kind,
             "bias_rms_1m_m": self.bias_rms_1m_m,
             "bias_terms": [list(t) for t in self.bias_terms],
@@ -317,11 +331,12 @@ class TimeOfFlight:
         A = np.column_stack([np.ones_like(z), (z - 0.4) ** 2])
         a, b = np.linalg.lstsq(A, self.sigma_1m_m * z, rcond=None)[0]
         out = {
-            "fx_px": intrinsics.fx_px,
-            "axial_a_m": float(a),
-            "axial_b_per_m": float(b),
-            "axial_reference_m": 0.4,
-            "depth_step_m": self.depth_step_m,
+            **sensor_header(
+                fx_px=intrinsics.fx_px,
+                axial_a_m=float(a),
+                axial_b_per_m=float(b),
+                depth_step_m=self.depth_step_m,
+            ),
             "kind": self.kind,
         }
         out.update({k: v for k, v in asdict(self).items() if k not in out})
