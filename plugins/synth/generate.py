@@ -24,7 +24,7 @@ from .render import (
     render_clean,
     room_meshes,
 )
-from .sensors import StructuredLight, add_tof_noise, shift_colour
+from .sensors import StructuredLight, add_tof_noise, sensor_header, shift_colour
 from .wild import SCENE_STREAM, SceneDraw, check_wild_arguments, draw_scene, plan_wild
 from .write import DEPTH_SCALE, prepare_sequence_dir, write_frame, write_json
 
@@ -390,13 +390,12 @@ def plan_sequence(
         level = NOISE_LEVELS[noise]
         # the rig knows its grippers' colours, as a robot's owner would measure them once: a box a colour
         boxes = [colour_box(h.pieces, rgb_sigma=level.rgb_sigma) for h in holders if h.kind == "gripper"]
-        sensor = {
-            "fx_px": intr.fx_px,
-            "axial_a_m": level.axial_a_m,
-            "axial_b_per_m": level.axial_b_per_m,
-            "axial_reference_m": 0.4,
-            "depth_step_m": 1.0 / DEPTH_SCALE,
-        }
+        sensor = sensor_header(
+            fx_px=intr.fx_px,
+            axial_a_m=level.axial_a_m,
+            axial_b_per_m=level.axial_b_per_m,
+            depth_step_m=1.0 / DEPTH_SCALE,
+        )
 
     T_co = traj.T_camera_from_object
     meta = {

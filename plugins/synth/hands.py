@@ -23,7 +23,6 @@ from .render import AMBIENT
 __all__ = [
     "HOLDER_KINDS",
     "Holder",
-    "ROLES",
     "SKIN_TONES",
     "Limb",
     "arm_poses",
@@ -308,8 +307,9 @@ class Holder:
         ``pieces`` hold the arm.
     T_holder_from_arm : ndarray, shape (N, 4, 4), or None
         The arm frame per frame (the wrist's bend).
-    role : str
-        One of ``ROLES``.
+    role : {"grasp", "rest", "pass", "pass_close"}
+        Holds a part and moves it with it; rests on a still object (touching it); passes in front
+        of the object; passes close to the camera.
     style : dict
         What was drawn for a randomised limb (``Limb.style``), for ``truth.json``.
     """
@@ -324,9 +324,6 @@ class Holder:
     style: dict | None = None
 
 
-#: What a holder does: holds a part and moves it with it; rests on a still object (touching it);
-#: passes in front of the object; passes close to the camera.
-ROLES = ("grasp", "rest", "pass", "pass_close")
 #: Length of a limb from the wrist (or a gripper's flange) to where it leaves any picture, metres.
 LIMB_M = 1.3
 #: Sleeve styles: where the sleeve starts, metres from the wrist along the forearm (times the hand

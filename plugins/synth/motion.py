@@ -267,10 +267,7 @@ def make_trajectory(
             T_wo[i] = _pose(np.eye(3), p) @ T_start @ T_rot
         # Lift the whole trajectory so that the object clears the table in every frame.
         clearance = rng.uniform(0.02, 0.08)
-        min_z = math.inf
-        for i in range(n):
-            pts = object_points_m(spec, None if q is None else q[i])
-            min_z = min(min_z, float(np.min(pts @ T_wo[i, 2, :3] + T_wo[i, 2, 3])))
+        min_z = min(_lowest_z(spec, None if q is None else q[i], T_wo[i]) for i in range(n))
         T_wo[:, 2, 3] += clearance - min_z
         carry_extent = dist
 

@@ -535,6 +535,15 @@ def _depth_edges(depth_m: np.ndarray) -> np.ndarray:
     return jump & valid
 
 
+def _noisy_colour(rgb: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
+    """``rgb`` (values 0-1) as 8-bit levels with Gaussian noise of ``sigma`` levels (no draw when
+    ``sigma`` is 0), rounded and clipped to 0-255, uint8."""
+    out = rgb.astype(np.float64) * 255.0
+    if sigma > 0:
+        out = out + rng.normal(0.0, sigma, size=out.shape)
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
 def add_sensor_noise(
     frame: CleanFrame,
     *,
@@ -574,10 +583,7 @@ def add_sensor_noise(
     h, w = z.shape
     valid = z > 0
 
-    rgb = frame.rgb.astype(np.float64) * 255.0
-    if noise.rgb_sigma > 0:
-        rgb = rgb + rng.normal(0.0, noise.rgb_sigma, size=rgb.shape)
-    rgb8 = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+    rgb8 = _noisy_colour(frame.rgb, noise.rgb_sigma, rng)
 
     if noise.name == "none":
         return np.where(valid, z, 0.0).astype(np.float32), rgb8

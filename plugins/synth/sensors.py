@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
-from .render import CleanFrame, Intrinsics, NoiseLevel, _depth_edges, _flying_pixels
+from .render import CleanFrame, Intrinsics, NoiseLevel, _depth_edges, _flying_pixels, _noisy_colour
 
 __all__ = [
     "SENSOR_KINDS",
@@ -43,6 +43,7 @@ __all__ = [
     "bias_field_1m",
     "draw_camera",
     "draw_sensor",
+    "sensor_header",
     "shift_colour",
 ]
 
@@ -62,6 +63,18 @@ def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
 
 def _rounded(d: dict, digits: int = 6) -> dict:
     return {k: round(v, digits) if isinstance(v, float) else v for k, v in d.items()}
+
+
+def sensor_header(*, fx_px: float, axial_a_m: float, axial_b_per_m: float, depth_step_m: float) -> dict:
+    """The first keys of ``truth.json`` ``sensor``, the ones the observable pair truth reads: the
+    focal length and the axial noise ``a + b (z - 0.4)**2``, metres, and the delivered depth unit."""
+    return {
+        "fx_px": fx_px,
+        "axial_a_m": axial_a_m,
+        "axial_b_per_m": axial_b_per_m,
+        "axial_reference_m": 0.4,
+        "depth_step_m": depth_step_m,
+    }
 
 
 # ------------------------------------------------------------------ camera
@@ -181,11 +194,12 @@ class StructuredLight:
         """``truth.json`` ``sensor``: the keys the observable pair truth reads, then the draw."""
         lv = self.level
         out = {
-            "fx_px": intrinsics.fx_px,
-            "axial_a_m": lv.axial_a_m,
-            "axial_b_per_m": lv.axial_b_per_m,
-            "axial_reference_m": 0.4,
-            "depth_step_m": lv.depth_step_m,
+            **sensor_header(
+                fx_px=intrinsics.fx_px,
+                axial_a_m=lv.axial_a_m,
+                axial_b_per_m=lv.axial_b_per_m,
+                depth_step_m=lv.depth_step_m,
+            ),
             "kind": self.kind,
             "bias_rms_1m_m": self.bias_rms_1m_m,
             "bias_terms": [list(t) for t in self.bias_terms],
@@ -317,11 +331,12 @@ class TimeOfFlight:
         A = np.column_stack([np.ones_like(z), (z - 0.4) ** 2])
         a, b = np.linalg.lstsq(A, self.sigma_1m_m * z, rcond=None)[0]
         out = {
-            "fx_px": intrinsics.fx_px,
-            "axial_a_m": float(a),
-            "axial_b_per_m": float(b),
-            "axial_reference_m": 0.4,
-            "depth_step_m": self.depth_step_m,
+            **sensor_header(
+                fx_px=intrinsics.fx_px,
+                axial_a_m=float(a),
+                axial_b_per_m=float(b),
+                depth_step_m=self.depth_step_m,
+            ),
             "kind": self.kind,
         }
         out.update({k: v for k, v in asdict(self).items() if k not in out})
@@ -365,15 +380,14 @@ def draw_sensor(kind: str, rng: np.random.Generator, *, intrinsics: Intrinsics):
     raise ValueError(f"sensor kind={kind!r} is not one of {SENSOR_KINDS}")
 
 
-def _colour(rgb: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
-    out = rgb.astype(np.float64) * 255.0
-    if sigma > 0:
-        out = out + rng.normal(0.0, sigma, size=out.shape)
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
-
-
 def multipath_bias_m(
-    depth_m: np.ndarray, *, fx_px: float, scale_m: float, gain: float, max_m: float
+    depth_m: np.ndarray,
+    *,
+    fx_px: float,
+    scale_m: float,
+    gain: float,
+    max_m: float,
+    edges: np.ndarray | None = None,
 ) -> np.ndarray:
     """How much farther a time-of-flight sensor reads each pixel because of light scattered into it
     from its neighbourhood, metres, shape (H, W).
@@ -382,7 +396,8 @@ def multipath_bias_m(
     median depth) sits in a concave corner, which neighbouring surfaces light: it reads ``gain`` times
     that depth difference farther, at most ``max_m``. Flat and convex surfaces (a pixel at or in
     front of its neighbourhood) read true, and neighbourhoods that cross a depth edge are left out
-    (the background behind an object's silhouette is not a corner it lights).
+    (the background behind an object's silhouette is not a corner it lights). ``edges`` is
+    ``_depth_edges(depth_m)`` when the caller has it already.
     """
     valid = depth_m > 0
     if not valid.any():
@@ -401,7 +416,7 @@ def multipath_bias_m(
     )
     mean = cv2.resize(mean, (w, h), interpolation=cv2.INTER_LINEAR)
     behind = np.clip(z - mean, 0.0, None)
-    edges = _depth_edges(depth_m).astype(np.uint8)
+    edges = (_depth_edges(depth_m) if edges is None else edges).astype(np.uint8)
     near_edge = cv2.distanceTransform(1 - edges, cv2.DIST_L2, 3) <= 2 * sigma_px
     return np.where(valid & ~near_edge, np.minimum(gain * behind, max_m), 0.0)
 
@@ -425,9 +440,10 @@ def add_tof_noise(
     z = frame.depth_m.astype(np.float64).copy()
     h, w = z.shape
     valid = z > 0
-    rgb8 = _colour(frame.rgb, sensor.rgb_sigma, rng)
+    rgb8 = _noisy_colour(frame.rgb, sensor.rgb_sigma, rng)
     albedo = frame.albedo if frame.albedo is not None else frame.rgb.mean(axis=2)
     amplitude = albedo * frame.cos_incidence / np.maximum(z, 0.05) ** 2
+    edges = _depth_edges(z)  # of the clean depth: the multipath bias and the edge effects both use it
 
     z = z + multipath_bias_m(
         z,
@@ -435,12 +451,12 @@ def add_tof_noise(
         scale_m=sensor.multipath_scale_m,
         gain=sensor.multipath_gain,
         max_m=sensor.multipath_max_m,
+        edges=edges,
     )
     z = np.where(
         valid, z + sensor.wiggle_m * np.sin(2 * math.pi * z / sensor.wiggle_period_m + sensor.wiggle_phase), 0
     )
 
-    edges = _depth_edges(frame.depth_m.astype(np.float64))
     z = _flying_pixels(z, edges, fraction=sensor.flying_fraction, rng=rng)
     keep = valid & ~(edges & (rng.random((h, w)) < sensor.edge_drop_prob))
 

@@ -166,7 +166,7 @@ def draw_scene(
         ambient,
         light,
         holder,
-        roles if holder != "none" else (),
+        roles,
         style,
         stand,
     )
@@ -174,9 +174,8 @@ def draw_scene(
 
 @dataclass
 class WildPlan:
-    """A randomised sequence's draw: the scene, the trajectory, the holders and the props."""
+    """A randomised sequence's draw beyond its scene: the trajectory, the holders and the props."""
 
-    scene: SceneDraw
     trajectory: Trajectory
     holders: list
     props: list
@@ -211,7 +210,7 @@ def plan_wild(spec: ObjectSpec, motion: str, n: int, seed: int, scene: SceneDraw
     limbs, first = [], None
     for role, target in scene.roles:
         limbs.append(_limb(kind, rng, first, flat=role == "rest" or target == "flat"))
-        first = limbs[0] if kind == "hand" else None
+        first = limbs[0]  # a gripper's limb ignores it
     # Where the base is held, chosen before the trajectory: a flip turns the object about that forearm.
     side = 1.0 if rng.random() < 0.5 else -1.0
     base_points = object_points_m(spec, spec.rest_positions()) if len(spec.parts) == 1 else None
@@ -235,7 +234,8 @@ def plan_wild(spec: ObjectSpec, motion: str, n: int, seed: int, scene: SceneDraw
     q = traj.joint_positions
     q0 = None if q is None else q[0]
     T_wo = traj.T_world_from_object
-    eye = np.linalg.inv(traj.T_camera_from_world[0])[:3, 3]
+    T_wc = np.linalg.inv(traj.T_camera_from_world[0])
+    eye = T_wc[:3, 3]
     holders = []
     for k, ((role, target), limb) in enumerate(zip(scene.roles, limbs)):
         part = 0
@@ -251,7 +251,6 @@ def plan_wild(spec: ObjectSpec, motion: str, n: int, seed: int, scene: SceneDraw
             T_top = top_pose(base, rng, mode="flat" if kind == "hand" else "twist")
             poses = np.stack([T_wo[f] @ T_top for f in range(n)]) @ _tremor(n, rng)
         else:
-            T_wc = np.linalg.inv(traj.T_camera_from_world[0])
             pts = object_points_m(spec, q0)
             centre_obj = 0.5 * (pts.min(0) + pts.max(0))
             centre = T_wo[0][:3, :3] @ centre_obj + T_wo[0][:3, 3]
@@ -291,7 +290,7 @@ def plan_wild(spec: ObjectSpec, motion: str, n: int, seed: int, scene: SceneDraw
     if kind == "gripper":
         for limb in limbs:
             boxes += colour_boxes(limb, rgb_sigma=rgb_sigma, ambient=scene.ambient)
-    return WildPlan(scene, traj, holders, props, list(dict.fromkeys(boxes)))
+    return WildPlan(traj, holders, props, list(dict.fromkeys(boxes)))
 
 
 def check_wild_arguments(*, noise: str, hand: str, texture: str, hands: tuple, textures: tuple) -> None:
