@@ -7,6 +7,11 @@ over the whole trajectory explains its motion relative to the base better than n
 selection of Sturm, Stachniss & Burgard (JAIR 2011) between the rigid model and the joint models, made
 by the run's part finder (its kinematic tree) and joint estimator.
 
+A part that a hand moves moves continuously: its joint state at one frame is close to its state at the
+next. The states of a "part" made by noise jump back and forth from frame to frame. So the states, in
+the order of their frames, must change less from frame to frame than the same values in a random
+order do: a permutation test of von Neumann's successive differences, one-sided at 5 %.
+
 A turning joint that leaves its parent's surface where it was tells nothing either: a body of
 revolution turning about its own axis (a kettle spun by its handle) looks still in depth, while it may
 turn with the part; so does a plate turning in its own plane (a carried ruler). The rigid object
@@ -19,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.stats import permutation_test
 
 from .articulation import Articulation, PartJoint
 from .config import JOINT_ESTIMATOR, PART_FINDER
@@ -34,6 +40,11 @@ CONTACT_M = 0.03
 #: A joint is told from a trajectory: two pairs' relative motions fit some joint almost always (a line
 #: or an axis through two poses); each further pair tests it.
 MIN_PAIRS = 3
+#: A part counts as moving when states in a random order change as little from frame to frame as its
+#: own do at most this often.
+SIGNIFICANCE = 0.05
+#: Random orders tried when there are more of them (all are tried for up to 7 states); seeded.
+PERMUTATIONS = 9999
 #: A parent whose points, moved by a step of its joint, land on its own surface for at least this share
 #: (of those the step moves) is symmetric under the joint: it may move with the part unseen.
 SYMMETRIC_SHARE = 0.5
@@ -57,6 +68,10 @@ def joints_over_video(
         return False, f"{shown}, but no part moves about a joint over the video"
     tests = (
         (
+            "the part's state jumps back and forth between frames, as noise does, not as a body moves",
+            lambda j: moves_continuously(j.estimate.states),
+        ),
+        (
             f"the part leaves its parent (by over {CONTACT_M * 100:g} cm): two bodies that separate",
             lambda j: not separated(articulation, j),
         ),
@@ -72,6 +87,32 @@ def joints_over_video(
             return False, f"{shown}, but {why}"
     j = max(joints, key=lambda j: j.n_pairs)
     return True, f"{shown}; part {j.child} moves about a {j.estimate.type} joint over {j.n_pairs} pairs"
+
+
+def moves_continuously(states: np.ndarray) -> bool:
+    """Whether the joint's ``states`` (one per frame, NaN where the part was not tracked) change from
+    frame to frame less than chance allows: the sum of each step's squared change over the frames it
+    spans, against the same values in random orders over the same frames: a continuous motion
+    changes little in one frame and more over ten, noise as much in one as in ten. Four states never
+    pass: two of their 24 orders are as smooth as any line."""
+    frames = np.flatnonzero(np.isfinite(states))
+    if len(frames) < 3 or np.ptp(states[frames]) == 0:
+        return False
+    gaps = np.diff(frames)
+
+    def roughness(values, axis=-1):
+        return np.sum(np.diff(values, axis=axis) ** 2 / gaps, axis=axis)
+
+    test = permutation_test(
+        (states[frames],),
+        roughness,
+        permutation_type="pairings",
+        alternative="less",
+        n_resamples=PERMUTATIONS,
+        vectorized=True,
+        random_state=0,
+    )
+    return bool(test.pvalue < SIGNIFICANCE)
 
 
 def separated(articulation: Articulation, joint: PartJoint) -> bool:

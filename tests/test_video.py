@@ -7,7 +7,7 @@ import pytest
 
 from artclass_core.articulation import Articulation, JointEstimate, Part, PartJoint
 from artclass_core.types import PairPoints, PairResult, RunResult
-from artclass_core.video import separated, symmetric_parent
+from artclass_core.video import moves_continuously, separated, symmetric_parent
 
 N_FRAMES, K = 20, 5
 
@@ -76,3 +76,30 @@ def test_a_part_lifted_off_its_parent_is_no_joint_and_a_hinged_lid_is():
     run, art, joint = _joint(base, "revolute", (1, 0, 0), (0, 0.1, base[:, 2].max()), 0.3)
     art.parts[1] = Part(1, "part1", 0, lid, [0], len(lid))
     assert not separated(art, joint)
+
+
+def test_a_part_opened_closed_or_flipped_moves_continuously():
+    """A lid opened, opened and closed again, or flipped in three frames between rests; a NaN where
+    the part was not tracked."""
+    t = np.arange(N_FRAMES, dtype=float)
+    rng = np.random.default_rng(0)
+    opened = 0.05 * t + rng.normal(0, 0.01, N_FRAMES)
+    back = np.minimum(t, N_FRAMES - t) * 0.05
+    flipped = np.clip(t - 8, 0, 3) * np.pi / 3
+    flipped[4] = np.nan
+    assert all(moves_continuously(s) for s in (opened, back, flipped))
+    assert moves_continuously(np.array([0.0, 0.1, 0.2, 0.3, 0.4]))  # the fewest states that can pass
+    drawer = np.full(15, np.nan)  # opened 4 cm and closed again, tracked in 6 frames with gaps
+    drawer[[2, 8, 9, 12, 13, 14]] = 0.0, 0.0428, 0.0422, 0.0221, 0.0111, -0.0008
+    assert moves_continuously(drawer)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_states_that_are_noise_about_one_value_do_not(seed):
+    """A still part whose state each pair measures anew: independent errors about zero, as a real
+    recording's wandering patches give; and too few states to tell."""
+    rng = np.random.default_rng(seed)
+    assert not moves_continuously(rng.normal(0, 0.01, 8))
+    assert not moves_continuously(np.array([0.0, 0.026, 0.005, -0.006, -0.0075, -0.009, -0.005, -0.001]))
+    assert not moves_continuously(np.array([0.0, 0.1, 0.2, 0.3]))
+    assert not moves_continuously(np.zeros(6))
