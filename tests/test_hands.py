@@ -32,6 +32,7 @@ from artclass_plugins.segmenters.hands import (
     chromaticity,
     depth_steps,
     find_hands,
+    forearm_between,
     hand_regions,
     hand_tips,
     held,
@@ -514,6 +515,44 @@ def test_a_sleeve_of_any_colour_is_removed_with_the_hand():
         mask = seg.segment(scene[i], sequence=scene)
         assert mask_iou(mask, box & ~hands[i]) > 0.85, i
         assert not (mask & hands[i]).any(), i
+
+
+def test_a_sleeve_between_a_bare_forearm_and_the_hand_is_removed_with_them():
+    """A short sleeve round the middle of the forearm: the bare skin beyond it reaches the border, the
+    hand before it does not. The sleeve is a stretch of forearm from one to the other, so it continues
+    the arm to the hand, and the hand, sleeve and forearm are all left out of the still box's mask."""
+    box = box_mask(130, 130)
+    frames, hands = [], []
+    for i in range(6):
+        hand = hand_shape(200 - 6 * i, 110 + 4 * (i % 3))
+        columns = np.arange(W)[None, :]
+        sleeve = hand & (columns > 240 - 6 * i) & (columns < 280 - 6 * i)
+        rgb, depth = render(box, hand, hand_depth_m=0.55, sleeve=sleeve, seed=i)
+        frames.append(Frame(i, f"{i:06d}", rgb, depth))
+        hands.append(hand)
+    scene = Scene(frames, name="short sleeve")
+    seg = DepthThresholdSegmenter()
+    for i in range(len(scene)):
+        assert mask_iou(seg.hand_mask(scene[i], sequence=scene), hands[i]) > 0.9, i
+        assert not (seg.segment(scene[i], sequence=scene) & hands[i]).any(), i
+
+
+def test_a_stretch_of_forearm_is_as_wide_as_one_and_joins_arm_and_hand_at_its_two_ends():
+    """At 0.5 m a pixel is 1.7 mm: a band 40 px (7 cm) wide from the arm (left) to the hand (right) is
+    a forearm; a box 100 px (17 cm) wide is not, nor is the band when the hand touches it beside the
+    arm (a held object touching the fingers along its side)."""
+    depth = np.full((H, W), 0.5)
+    band = np.zeros((H, W), bool)
+    band[100:140, 100:200] = True
+    arm, hand, beside = np.zeros((3, H, W), bool)
+    arm[100:140, 80:100] = True
+    hand[100:140, 200:220] = True
+    beside[140:150, 100:120] = True
+    assert forearm_between(band, arm, hand, depth, INTR)
+    wide = np.zeros((H, W), bool)
+    wide[70:170, 100:200] = True
+    assert not forearm_between(wide, arm, hand, depth, INTR)
+    assert not forearm_between(band, arm, beside, depth, INTR)
 
 
 def test_projector_shadows_lie_between_a_near_and_a_far_reading_in_their_row():

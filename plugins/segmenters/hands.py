@@ -500,6 +500,7 @@ def find_hands(
                 contact=contact,
                 touch_m=touch,
                 edge=edge,
+                skin=(hand & kinds[0], np.logical_or.reduce(held_out) & kinds[0]),
             )
             if held_out
             else hand
@@ -645,11 +646,14 @@ def arms(
     contact: np.ndarray,
     touch_m: float,
     edge: np.ndarray | None = None,
+    skin: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """The arms (sleeves) among the regions of ``foreground``: those that reach the image border (or
-    ``edge``, the pixels without a reading that do: an arm nearer than the sensor's range, of which
-    only a rim farther away is measured), do not rest on the support plane, and touch ``hands`` in
-    3-D.
+    """The arms (sleeves) among the regions of ``foreground``: those that do not rest on the support
+    plane, touch ``hands`` in 3-D, and reach the image border (or ``edge``, the pixels without a
+    reading that do: an arm nearer than the sensor's range, of which only a rim farther away is
+    measured). With ``skin``, also the sleeves between bare skin: a region that touches the arm found
+    so far and skin held out beyond it (a hand) continues the arm to that hand when it is a stretch
+    of forearm (:func:`forearm_between`), one region after another.
 
     Parameters
     ----------
@@ -663,6 +667,8 @@ def arms(
         (at the hand's median depth)
     edge : ndarray of bool, shape (H, W), optional -- the pixels without a reading connected to the
         image border (:func:`_edge_gaps`)
+    skin : (ndarray of bool, ndarray of bool), shapes (H, W), optional -- the skin that reaches the
+        border, and all the skin held out above the table
 
     Returns
     -------
@@ -672,14 +678,69 @@ def arms(
     if not hands.any():
         return out
     n, labels, stats, box = label_box(_open(foreground))
-    reach = _at_border(stats, foreground.shape)
+    reach = np.concatenate([[False], _at_border(stats, foreground.shape)])
     if edge is not None:
-        reach |= np.bincount(labels[widen(edge, 1)[box]], minlength=n)[1:] > 0
-    regions = [region_mask(k, labels, stats, box, foreground.shape) for k in np.flatnonzero(reach) + 1]
-    for region, touches in zip(regions, _touching(regions, hands, depth_m, intrinsics, touch_m=touch_m)):
-        if touches and not rests(region, contact):
+        reach |= np.bincount(labels[widen(edge, 1)[box]], minlength=n) > 0
+    free = np.bincount(labels[contact[box]], minlength=n) < CONTACT_PX  # as rests()
+    free[0] = False
+
+    def regions(which: np.ndarray) -> list[np.ndarray]:
+        return [region_mask(k, labels, stats, box, foreground.shape) for k in np.flatnonzero(which)]
+
+    reaching = regions(free & reach)
+    for region, touches in zip(reaching, _touching(reaching, hands, depth_m, intrinsics, touch_m=touch_m)):
+        if touches:
             out |= region
+    if skin is None:
+        return out
+    # a sleeve between bare skin: a stretch of forearm from the arm found so far to a hand beyond it
+    limb, bare = skin[0] | out, skin[1]
+    between = regions(free & ~reach)
+    while between:
+        beyond = bare & ~limb
+        on_limb = _touching(between, limb, depth_m, intrinsics, touch_m=touch_m)
+        on_hand = _touching(between, beyond, depth_m, intrinsics, touch_m=touch_m)
+        taken = [
+            a and b and forearm_between(r, limb, beyond, depth_m, intrinsics)
+            for r, a, b in zip(between, on_limb, on_hand)
+        ]
+        if not any(taken):
+            break
+        for region in (r for r, t in zip(between, taken) if t):
+            out |= region
+            limb |= region
+        between = [r for r, t in zip(between, taken) if not t]
     return out
+
+
+#: A forearm, bare or sleeved, is this wide (metres): from a slim wrist to a loose sleeve.
+FOREARM_WIDTH_M = (0.04, 0.12)
+
+
+def forearm_between(
+    region: np.ndarray, limb: np.ndarray, hand: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics
+) -> bool:
+    """Whether ``region`` is a stretch of forearm from ``limb`` to ``hand`` (bool (H, W) each): as wide
+    as a forearm across its length (:data:`FOREARM_WIDTH_M`: the spread of its 3-D points along their
+    second axis; a band of width w spreads w / sqrt(12)), and touching the limb and the hand at its
+    two ends (their contacts at least half its length apart along its first axis). A held object
+    touching the fingers is wider than an arm, or touches the hand along its side."""
+    ys, xs = np.nonzero(region & (depth_m > 0))
+    if len(ys) < 10:
+        return False
+    z = depth_m[ys, xs]
+    points = np.column_stack(
+        [(xs - intrinsics.cx) * z / intrinsics.fx, (ys - intrinsics.cy) * z / intrinsics.fy, z]
+    )
+    spread, axes = np.linalg.eigh(np.cov(points.T))
+    width = float(np.sqrt(12 * max(spread[1], 0.0)))
+    if not FOREARM_WIDTH_M[0] <= width <= FOREARM_WIDTH_M[1]:
+        return False
+    along = (points - points.mean(axis=0)) @ axes[:, 2]
+    near, far = widen(limb, 2)[ys, xs], widen(hand, 2)[ys, xs]
+    if not near.any() or not far.any():
+        return False
+    return abs(float(along[far].mean() - along[near].mean())) >= 0.5 * float(np.ptp(along))
 
 
 def arm_pieces(
