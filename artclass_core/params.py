@@ -162,9 +162,9 @@ class PipelineParams(Params):
     )
     video_joints: bool = param(
         True,
-        help="A video is articulated only when a part tracked across its pairs moves about a joint "
-        "(prismatic, revolute or screw) over the whole video; false: whenever an AM pair survives "
-        "the max-count filter (the paper's rule).",
+        help="A video is articulated only when a part tracked across its pairs moves continuously "
+        "about a joint (prismatic, revolute or screw) over the whole video; false: whenever an AM "
+        "pair survives the max-count filter (the paper's rule).",
     )
     slow_factor: int = param(
         2,
