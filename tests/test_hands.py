@@ -496,19 +496,26 @@ def test_a_still_scene_with_a_waving_hand_is_classified_static():
     assert any(m is not None and (m & hands[i]).sum() > 0.5 * hands[i].sum() for i, m in enumerate(masks))
 
 
+def _sleeved_scene(box: np.ndarray, sleeved, name: str) -> tuple[Scene, list[np.ndarray]]:
+    """Six frames of a still box and a hand moving left over the table, its arm from the right
+    border; ``sleeved(columns, i)`` says which columns of frame i's arm are sleeved. The scene and
+    the true hand-and-arm masks."""
+    frames, hands = [], []
+    for i in range(6):
+        hand = hand_shape(200 - 6 * i, 110 + 4 * (i % 3))
+        sleeve = hand & sleeved(np.arange(W)[None, :], i)
+        rgb, depth = render(box, hand, hand_depth_m=0.55, sleeve=sleeve, seed=i)
+        frames.append(Frame(i, f"{i:06d}", rgb, depth))
+        hands.append(hand)
+    return Scene(frames, name=name), hands
+
+
 def test_a_sleeve_of_any_colour_is_removed_with_the_hand():
     """A green sleeve covers the forearm from the border to 40 px from the wrist, so the skin no longer
     reaches the border: the sleeve is found as the hand's arm and the hand is still found (measured
     IoU with hand and sleeve 0.998; bound 0.9), and the still box is chosen in every frame."""
     box = box_mask(130, 130)
-    frames, hands = [], []
-    for i in range(6):
-        hand = hand_shape(200 - 6 * i, 110 + 4 * (i % 3))
-        sleeve = hand & (np.arange(W)[None, :] > 240 - 6 * i)
-        rgb, depth = render(box, hand, hand_depth_m=0.55, sleeve=sleeve, seed=i)
-        frames.append(Frame(i, f"{i:06d}", rgb, depth))
-        hands.append(hand)
-    scene = Scene(frames, name="sleeve")
+    scene, hands = _sleeved_scene(box, lambda columns, i: columns > 240 - 6 * i, "sleeve")
     seg = DepthThresholdSegmenter()
     for i in range(len(scene)):
         assert mask_iou(seg.hand_mask(scene[i], sequence=scene), hands[i]) > 0.9, i
@@ -521,16 +528,11 @@ def test_a_sleeve_between_a_bare_forearm_and_the_hand_is_removed_with_them():
     """A short sleeve round the middle of the forearm: the bare skin beyond it reaches the border, the
     hand before it does not. The sleeve is a stretch of forearm from one to the other, so it continues
     the arm to the hand, and the hand, sleeve and forearm are all left out of the still box's mask."""
-    box = box_mask(130, 130)
-    frames, hands = [], []
-    for i in range(6):
-        hand = hand_shape(200 - 6 * i, 110 + 4 * (i % 3))
-        columns = np.arange(W)[None, :]
-        sleeve = hand & (columns > 240 - 6 * i) & (columns < 280 - 6 * i)
-        rgb, depth = render(box, hand, hand_depth_m=0.55, sleeve=sleeve, seed=i)
-        frames.append(Frame(i, f"{i:06d}", rgb, depth))
-        hands.append(hand)
-    scene = Scene(frames, name="short sleeve")
+    scene, hands = _sleeved_scene(
+        box_mask(130, 130),
+        lambda columns, i: (columns > 240 - 6 * i) & (columns < 280 - 6 * i),
+        "short sleeve",
+    )
     seg = DepthThresholdSegmenter()
     for i in range(len(scene)):
         assert mask_iou(seg.hand_mask(scene[i], sequence=scene), hands[i]) > 0.9, i
