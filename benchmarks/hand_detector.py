@@ -23,24 +23,19 @@ with its arm), every N-th frame's colour image goes through
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+from hand_iou import holder_of
 
 from artclass_core import ArtclassError, find_sequences, load_registry
 from artclass_core.io import read_mask
 from artclass_plugins.segmenters.hand_detector import HandDetector, HandDetectorParams, hands_mask
 
 COUNTS = ("frames", "with_hand", "detected", "empty", "alarms", "inter", "union", "box_inter", "box_union")
-
-
-def holder_of(seq) -> str:
-    meta = json.loads((Path(seq.path) / "meta.json").read_text())
-    return str(meta.get("hand") or "none")
 
 
 def boxes_mask(hands, shape: tuple[int, int]) -> np.ndarray:
