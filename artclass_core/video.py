@@ -15,14 +15,17 @@ order do: a permutation test of von Neumann's successive differences, one-sided 
 A turning joint that leaves its parent's surface where it was tells nothing either: a body of
 revolution turning about its own axis (a kettle spun by its handle) looks still in depth, while it may
 turn with the part; so does a plate turning in its own plane (a carried ruler). The rigid object
-explains such a video as well as the joint does. A sliding joint is kept: a drawer's carcass shows
-where it ends. And a joint keeps its parts in contact: two bodies that separate (a kettle lifted off
-its base) are two objects.
+explains such a video as well as the joint does. A parent that only partly slides along itself (a
+microwave's carcass, whose top turns in its own plane under the door's hinge) is told by the rest:
+its depth would change over a region as large as a part, and the pairs saw no such region move. A
+sliding joint is kept: a drawer's carcass shows where it ends. And a joint keeps its parts in
+contact: two bodies that separate (a kettle lifted off its base) are two objects.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 from scipy.spatial import cKDTree
 from scipy.stats import permutation_test
 
@@ -133,7 +136,9 @@ def symmetric_parent(result: RunResult, articulation: Articulation, joint: PartJ
     move the parent unseen: it moves no point of the parent by what a pair can see (three noise
     sigmas and a pixel), or it leaves at least :data:`SYMMETRIC_SHARE` of those it moves so on the
     parent's surface (within three noise sigmas of the tangent plane at the nearest point, and three
-    point spacings of that point)."""
+    point spacings of that point), and the step one way or the other changes the depth the parent
+    shows the camera over no region as large as the run's rule takes a part to be (its smallest share
+    of the object's points: :func:`depth_change`)."""
     parent, states = articulation.parts[joint.parent].points_m, joint.estimate.states
     steps = [abs(states[p.j] - states[p.i]) for p in result.pairs if p.j < len(states)]
     steps = [s for s in steps if np.isfinite(s) and s > 0]
@@ -141,8 +146,10 @@ def symmetric_parent(result: RunResult, articulation: Articulation, joint: PartJ
     if len(parent) < 10 or not steps or not seen:
         return False
     noise = 3 * float(np.median([s.noise_m for s in seen]))
-    moved = transform(parent, joint.estimate.motion(float(np.median(steps))))
-    far = np.linalg.norm(moved - parent, axis=1) > noise + float(np.median([s.pixel_m for s in seen]))
+    visible = noise + float(np.median([s.pixel_m for s in seen]))
+    step = float(np.median(steps))
+    moved = transform(parent, joint.estimate.motion(step))
+    far = np.linalg.norm(moved - parent, axis=1) > visible
     if not far.any():
         return True
     tree = cKDTree(parent)
@@ -152,4 +159,29 @@ def symmetric_parent(result: RunResult, articulation: Articulation, joint: PartJ
     spacing = float(np.median(np.linalg.norm(neighbours[:, 1] - parent, axis=1)))
     gap, nearest = tree.query(moved[far])
     across = np.abs(np.einsum("ni,ni->n", moved[far] - parent[nearest], normals[nearest]))
-    return float(np.mean((gap <= 3 * spacing) & (across <= noise))) >= SYMMETRIC_SHARE
+    if np.mean((gap <= 3 * spacing) & (across <= noise)) < SYMMETRIC_SHARE:
+        return False
+    rule, child = result.params.get("rule", {}), articulation.parts[joint.child].points_m
+    part = max(rule.get("min_part_points", 1), rule.get("min_part_share", 0.0) * (len(parent) + len(child)))
+    moves = (transform(parent, joint.estimate.motion(s)) for s in (step, -step))
+    return any(depth_change(parent, m, spacing, visible) < part for m in moves)
+
+
+def depth_change(before: np.ndarray, after: np.ndarray, spacing_m: float, tolerance_m: float) -> int:
+    """The most points of ``before`` in one connected region of the image where the depth that the
+    points show a camera at the origin changes, moved to ``after``, by over ``tolerance_m``. The image
+    has cells two point spacings wide, so that a seen surface fills each; a cell counts where both
+    fill it. Its depth is its nearest point's, known to within half the depth its points span (where
+    in the cell the nearest one falls: a steep surface, an edge), which the tolerance grows by."""
+    both = np.vstack([before, after])
+    cells = np.floor(both[:, :2] / both[:, 2:] / (2 * spacing_m / np.median(before[:, 2]))).astype(int)
+    cells -= cells.min(axis=0)
+    index = (np.repeat([0, 1], [len(before), len(after)]), *cells.T)
+    near, far = np.full((2, 2, *(cells.max(axis=0) + 1)), [[[[np.inf]]], [[[-np.inf]]]])
+    np.minimum.at(near, index, np.linalg.norm(both, axis=1))
+    np.maximum.at(far, index, np.linalg.norm(both, axis=1))
+    seen = np.isfinite(near).all(axis=0)
+    near, span = np.where(seen, near, 0), np.where(seen, far - near, 0).max(axis=0)
+    regions, count = ndimage.label(seen & (np.abs(near[0] - near[1]) > tolerance_m + span / 2))
+    u, v = cells[: len(before)].T
+    return int(np.bincount(regions[u, v], minlength=count + 1)[1:].max(initial=0))
