@@ -14,7 +14,9 @@ order do: a permutation test of von Neumann's successive differences, one-sided 
 
 A turning joint that leaves its parent's surface where it was tells nothing either: a body of
 revolution turning about its own axis (a kettle spun by its handle) looks still in depth, while it may
-turn with the part; so does a plate turning in its own plane (a carried ruler). The rigid object
+turn with the part; so does a plate turning in its own plane (a carried ruler). Nor does one that
+leaves its part's surface where it was: two fits of a thin body that differ by a roll about its own
+length (a carried pair of pliers) make a "joint" whose part shows no motion. The rigid object
 explains such a video as well as the joint does. A parent that only partly slides along itself (a
 microwave's carcass, whose top turns in its own plane under the door's hinge) is told by the rest:
 its depth would change over a region as large as a part, and the pairs saw no such region move. A
@@ -79,9 +81,12 @@ def joints_over_video(
             lambda j: not separated(articulation, j),
         ),
         (
-            "the joint turns its parent within its own surface (a body about its own axis): the "
-            "whole object may turn as one",
-            lambda j: j.estimate.type == "prismatic" or not symmetric_parent(result, articulation, j),
+            "the joint turns its parent or its part within its own surface (a body about its own "
+            "axis): the whole object may turn as one, or the part not at all",
+            lambda j: (
+                j.estimate.type == "prismatic"
+                or not any(symmetric(result, articulation, j, k) for k in (j.parent, j.child))
+            ),
         ),
     )
     for why, keeps in tests:
@@ -131,40 +136,42 @@ def separated(articulation: Articulation, joint: PartJoint) -> bool:
     return any(tree.query(transform(child, joint.estimate.motion(s)))[0].min() > CONTACT_M for s in ends)
 
 
-def symmetric_parent(result: RunResult, articulation: Articulation, joint: PartJoint) -> bool:
+def symmetric(result: RunResult, articulation: Articulation, joint: PartJoint, part: int) -> bool:
     """Whether the joint's typical step (the median change of its state over the run's pairs) could
-    move the parent unseen: it moves no point of the parent by what a pair can see (three noise
-    sigmas and a pixel), or it leaves at least :data:`SYMMETRIC_SHARE` of those it moves so on the
-    parent's surface (within three noise sigmas of the tangent plane at the nearest point, and three
-    point spacings of that point), and the step one way or the other changes the depth the parent
-    shows the camera over no region as large as the run's rule takes a part to be (its smallest share
-    of the object's points: :func:`depth_change`)."""
-    parent, states = articulation.parts[joint.parent].points_m, joint.estimate.states
+    move ``part`` (the joint's parent or its child) unseen: it moves no point of the part by what a
+    pair can see (three noise sigmas and a pixel), or it leaves at least :data:`SYMMETRIC_SHARE` of
+    those it moves so on the part's surface (within three noise sigmas of the tangent plane at the
+    nearest point, and three point spacings of that point), and the step one way or the other changes
+    the depth the part shows the camera over no region as large as the run's rule takes a part to be
+    (its smallest share of the object's points: :func:`depth_change`). A parent so moved may turn with
+    its child unseen; a child so moved (a thin part rolled about its own length) shows no joint."""
+    points, states = articulation.parts[part].points_m, joint.estimate.states
     steps = [abs(states[p.j] - states[p.i]) for p in result.pairs if p.j < len(states)]
     steps = [s for s in steps if np.isfinite(s) and s > 0]
     seen = [p.points for p in result.pairs if p.points is not None]
-    if len(parent) < 10 or not steps or not seen:
+    if len(points) < 10 or not steps or not seen:
         return False
     noise = 3 * float(np.median([s.noise_m for s in seen]))
     visible = noise + float(np.median([s.pixel_m for s in seen]))
     step = float(np.median(steps))
-    moved = transform(parent, joint.estimate.motion(step))
-    far = np.linalg.norm(moved - parent, axis=1) > visible
+    moved = transform(points, joint.estimate.motion(step))
+    far = np.linalg.norm(moved - points, axis=1) > visible
     if not far.any():
         return True
-    tree = cKDTree(parent)
-    neighbours = parent[tree.query(parent, k=8)[1]]  # (N, 8, 3)
+    tree = cKDTree(points)
+    neighbours = points[tree.query(points, k=8)[1]]  # (N, 8, 3)
     spread = neighbours - neighbours.mean(axis=1, keepdims=True)
     normals = np.linalg.eigh(np.einsum("nki,nkj->nij", spread, spread))[1][:, :, 0]
-    spacing = float(np.median(np.linalg.norm(neighbours[:, 1] - parent, axis=1)))
+    spacing = float(np.median(np.linalg.norm(neighbours[:, 1] - points, axis=1)))
     gap, nearest = tree.query(moved[far])
-    across = np.abs(np.einsum("ni,ni->n", moved[far] - parent[nearest], normals[nearest]))
+    across = np.abs(np.einsum("ni,ni->n", moved[far] - points[nearest], normals[nearest]))
     if np.mean((gap <= 3 * spacing) & (across <= noise)) < SYMMETRIC_SHARE:
         return False
-    rule, child = result.params.get("rule", {}), articulation.parts[joint.child].points_m
-    part = max(rule.get("min_part_points", 1), rule.get("min_part_share", 0.0) * (len(parent) + len(child)))
-    moves = (transform(parent, joint.estimate.motion(s)) for s in (step, -step))
-    return any(depth_change(parent, m, spacing, visible) < part for m in moves)
+    rule = result.params.get("rule", {})
+    n_object = sum(len(articulation.parts[k].points_m) for k in (joint.parent, joint.child))
+    least = max(rule.get("min_part_points", 1), rule.get("min_part_share", 0.0) * n_object)
+    moves = (transform(points, joint.estimate.motion(s)) for s in (step, -step))
+    return any(depth_change(points, m, spacing, visible) < least for m in moves)
 
 
 def depth_change(before: np.ndarray, after: np.ndarray, spacing_m: float, tolerance_m: float) -> int:

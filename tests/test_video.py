@@ -7,7 +7,7 @@ import pytest
 
 from artclass_core.articulation import Articulation, JointEstimate, Part, PartJoint
 from artclass_core.types import PairPoints, PairResult, RunResult
-from artclass_core.video import moves_continuously, separated, symmetric_parent
+from artclass_core.video import moves_continuously, separated, symmetric
 
 N_FRAMES, K = 20, 5
 
@@ -55,30 +55,42 @@ def _box(spacing_m=0.003) -> np.ndarray:
 def test_a_body_of_revolution_turning_about_its_axis_is_symmetric(step_rad):
     """A kettle's body under its handle's revolute joint about the body's axis: the step moves the
     visible half of the cylinder along itself."""
-    assert symmetric_parent(*_joint(_half_cylinder(), "revolute", (0, 1, 0), (0, 0, 0.8), step_rad))
+    assert symmetric(*_joint(_half_cylinder(), "revolute", (0, 1, 0), (0, 0, 0.8), step_rad), 0)
 
 
 @pytest.mark.parametrize("step_rad", [0.05, 0.3])
 def test_a_laptop_base_under_its_lid_hinge_is_not(step_rad):
-    assert not symmetric_parent(*_joint(_plane(), "revolute", (1, 0, 0), (0, 0.1, 0.8), step_rad))
+    assert not symmetric(*_joint(_plane(), "revolute", (1, 0, 0), (0, 0.1, 0.8), step_rad), 0)
 
 
 @pytest.mark.parametrize("step_rad", [0.05, 0.3])
 def test_a_carcass_under_its_door_hinge_is_not_though_its_top_turns_in_its_own_plane(step_rad):
     """The vertical hinge at the front's edge turns the top within its own plane: most points stay on
     the carcass' surface. The front would turn toward or away from the camera, as large as a part."""
-    assert not symmetric_parent(*_joint(_box(), "revolute", (0, 1, 0), (0.2, 0, 0.8), step_rad))
+    assert not symmetric(*_joint(_box(), "revolute", (0, 1, 0), (0.2, 0, 0.8), step_rad), 0)
+
+
+def test_a_thin_part_rolled_about_its_own_length_shows_no_joint_and_a_lid_turned_on_its_hinge_does():
+    """Two fits of a carried pair of pliers that differ by a 70 degree roll about a handle's length
+    move the handle's points by millimetres, along its surface."""
+    run, art, joint = _joint(_plane(), "revolute", (0, 1, 0), (0, 0, 0.8), 1.2)
+    handle = _half_cylinder(radius_m=0.008, height_m=0.1, spacing_m=0.001)
+    art.parts[1] = Part(1, "part1", 0, handle, [0], len(handle))
+    assert symmetric(run, art, joint, 1)
+    run, art, joint = _joint(_plane(), "revolute", (1, 0, 0), (0, 0.1, 0.8), 0.3)
+    art.parts[1] = Part(1, "part1", 0, _plane(), [0], 7056)
+    assert not symmetric(run, art, joint, 1)
 
 
 def test_a_step_no_pair_could_see_on_the_parent_tells_nothing():
     """0.01 rad moves the plate's far edge by 2.5 mm, less than three noise sigmas and a pixel."""
-    assert symmetric_parent(*_joint(_plane(), "revolute", (1, 0, 0), (0, 0.1, 0.8), 0.01))
+    assert symmetric(*_joint(_plane(), "revolute", (1, 0, 0), (0, 0.1, 0.8), 0.01), 0)
 
 
 def test_a_plate_sliding_along_itself_is_symmetric_and_a_box_pulled_out_of_it_is_not():
     plate = _plane()
-    assert symmetric_parent(*_joint(plate, "prismatic", (1, 0, 0), (0, 0, 0), 0.02))  # along the plate
-    assert not symmetric_parent(*_joint(plate, "prismatic", (0, 1, 0), (0, 0, 0), 0.02))  # across it
+    assert symmetric(*_joint(plate, "prismatic", (1, 0, 0), (0, 0, 0), 0.02), 0)  # along the plate
+    assert not symmetric(*_joint(plate, "prismatic", (0, 1, 0), (0, 0, 0), 0.02), 0)  # across it
 
 
 def test_a_part_lifted_off_its_parent_is_no_joint_and_a_hinged_lid_is():
