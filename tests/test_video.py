@@ -1,4 +1,5 @@
-"""The video's label: a joint whose parent looks the same after the joint's step tells nothing."""
+"""The video's label: a joint whose parent or part looks the same after the joint's step tells
+nothing; a part that leaves its parent is no part; a part's state moves continuously."""
 
 from __future__ import annotations
 
@@ -77,8 +78,9 @@ def test_a_thin_part_rolled_about_its_own_length_shows_no_joint_and_a_lid_turned
     handle = _half_cylinder(radius_m=0.008, height_m=0.1, spacing_m=0.001)
     art.parts[1] = Part(1, "part1", 0, handle, [0], len(handle))
     assert symmetric(run, art, joint, 1)
-    run, art, joint = _joint(_plane(), "revolute", (1, 0, 0), (0, 0.1, 0.8), 0.3)
-    art.parts[1] = Part(1, "part1", 0, _plane(), [0], 7056)
+    lid = _plane()
+    run, art, joint = _joint(lid, "revolute", (1, 0, 0), (0, 0.1, 0.8), 0.3)
+    art.parts[1] = Part(1, "part1", 0, lid, [0], len(lid))
     assert not symmetric(run, art, joint, 1)
 
 
