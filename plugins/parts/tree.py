@@ -10,6 +10,7 @@ from artclass_core import RunResult
 from artclass_core.articulation import JointEstimate, Part
 from artclass_core.geometry import transform
 from artclass_core.interfaces import JointEstimator
+from artclass_core.video import MIN_PAIRS
 
 from .joints import _pair_joint, _relative_motions
 from .observations import _mask, _Observation, _stride
@@ -44,7 +45,10 @@ def _kinematic_tree(
     """The tree of parts grown from the base, in the spirit of Sturm et al.'s minimum spanning tree
     of joint costs: each step attaches the moving part whose joint on a part already in the tree
     costs least (:func:`_joint_cost`), so the outer arm of a chain hangs on the inner arm, relative
-    to which it has one degree of freedom. Parts in tree order (parents first); a part that no
+    to which it has one degree of freedom. A joint that fewer than the video's ``MIN_PAIRS`` pairs
+    tell is untested (a line or an axis passes through any two poses, at a cost near nothing): it
+    is chosen only when no tested joint is on offer, so that a part seen in two pairs does not
+    become the parent of one tracked over the video. Parts in tree order (parents first); a part that no
     ``min_pairs`` pairs relate to the tree, or whose joint explains fewer of them (one relative
     motion is always a screw motion, so it tells no joint), is left out."""
     tree = {base: _Link(None, None, 0, np.tile(np.eye(4), (n_frames, 1, 1)))}
@@ -72,7 +76,9 @@ def _kinematic_tree(
                 if (child, parent) not in fits:
                     fits[(child, parent)] = joint_on(child, parent)
                 if fits[(child, parent)] is not None:
-                    options.append((_joint_cost(fits[(child, parent)][0]), order, rank, child, parent))
+                    estimate, n_pairs = fits[(child, parent)]
+                    untested = n_pairs < MIN_PAIRS
+                    options.append((untested, _joint_cost(estimate), order, rank, child, parent))
         if not options:
             break
         *_, child, parent = min(options)
