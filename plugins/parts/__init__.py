@@ -45,8 +45,9 @@ module per step (:mod:`.tracks`, :mod:`.base`, :mod:`.joints`, :mod:`.tree`, :mo
    has one degree of freedom, not on the base. A joint's residuals that neighbouring pairs share are
    counted as misfit, not noise: a part carried along a curve by a linkage (a desk lamp's head)
    keeps its orientation relative to the base and passes for a slide there, but its travel turns
-   from pair to pair. Every joint and every part's points are given in the base's first-frame
-   coordinates with all joints at state 0.
+   from pair to pair. A joint that fewer than three pairs tell is taken only when no tested one is on
+   offer: an axis passes through any two poses. Every joint and every part's points are given in the
+   base's first-frame coordinates with all joints at state 0.
 6. **Part images.** Each frame's segmentation comes from the parts' motions over the whole video,
    not from one pair's labels (which may be wrong near a seam, or missing where no pair separated
    the parts): each object point, moved by each part's motion to the frames where the parts' motions
