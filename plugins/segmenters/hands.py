@@ -30,6 +30,10 @@ union of:
   surface as the arm (a lit facet of a sleeve whose shaded faces pass for skin) and joins it
   (:func:`arm_pieces`). The hand's pieces of another shade than its own, which may be an object it
   holds (a mug whose body passes for skin), are no arm to continue;
+* **forearms by their shape, whatever their colour** (:mod:`.limbs`): a straight cylinder a
+  forearm's width that enters the picture at its border, held above the table, traced from the
+  border until it meets something wider (the hand, or what it holds or rests on), with the hand's
+  reach beyond it;
 * **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv`` (or in
   any of its boxes, for a gripper of several colours), or, when that is not set, the boxes the
   sequence's own settings give as ``gripper_hsv`` (a robot rig knows its gripper: the native
@@ -77,6 +81,7 @@ import numpy as np
 from artclass_core import Frame, InputError, Intrinsics, ParamError, Params, param
 
 from ._compiled import border_reach, shadow_kernel, step_kernel
+from .limbs import CONTACT_PX, limbs
 from .support import (
     DEPTH_STEP_M,
     Plane,
@@ -435,18 +440,23 @@ def find_hands(
     if gripper is not None:
         kinds.append(hsv_mask(frame.rgb, gripper) & ~kinds[0])
     candidates = np.logical_or.reduce(kinds) & ~background
-    if not candidates.any():  # nothing skin- or gripper-coloured stands out of the background
-        return _with_given(
-            np.zeros(background.shape, bool), frame, params=params, sequence_path=sequence_path
+    d, touch = clean_depth(frame.depth_m), params.hand_touch_m
+    step = depth_steps(d, step_m=touch)
+    if support is None:
+        contact, limb = None, np.zeros(d.shape, bool)
+    else:
+        contact = on_plane(
+            d, intrinsics, support, step=step, plane_distance_m=plane_distance_m, height_m=support_height_m
         )
+        limb = limbs(~background & (d > 0), d, intrinsics, contact=contact)
+    if not candidates.any():  # nothing skin- or gripper-coloured stands out of the background
+        return _with_given(limb, frame, params=params, sequence_path=sequence_path)
     # cut along depth steps, so that a skin-coloured object behind the hand does not join it; then
     # give the hand back its side of the step (its outline). The gripper is cut along the projector's
     # shadows too (a dark object behind its finger does not join it through the shadow the finger
     # casts on it): the pieces of the gripper this cuts off rejoin it as its fingers; a hand's
     # pieces would not (a small skin-coloured object in the hand looks the same), so its shadows
     # stay joined
-    d, touch = clean_depth(frame.depth_m), params.hand_touch_m
-    step = depth_steps(d, step_m=touch)
     shadow = projector_shadows(d, step_m=touch)
     apart = candidates & ~step
     found = [  # each kind's regions
@@ -465,18 +475,6 @@ def find_hands(
             hand |= region
     else:
         regions = [(k, r) for k, kind in enumerate(found) for r in kind]  # k: 0 skin, 1 gripper
-        contact = (
-            on_plane(
-                d,
-                intrinsics,
-                support,
-                step=step,
-                plane_distance_m=plane_distance_m,
-                height_m=support_height_m,
-            )
-            if regions
-            else None
-        )
         hand = np.zeros(d.shape, bool)
         # a skin-coloured object stands on the table; a hand that grasps something there only touches
         # it with its fingertips. A gripper is held out from above: a gripper-coloured region that
@@ -542,6 +540,7 @@ def find_hands(
                 touch_m=touch,
                 share=params.arm_outline_share,
             )
+    hand |= limb
     seen = hand & (d > 0)
     if seen.any():
         # the hand's side of the depth steps around its readings (on their box: none is farther)
@@ -576,9 +575,6 @@ HOLD_LINE_M = 0.005
 # fingertip, is 17-19 cm long). A hand's tip is read from its pixels within TIP_WINDOW_PX.
 HAND_LENGTH_M = 0.2
 TIP_WINDOW_PX = 5
-# A region rests on the support plane when at least this many of its pixels come down to it (a line
-# of contact, not a stray reading).
-CONTACT_PX = 3
 # The lowest pixels of an object lying on the plane stand off it by the background cut, plus this many
 # of the plane's noise sigmas and of the pixel's size at their depth (the object's next row up).
 CONTACT_SIGMAS = 3.0

@@ -1,0 +1,231 @@
+"""Limbs: the forearm that enters the picture, found by its shape alone, whatever its colour.
+
+A forearm, bare or sleeved, gloved or a robot's, is a straight cylinder a few centimetres across
+(:data:`FOREARM_RADIUS_M`) that enters the picture at its border and is held above the table. So,
+in each region standing out of the background that reaches the image border:
+
+1. the *stub*: its points within :data:`STUB_M` of where it enters (the middle of its pixels at the
+   border);
+2. the *cylinder* through them: its axis runs along the direction their surface normals are all
+   square to, pointing into the picture; across the axis, a circle fitted to the points gives the
+   axis's place and the radius. A stretch of points elongated along one direction
+   (:data:`ELONGATED`) gives the axis by its length instead. The stub must be a cylinder: its
+   points scatter about the circle by no more than :data:`RADIUS_SLACK_M`, and its arc bulges off
+   its chord by a good part of the radius (:data:`RELIEF`; a flat strip does not bulge);
+3. the *trace*: slab after slab of :data:`SLAB_M` along the axis, each added while most of its points
+   near the axis (:data:`INSIDE_SHARE`) lie within the radius of it, give or take the stub's own
+   scatter about the radius (the sensor's noise; :data:`RADIUS_SLACK_M` at least), the cylinder
+   refitted to all the points taken so far. It stops where the slab is empty (the arm ends) or
+   where its points spread wider than a forearm (the hand, or the object it holds or rests on).
+
+The trace is a forearm when it reaches at least :data:`FOREARM_MIN_M` into the picture, its radius
+is a forearm's, and it does not rest on the support plane. Its hand is taken with it: the points
+beyond the trace's end, up to :data:`HAND_REACH_M` along the axis and within :data:`HAND_RADIUS_M`
+of it (a hand continues its forearm; the wrist bends a little). An object the hand holds or passes
+over loses what of it lies inside that reach, never more.
+
+A large object that enters the picture is no cylinder; one lying on the table rests on it. A
+cylinder held above the table and cut by the picture's border (a carried bottle seen in part) cannot
+be told from a forearm by shape, and is taken for one.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+from artclass_core import Intrinsics
+
+from .support import label_box, region_mask
+
+__all__ = ["limbs"]
+
+#: A forearm's radius, from a robot's slim link (3 cm across) to a loose sleeve, metres.
+FOREARM_RADIUS_M = (0.015, 0.06)
+#: The shortest stretch of forearm that counts, metres (a hand alone is shorter).
+FOREARM_MIN_M = 0.10
+#: The stub that gives the first axis: the points within this distance of where the region enters.
+STUB_M = 0.12
+#: Points that spread this many times farther along their first direction than across it lie along
+#: the axis; a shorter stub's axis is read from its normals.
+ELONGATED = 3.0
+#: A cylinder's points lie off the chord of its seen arc by at least this share of its radius
+#: (between their 10th and 90th percentiles: 0.56 of it where half the cylinder is seen).
+RELIEF = 0.3
+#: A slab holds the points this near the axis (a loose sleeve's width): farther ones are other parts of
+#: the region, not what the forearm meets.
+NEAR_M = 2 * FOREARM_RADIUS_M[1]
+#: The trace grows by slabs this thick along the axis.
+SLAB_M = 0.02
+#: A slab continues the cylinder when this share of its points lies within its radius.
+INSIDE_SHARE = 0.7
+#: The surface's roughness: a slab's points may lie this much beyond the radius, or three times the
+#: stub's scatter about it (the sensor's noise), if more. A stub scattered more is no cylinder.
+RADIUS_SLACK_M = 0.01
+#: The hand beyond the forearm: this far along the axis (wrist to fingertips), within this radius.
+HAND_REACH_M = 0.19
+HAND_RADIUS_M = 0.05
+#: A region enters the picture when its pixels come within this many of the image's border.
+BORDER_PX = 2
+#: The trace follows pixels this far apart on the surface, in x and y (at the region's median depth).
+SAMPLE_M = 0.005
+#: Normals from the points this far to either side (a forearm's surface turns little over it; the
+#: sensor's noise, a few millimetres at 1-2 m, tilts them little).
+NORMAL_M = 0.01
+#: A region rests on the support plane when at least this many of its pixels come down to it (a line
+#: of contact, not a stray reading).
+CONTACT_PX = 3
+
+
+def limbs(
+    foreground: np.ndarray,
+    depth_m: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    contact: np.ndarray,
+) -> np.ndarray:
+    """The forearms (and the hands beyond them) among the regions of ``foreground`` that reach the
+    image border (see the module docstring).
+
+    Parameters
+    ----------
+    foreground : ndarray of bool, shape (H, W) -- pixels standing out of the background, with a
+        reading (depth steps included: a sleeve's cuff is a step between the sleeve and the wrist;
+        the few readings that mix two surfaces lie off the cylinder)
+    depth_m : ndarray, shape (H, W), metres, 0 = no reading
+    intrinsics : pinhole intrinsics of the image
+    contact : ndarray of bool, shape (H, W) -- the pixels on the support plane
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+    """
+    out = np.zeros(foreground.shape, bool)
+    border = np.zeros(foreground.shape, bool)
+    border[:BORDER_PX], border[-BORDER_PX:], border[:, :BORDER_PX], border[:, -BORDER_PX:] = (True,) * 4
+    n, labels, stats, box = label_box(foreground)
+    entering = np.flatnonzero(np.bincount(labels[border[box]], minlength=n)[1:]) + 1
+    # the fewest pixels a forearm's least stretch covers, at the farthest reading
+    least_px = (
+        FOREARM_MIN_M * 2 * FOREARM_RADIUS_M[0] * (intrinsics.fx / max(float(depth_m.max()), 1e-3)) ** 2
+    )
+    for k in entering[stats[entering, cv2.CC_STAT_AREA] >= least_px]:
+        region = region_mask(k, labels, stats, box, foreground.shape)
+        v, u = np.nonzero(region)
+        points = intrinsics.points(u, v, depth_m[v, u].astype(np.float64))
+        entry = border[v, u]
+        px_per_m = intrinsics.fx / float(np.median(points[:, 2]))
+        stride = max(int(SAMPLE_M * px_per_m), 1)
+        sample = (u % stride == 0) & (v % stride == 0)
+        normals = _normals(
+            region, depth_m, intrinsics, v[sample], u[sample], max(round(NORMAL_M * px_per_m), 1)
+        )
+        if not entry.any():
+            continue
+        limb = _trace(points[sample], normals, points[entry].mean(axis=0))
+        if limb is None:
+            continue
+        arm, hand = limb.split(points)
+        if np.count_nonzero(contact[v[arm], u[arm]]) >= CONTACT_PX:
+            continue
+        out[v[arm | hand], u[arm | hand]] = True
+    return out
+
+
+class _Limb(NamedTuple):
+    """A traced forearm: its axis (a point and a unit direction into the picture), its radius, how far
+    off it its points may lie (the surface's roughness and the sensor's noise), and where along the
+    axis it starts and ends (metres)."""
+
+    centre: np.ndarray
+    direction: np.ndarray
+    radius: float
+    slack: float
+    start: float
+    end: float
+
+    def split(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Which of ``points`` (N, 3) are the forearm, and which the hand beyond it: bool (N,) each."""
+        along = (points - self.centre) @ self.direction
+        across = np.linalg.norm(points - self.centre - along[:, None] * self.direction, axis=1)
+        arm = (along >= self.start) & (along <= self.end) & (across <= self.radius + self.slack)
+        hand = ~arm & (along > self.end - SLAB_M / 2) & (along <= self.end + HAND_REACH_M)
+        return arm, hand & (across <= HAND_RADIUS_M)
+
+
+def _normals(
+    region: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics, v: np.ndarray, u: np.ndarray, d: int
+) -> np.ndarray:
+    """The surface's unit normal at the pixels (``v``, ``u``) of ``region`` (bool (H, W)): the cross
+    product of the differences between the points ``d`` pixels to either side, across and down; NaN
+    where a neighbour is outside the region or the image. float (N, 3)."""
+    h, w = region.shape
+
+    def point(dv: int, du: int) -> np.ndarray:
+        vv, uu = np.clip(v + dv, 0, h - 1), np.clip(u + du, 0, w - 1)
+        z = np.where(region[vv, uu] & (vv == v + dv) & (uu == u + du), depth_m[vv, uu], np.nan)
+        return intrinsics.points(uu, vv, z.astype(np.float64))
+
+    normals = np.cross(point(0, d) - point(0, -d), point(d, 0) - point(-d, 0))
+    return normals / np.linalg.norm(normals, axis=1, keepdims=True)
+
+
+def _trace(points: np.ndarray, normals: np.ndarray, start: np.ndarray) -> _Limb | None:
+    """The forearm among ``points`` (N, 3), with surface ``normals`` (N, 3), that enters the picture
+    at ``start`` (3,), or None."""
+    taken = np.linalg.norm(points - start, axis=1) <= STUB_M
+    slack = None
+    while True:
+        fit = _cylinder(points[taken], normals[taken], start)
+        if fit is None:
+            return None
+        centre, direction, radius = fit
+        along = (points - centre) @ direction
+        across = np.linalg.norm(points - centre - along[:, None] * direction, axis=1)
+        if slack is None:  # the stub lies on the cylinder's surface, give or take the sensor's noise
+            scatter = 1.4826 * float(np.median(np.abs(across[taken] - radius)))
+            if scatter > RADIUS_SLACK_M:
+                return None
+            slack = max(RADIUS_SLACK_M, 3 * scatter)
+        end = float(along[taken].max())
+        slab = ~taken & (along > end - SLAB_M / 2) & (along <= end + SLAB_M) & (across <= NEAR_M)
+        inside = slab & (across <= radius + slack)
+        if not slab.any() or np.count_nonzero(inside) < INSIDE_SHARE * np.count_nonzero(slab):
+            break
+        taken |= inside
+    limb = _Limb(centre, direction, radius, slack, float(along[taken].min()), end)
+    long = end - float((start - centre) @ direction) >= FOREARM_MIN_M
+    return limb if long and FOREARM_RADIUS_M[0] <= radius <= FOREARM_RADIUS_M[1] else None
+
+
+def _cylinder(
+    points: np.ndarray, normals: np.ndarray, start: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """The cylinder through ``points`` (N, 3) with surface ``normals`` (N, 3): a point on its axis, the
+    axis's direction (unit, pointing away from ``start``) and its radius; None when the points are
+    too few. A cylinder's normals are all square to its axis: the axis is the direction in which
+    they vary least. Across it, a circle is fitted to the points (Kasa's algebraic fit): a cylinder
+    seen from one side shows an arc of it; a flat strip fits a circle far larger than a forearm."""
+    if len(points) < 10:
+        return None
+    mean = points.mean(axis=0)
+    spread, along = np.linalg.svd(points - mean, full_matrices=False)[1:]
+    if spread[0] >= ELONGATED * spread[1]:  # a long stretch: the axis runs along it
+        basis = along
+    else:
+        known = normals[np.isfinite(normals[:, 0])]
+        basis = np.linalg.eigh(known.T @ known)[1].T  # smallest first: the axis, then across it
+    direction = basis[0] if (mean - start) @ basis[0] >= 0 else -basis[0]
+    a, b = ((points - mean) @ basis[1:].T).T
+    (x, y, c), *_ = np.linalg.lstsq(
+        np.column_stack([2 * a, 2 * b, np.ones_like(a)]), a * a + b * b, rcond=None
+    )
+    radius = float(np.sqrt(max(c + x * x + y * y, 0.0)))
+    # a cylinder's cross-section is an arc that bulges off its chord by most of its radius; a flat
+    # strip's is a line, off which only the sensor's noise takes it
+    chord = np.linalg.svd(np.column_stack([a, b]), full_matrices=False)[2][1]
+    if np.subtract(*np.quantile(a * chord[0] + b * chord[1], [0.9, 0.1])) < RELIEF * radius:
+        return None
+    return mean + x * basis[1] + y * basis[2], direction, radius
