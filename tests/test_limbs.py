@@ -79,6 +79,16 @@ def test_a_forearm_resting_its_hand_on_a_box_is_found_and_the_box_kept():
     assert np.count_nonzero(found & box) <= 0.2 * np.count_nonzero(box)
 
 
+def test_two_forearms_on_one_box_are_each_found_where_it_enters():
+    """The box joins the two arms into one region, which enters the picture at two places."""
+    other = ((0.75, -0.25, 0.7), (0.02, 0.11, 0.8))  # the mirror image, from beyond the right edge
+    depth, shows = _render(_cylinder(*ARM, radius=0.04), _cylinder(*other, radius=0.04), _box(*BOX))
+    found = _limbs(depth, shows)
+    for arm in (shows == 0, shows == 1):
+        assert np.count_nonzero(found & arm) >= 0.9 * np.count_nonzero(arm)
+    assert np.count_nonzero(found & (shows == 2)) <= 0.3 * np.count_nonzero(shows == 2)
+
+
 def test_a_box_that_enters_the_picture_is_no_forearm():
     depth, shows = _render(_box((-1.0, -0.1, 0.7), (-0.1, 0.2, 1.0)))
     assert (shows == 0)[:, 0].any()

@@ -184,9 +184,10 @@ class HandParams(Params):
         True,
         help="Remove hands (skin colour, regions reaching the image border), the arms "
         "or sleeves that hold them (of any colour: entering from the border "
-        "above the table) and the configured gripper from the objects, and "
-        "prefer the object a hand holds; off = every region is an object "
-        "candidate.",
+        "above the table), forearms by their shape (a cylinder 3-12 cm across "
+        "entering the picture above the table, with the hand's reach beyond it) "
+        "and the configured gripper from the objects, and prefer the object a "
+        "hand holds; off = every region is an object candidate.",
     )
     hand_min_area_m2: float = param(
         0.003,

@@ -4,8 +4,8 @@ A forearm, bare or sleeved, gloved or a robot's, is a straight cylinder a few ce
 (:data:`FOREARM_RADIUS_M`) that enters the picture at its border and is held above the table. So,
 in each region standing out of the background that reaches the image border:
 
-1. the *stub*: its points within :data:`STUB_M` of where it enters (the middle of its pixels at the
-   border);
+1. the *stub*: its points within :data:`STUB_M` of where it enters (the middle of a run of its
+   pixels along the border at least a forearm wide; each run is tried);
 2. the *cylinder* through them: its axis runs along the direction their surface normals are all
    square to, pointing into the picture; across the axis, a circle fitted to the points gives the
    axis's place and the radius. A stretch of points elongated along one direction
@@ -38,7 +38,7 @@ import numpy as np
 
 from artclass_core import Intrinsics
 
-from .support import label_box, region_mask
+from .support import as_uint8, label_box, region_mask
 
 __all__ = ["limbs"]
 
@@ -115,22 +115,21 @@ def limbs(
         region = region_mask(k, labels, stats, box, foreground.shape)
         v, u = np.nonzero(region)
         points = intrinsics.points(u, v, depth_m[v, u].astype(np.float64))
-        entry = border[v, u]
         px_per_m = intrinsics.fx / float(np.median(points[:, 2]))
         stride = max(int(SAMPLE_M * px_per_m), 1)
         sample = (u % stride == 0) & (v % stride == 0)
         normals = _normals(
             region, depth_m, intrinsics, v[sample], u[sample], max(round(NORMAL_M * px_per_m), 1)
         )
-        if not entry.any():
-            continue
-        limb = _trace(points[sample], normals, points[entry].mean(axis=0))
-        if limb is None:
-            continue
-        arm, hand = limb.split(points)
-        if np.count_nonzero(contact[v[arm], u[arm]]) >= CONTACT_PX:
-            continue
-        out[v[arm | hand], u[arm | hand]] = True
+        # where the region enters: each run of its pixels along the border as wide as a forearm
+        runs, run = cv2.connectedComponentsWithStats(as_uint8(region & border), connectivity=8)[1:3]
+        for r in np.flatnonzero(run[1:, 2:4].max(axis=1) >= 2 * FOREARM_RADIUS_M[0] * px_per_m) + 1:
+            limb = _trace(points[sample], normals, points[runs[v, u] == r].mean(axis=0))
+            if limb is None:
+                continue
+            arm, hand = limb.split(points)
+            if np.count_nonzero(contact[v[arm], u[arm]]) < CONTACT_PX:
+                out[v[arm | hand], u[arm | hand]] = True
     return out
 
 
