@@ -107,6 +107,8 @@ def limbs(
     border[:BORDER_PX], border[-BORDER_PX:], border[:, :BORDER_PX], border[:, -BORDER_PX:] = (True,) * 4
     n, labels, stats, box = label_box(foreground)
     entering = np.flatnonzero(np.bincount(labels[border[box]], minlength=n)[1:]) + 1
+    # where the regions enter: the runs of their pixels along the border
+    runs, run = cv2.connectedComponentsWithStats(as_uint8(foreground & border), connectivity=8)[1:3]
     # the fewest pixels a forearm's least stretch covers, at the farthest reading
     least_px = (
         FOREARM_MIN_M * 2 * FOREARM_RADIUS_M[0] * (intrinsics.fx / max(float(depth_m.max()), 1e-3)) ** 2
@@ -114,19 +116,23 @@ def limbs(
     for k in entering[stats[entering, cv2.CC_STAT_AREA] >= least_px]:
         region = region_mask(k, labels, stats, box, foreground.shape)
         v, u = np.nonzero(region)
-        points = intrinsics.points(u, v, depth_m[v, u].astype(np.float64))
-        px_per_m = intrinsics.fx / float(np.median(points[:, 2]))
+        z = depth_m[v, u].astype(np.float64)
+        px_per_m = intrinsics.fx / float(np.median(z))
         stride = max(int(SAMPLE_M * px_per_m), 1)
         sample = (u % stride == 0) & (v % stride == 0)
+        traced = intrinsics.points(u[sample], v[sample], z[sample])
         normals = _normals(
             region, depth_m, intrinsics, v[sample], u[sample], max(round(NORMAL_M * px_per_m), 1)
         )
-        # where the region enters: each run of its pixels along the border as wide as a forearm
-        runs, run = cv2.connectedComponentsWithStats(as_uint8(region & border), connectivity=8)[1:3]
-        for r in np.flatnonzero(run[1:, 2:4].max(axis=1) >= 2 * FOREARM_RADIUS_M[0] * px_per_m) + 1:
-            limb = _trace(points[sample], normals, points[runs[v, u] == r].mean(axis=0))
+        entries, points = runs[v, u], None
+        for r in np.unique(entries[entries > 0]):  # each as wide as a forearm
+            if run[r, 2:4].max() < 2 * FOREARM_RADIUS_M[0] * px_per_m:
+                continue
+            at = entries == r
+            limb = _trace(traced, normals, intrinsics.points(u[at], v[at], z[at]).mean(axis=0))
             if limb is None:
                 continue
+            points = intrinsics.points(u, v, z) if points is None else points
             arm, hand = limb.split(points)
             if np.count_nonzero(contact[v[arm], u[arm]]) < CONTACT_PX:
                 out[v[arm | hand], u[arm | hand]] = True
