@@ -210,9 +210,10 @@ def _cylinder(
 ) -> tuple[np.ndarray, np.ndarray, float] | None:
     """The cylinder through ``points`` (N, 3) with surface ``normals`` (N, 3): a point on its axis, the
     axis's direction (unit, pointing away from ``start``) and its radius; None when the points are
-    too few. A cylinder's normals are all square to its axis: the axis is the direction in which
-    they vary least. Across it, a circle is fitted to the points (Kasa's algebraic fit): a cylinder
-    seen from one side shows an arc of it; a flat strip fits a circle far larger than a forearm."""
+    too few, or lie on no cylinder. A cylinder's normals are all square to its axis: the axis is the
+    direction in which they vary least (points spread :data:`ELONGATED` times farther along one
+    direction than across it give the axis by their length instead). Across it, a circle is fitted
+    to the points (Kasa's algebraic fit); the arc it shows must bulge off its chord (:data:`RELIEF`)."""
     if len(points) < 10:
         return None
     mean = points.mean(axis=0)
