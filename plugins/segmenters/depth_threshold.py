@@ -39,12 +39,14 @@ from ._compiled import colour_distance_kernel, share_mean_kernel
 from .hands import HOLD_LINE_M, HandParams, find_hands, held, hidden, pixels_across, widen
 from .selection import InstanceSegmenter, SelectionParams
 from .support import (
+    BORDER_PX,
     DEPTH_STEP_M,
     BackgroundParams,
     Plane,
     above_planes,
     as_uint8,
     background_mask,
+    border_band,
     clean_depth,
     fit_planes,
     grown_box,
@@ -69,11 +71,6 @@ __all__ = [
     "thin_objects",
     "colour_patches",
 ]
-
-
-#: An instance within this many pixels of the picture's border reaches it; an outline pixel within
-#: this many of the hand runs beside it.
-BORDER_PX = 2
 
 
 @dataclass(frozen=True)
@@ -644,8 +641,7 @@ def without_arm(instances: list[np.ndarray], hand: np.ndarray, *, share: float) 
     ``share`` of its length is arm. A held object touches the hand along a part of its outline."""
     if not share or not hand.any():
         return instances
-    border = np.zeros_like(hand)
-    border[:BORDER_PX], border[-BORDER_PX:], border[:, :BORDER_PX], border[:, -BORDER_PX:] = (True,) * 4
+    border = border_band(hand.shape)
     beside = widen(hand, BORDER_PX)
     out = []
     for mask in instances:

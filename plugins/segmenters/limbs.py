@@ -38,7 +38,7 @@ import numpy as np
 
 from artclass_core import Intrinsics
 
-from .support import as_uint8, label_box, region_mask
+from .support import as_uint8, border_band, label_box, region_mask
 
 __all__ = ["limbs"]
 
@@ -67,8 +67,6 @@ RADIUS_SLACK_M = 0.01
 #: The hand beyond the forearm: this far along the axis (wrist to fingertips), within this radius.
 HAND_REACH_M = 0.19
 HAND_RADIUS_M = 0.05
-#: A region enters the picture when its pixels come within this many of the image's border.
-BORDER_PX = 2
 #: The trace follows pixels this far apart on the surface, in x and y (at the region's median depth).
 SAMPLE_M = 0.005
 #: Normals from the points this far to either side (a forearm's surface turns little over it; the
@@ -103,8 +101,7 @@ def limbs(
     ndarray of bool, shape (H, W)
     """
     out = np.zeros(foreground.shape, bool)
-    border = np.zeros(foreground.shape, bool)
-    border[:BORDER_PX], border[-BORDER_PX:], border[:, :BORDER_PX], border[:, -BORDER_PX:] = (True,) * 4
+    border = border_band(foreground.shape)
     n, labels, stats, box = label_box(foreground)
     entering = np.flatnonzero(np.bincount(labels[border[box]], minlength=n)[1:]) + 1
     # where the regions enter: the runs of their pixels along the border

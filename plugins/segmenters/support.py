@@ -143,6 +143,17 @@ def as_uint8(mask: np.ndarray) -> np.ndarray:
     return m.view(np.uint8) if m.dtype == bool else m.astype(np.uint8)
 
 
+#: A region within this many pixels of the picture's border reaches it.
+BORDER_PX = 2
+
+
+def border_band(shape: tuple[int, int]) -> np.ndarray:
+    """The pixels within :data:`BORDER_PX` of the picture's border: bool ``shape``."""
+    band = np.zeros(shape, bool)
+    band[:BORDER_PX], band[-BORDER_PX:], band[:, :BORDER_PX], band[:, -BORDER_PX:] = (True,) * 4
+    return band
+
+
 def rows_for_opencv(image: np.ndarray) -> np.ndarray:
     """An 8-bit image (H, W[, C]) as OpenCV takes it without a copy: as it is when each of its rows
     is contiguous (a crop of a larger image, whose rows OpenCV steps over), else a contiguous copy."""
