@@ -89,6 +89,35 @@ def test_two_forearms_on_one_box_are_each_found_where_it_enters():
     assert np.count_nonzero(found & (shows == 2)) <= 0.3 * np.count_nonzero(shows == 2)
 
 
+def _unread_sleeve(share: float, start=ARM[0]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The arm from ``start``, its first ``share`` a sleeve without readings (black under time of
+    flight, or nearer than the sensor's range), resting its hand on the box: depth, which mesh each
+    pixel shows (the sleeve: -1), and the forearm's pixels."""
+    start, end = np.asarray(start), np.asarray(ARM[1])
+    cuff = start + share * (end - start)
+    wall = _box((-3, -3, 2.5), (3, 3, 2.6))  # every pixel has a reading but the sleeve's
+    depth, shows = _render(
+        _cylinder(start, cuff, radius=0.045), _cylinder(cuff, end, radius=0.04), _box(*BOX), wall
+    )
+    depth[shows == 0] = 0
+    shows[(shows == 0) | (shows == 3)] = -1
+    return depth, shows, shows == 1
+
+
+def test_a_forearm_comes_into_view_where_the_readings_of_its_sleeve_start():
+    depth, shows, arm = _unread_sleeve(0.6)
+    assert not arm[:, :20].any()  # the readings start well inside the picture
+    found = _limbs(depth, shows)
+    assert np.count_nonzero(found & arm) >= 0.9 * np.count_nonzero(arm)
+    assert np.count_nonzero(found & (shows == 2)) <= 0.2 * np.count_nonzero(shows == 2)
+
+
+def test_a_gap_in_the_readings_that_does_not_reach_the_border_is_no_way_in():
+    depth, shows, arm = _unread_sleeve(0.3, start=(-0.35, -0.1, 0.7))
+    assert not (depth[:, :20] == 0).any() and (depth == 0).sum() > 2000
+    assert not _limbs(depth, shows).any()
+
+
 def test_a_box_that_enters_the_picture_is_no_forearm():
     depth, shows = _render(_box((-1.0, -0.1, 0.7), (-0.1, 0.2, 1.0)))
     assert (shows == 0)[:, 0].any()

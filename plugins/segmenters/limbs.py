@@ -1,11 +1,13 @@
 """Limbs: the forearm that enters the picture, found by its shape alone, whatever its colour.
 
 A forearm, bare or sleeved, gloved or a robot's, is a straight cylinder a few centimetres across
-(:data:`FOREARM_RADIUS_M`) that enters the picture at its border and is held above the table. So,
-in each region standing out of the background that reaches the image border:
+(:data:`FOREARM_RADIUS_M`) that enters the picture at its border and is held above the table. Its
+readings may start farther in: a sleeve nearer than the sensor's range, or black under time of
+flight, leaves a gap in them that reaches the border. So, in each region standing out of the
+background that reaches the image border, or such a gap:
 
 1. the *stub*: its points within :data:`STUB_M` of where it enters (the middle of a run of its
-   pixels along the border at least a forearm wide; each run is tried);
+   pixels along the border, or the gap, at least a forearm wide; each run is tried);
 2. the *cylinder* through them: its axis runs along the direction their surface normals are all
    square to, pointing into the picture; across the axis, a circle fitted to the points gives the
    axis's place and the radius. A stretch of points elongated along one direction
@@ -101,11 +103,13 @@ def limbs(
     ndarray of bool, shape (H, W)
     """
     out = np.zeros(foreground.shape, bool)
-    border = border_band(foreground.shape)
     n, labels, stats, box = label_box(foreground)
-    entering = np.flatnonzero(np.bincount(labels[border[box]], minlength=n)[1:]) + 1
-    # where the regions enter: the runs of their pixels along the border
-    runs, run = cv2.connectedComponentsWithStats(as_uint8(foreground & border), connectivity=8)[1:3]
+    if n < 2:
+        return out
+    runs, across, widest = _ways_in(
+        foreground, depth_m, intrinsics.fx / float(np.median(depth_m[foreground]))
+    )
+    entering = np.flatnonzero(np.bincount(labels[runs[box] > 0], minlength=n)[1:]) + 1
     # the fewest pixels a forearm's least stretch covers, at the farthest reading
     least_px = (
         FOREARM_MIN_M * 2 * FOREARM_RADIUS_M[0] * (intrinsics.fx / max(float(depth_m.max()), 1e-3)) ** 2
@@ -123,7 +127,7 @@ def limbs(
         )
         entries, points = runs[v, u], None
         for r in np.unique(entries[entries > 0]):  # each as wide as a forearm
-            if run[r, 2:4].max() < 2 * FOREARM_RADIUS_M[0] * px_per_m:
+            if not 2 * FOREARM_RADIUS_M[0] <= across[r] / px_per_m <= widest[r]:
                 continue
             at = entries == r
             limb = _trace(traced, normals, intrinsics.points(u[at], v[at], z[at]).mean(axis=0))
@@ -134,6 +138,38 @@ def limbs(
             if np.count_nonzero(contact[v[arm], u[arm]]) < CONTACT_PX:
                 out[v[arm | hand], u[arm | hand]] = True
     return out
+
+
+def _ways_in(
+    foreground: np.ndarray, depth_m: np.ndarray, px_per_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the regions of ``foreground`` come into view: the runs of their pixels along the picture's
+    border, and along the gaps in the readings that reach it and are a forearm across
+    (:data:`FOREARM_RADIUS_M`, at ``px_per_m``). An arm nearer than the sensor's range, or a black
+    sleeve under time of flight, comes into view at its cuff, where its readings start; the readings
+    along a gap are ragged, so a run there is the region's pixels within a forearm's radius of it.
+
+    Returns the runs, each labelled apart (int32 (H, W), 0 = none); each run's width across, pixels
+    (its bounding box's larger side); and the widest each may be, metres: a cuff at most twice a
+    forearm across, while a forearm seen at a slant may cross the picture's border anywhere."""
+    border = border_band(depth_m.shape)
+    gap = as_uint8(depth_m <= 0)
+    square = np.ones((2 * round(FOREARM_RADIUS_M[0] * px_per_m) + 1,) * 2, np.uint8)
+    n, labels, _, box = label_box(cv2.erode(gap, square) > 0)
+    reaching = np.zeros(n, bool)
+    reaching[labels[border[box]]] = True
+    reaching[0] = False
+    cuffs = np.zeros(gap.shape, np.uint8)
+    if reaching.any():
+        cuffs[box] = reaching[labels]
+        cuffs = cv2.dilate(cuffs, np.ones((2 * len(square) - 1,) * 2, np.uint8))
+    runs, across, widest = np.zeros(depth_m.shape, np.int32), [0], [0.0]
+    for band, most in ((border, np.inf), ((cuffs > 0) & ~border, 4 * FOREARM_RADIUS_M[1])):
+        count, found, stats, box = label_box(foreground & band)
+        runs[box][found > 0] = found[found > 0] + len(across) - 1
+        across += list(stats[1:, 2:4].max(axis=1))
+        widest += [most] * (count - 1)
+    return runs, np.array(across), np.array(widest)
 
 
 class _Limb(NamedTuple):
