@@ -154,15 +154,16 @@ def _ways_in(
     forearm across, while a forearm seen at a slant may cross the picture's border anywhere."""
     border = border_band(depth_m.shape)
     gap = as_uint8(depth_m <= 0)
-    square = np.ones((2 * round(FOREARM_RADIUS_M[0] * px_per_m) + 1,) * 2, np.uint8)
-    n, labels, _, box = label_box(cv2.erode(gap, square) > 0)
+    side = 2 * round(FOREARM_RADIUS_M[0] * px_per_m) + 1  # the slimmest forearm's diameter
+    n, labels, _, box = label_box(cv2.erode(gap, np.ones((side, side), np.uint8)) > 0)
     reaching = np.zeros(n, bool)
     reaching[labels[border[box]]] = True
     reaching[0] = False
     cuffs = np.zeros(gap.shape, np.uint8)
     if reaching.any():
         cuffs[box] = reaching[labels]
-        cuffs = cv2.dilate(cuffs, np.ones((2 * len(square) - 1,) * 2, np.uint8))
+        # the gap's own outline again, and a forearm's radius beyond it
+        cuffs = cv2.dilate(cuffs, np.ones((2 * side - 1, 2 * side - 1), np.uint8))
     runs, across, widest = np.zeros(depth_m.shape, np.int32), [0], [0.0]
     for band, most in ((border, np.inf), ((cuffs > 0) & ~border, 4 * FOREARM_RADIUS_M[1])):
         count, found, stats, box = label_box(foreground & band)
