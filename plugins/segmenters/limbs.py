@@ -40,6 +40,7 @@ import numpy as np
 
 from artclass_core import Intrinsics
 
+from ._compiled import border_reach
 from .support import as_uint8, border_band, label_box, region_mask
 
 __all__ = ["limbs"]
@@ -155,17 +156,13 @@ def _ways_in(
     border = border_band(depth_m.shape)
     gap = as_uint8(depth_m <= 0)
     side = 2 * round(FOREARM_RADIUS_M[0] * px_per_m) + 1  # the slimmest forearm's diameter
-    n, labels, _, box = label_box(cv2.erode(gap, np.ones((side, side), np.uint8)) > 0)
-    reaching = np.zeros(n, bool)
-    reaching[labels[border[box]]] = True
-    reaching[0] = False
-    cuffs = np.zeros(gap.shape, np.uint8)
-    if reaching.any():
-        cuffs[box] = reaching[labels]
+    cuffs = np.zeros(gap.shape, bool)
+    border_reach(cv2.erode(gap, np.ones((side, side), np.uint8)) > 0, cuffs)
+    if cuffs.any():
         # the gap's own outline again, and a forearm's radius beyond it
-        cuffs = cv2.dilate(cuffs, np.ones((2 * side - 1, 2 * side - 1), np.uint8))
+        cuffs = cv2.dilate(as_uint8(cuffs), np.ones((2 * side - 1, 2 * side - 1), np.uint8)) > 0
     runs, across, widest = np.zeros(depth_m.shape, np.int32), [0], [0.0]
-    for band, most in ((border, np.inf), ((cuffs > 0) & ~border, 4 * FOREARM_RADIUS_M[1])):
+    for band, most in ((border, np.inf), (cuffs & ~border, 4 * FOREARM_RADIUS_M[1])):
         count, found, stats, box = label_box(foreground & band)
         runs[box][found > 0] = found[found > 0] + len(across) - 1
         across += list(stats[1:, 2:4].max(axis=1))
