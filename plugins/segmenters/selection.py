@@ -28,6 +28,10 @@ move), and when the hand holds some of the moving instances, step 3 chooses amon
 arm that moves with the object it carries is not chosen over it); when nothing moves and the hand
 holds some instances, step 4 chooses among those only (the object in the hand before it moves).
 
+Before the choice, an instance that holds a body which the frames within reach show apart from it,
+staying where it is while the rest leaves (a mug lifted off its stand), is split in two
+(:mod:`.apart`): two bodies that touch and then separate are two objects.
+
 "The previous choice" is the last choice made by rule 3 or by the fallback: a choice kept by rule 4
 does not replace it, so when a still object's segment merges with a neighbour's for a frame (two
 boxes touching in the image) the choice does not drift to the neighbour afterwards.
@@ -62,6 +66,7 @@ import numpy as np
 from artclass_core import Frame, Params, Segmenter, Sequence, param
 
 from ._compiled import steady_kernel
+from .apart import REACH_FRAMES, BodiesApart, reach
 from .cache import DiskMaskCache, PackedMask
 from .hands import HOLD_LINE_M, HandParams, held, widen
 from .support import as_numpy_compares, clean_depth
@@ -358,6 +363,7 @@ class _SequenceState:
     chosen: list[PackedMask] = field(default_factory=list)  # frames 0 .. len - 1, in order
     choices: list[Choice | None] = field(default_factory=list)  # None: the mask came from the disk cache
     reference: PackedMask | None = None  # the choice that "previous" refers to (see _append)
+    apart: BodiesApart | None = None  # the bodies that touch and separate, made on first use
 
 
 class InstanceSegmenter(Segmenter):
@@ -449,8 +455,9 @@ class InstanceSegmenter(Segmenter):
         chosen mask may be on the disk)."""
         if self._disk is not None:
             return
-        for i in (frame.index, self._neighbour(frame.index, len(sequence))):
-            if 0 <= i < len(sequence):
+        n = len(sequence)
+        for i in (frame.index, self._neighbour(frame.index, n), *self._reach(sequence, frame.index)):
+            if 0 <= i < n:
                 self._instances(sequence, i, frame)
 
     def _neighbour(self, j: int, n: int) -> int:
@@ -482,6 +489,7 @@ class InstanceSegmenter(Segmenter):
         nb = self._neighbour(j, n)
         mine = [m.unpack() for m in self._instances(sequence, j, frame)]
         depth = (frame if frame is not None else sequence[j]).depth_m
+        mine = self._apart(state, sequence, j, mine, depth)
         if 0 <= nb < n and nb != j:
             others = [m.unpack() for m in self._instances(sequence, nb)]
             other_depth = sequence[nb].depth_m
@@ -514,6 +522,39 @@ class InstanceSegmenter(Segmenter):
         if self._disk is not None:
             self._disk.store(sequence.path, sequence.name, name or sequence[j].name, packed.unpack())
         self._append(state, packed, choice)
+
+    def _apart(
+        self,
+        state: _SequenceState,
+        sequence: Sequence,
+        j: int,
+        instances: list[np.ndarray],
+        depth_m: np.ndarray,
+    ) -> list[np.ndarray]:
+        """Frame ``j``'s instances with the bodies cut out that separate from them in the frames within
+        reach (:mod:`.apart`: a mug lifted off its stand and the stand are two instances while they
+        touch too)."""
+        if not instances:
+            return instances
+        p = self.params
+        if state.apart is None:
+            state.apart = BodiesApart(
+                sequence.intrinsics, stride=p.neighbour_frames, change_m=p.change_m, min_change=p.min_change
+            )
+        apart, others = state.apart, self._reach(sequence, j)
+        for u in (j, *others):
+            if u not in apart.depths:
+                frame = sequence[u]
+                found = instances if u == j else [m.unpack() for m in self._instances(sequence, u)]
+                apart.add(u, found, frame.depth_m, self.hand_mask(frame, sequence=sequence))
+        apart.forget_before(j)
+        return apart.split(j, instances, depth_m, others)
+
+    def _reach(self, sequence: Sequence, j: int) -> list[int]:
+        """The frames :meth:`_apart` compares frame ``j`` with; of a live stream, none later than the
+        neighbouring frame, which the choice waits for."""
+        k = self.params.neighbour_frames
+        return reach(j, len(sequence), k, ahead=k if sequence.meta.get("live") else REACH_FRAMES)
 
     def _steady_pixels(self, sequence: Sequence, i: int, depth_m: np.ndarray) -> np.ndarray:
         """:func:`steady_pixels` of frame ``i``, kept for the last few frames: each frame is compared

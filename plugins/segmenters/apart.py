@@ -1,0 +1,223 @@
+"""Two bodies that touch and then separate are two bodies, in every frame.
+
+A mug on its stand, a kettle on its base: while they touch, a segmenter sees one instance. Once the
+hand lifts the mug, it sees two, and the stand stays where it was. The stand is no part moving about
+a joint (a joint keeps its parts in contact), yet a pair of frames that holds it in the mug's mask
+shows two motions. So a body that a frame within reach shows as an instance of its own is cut out
+of an instance of this frame that holds most of it, when:
+
+- it stays where it is over the frames within reach: in none of them do more than ``min_change`` of
+  its pixels (the share of changed pixels that makes an instance move in the choice) show a farther
+  depth, as they would once it left. What comes in front of it, the hand or the mug lifted above it,
+  hides it but does not move it;
+- the rest of the instance leaves its place between this frame and that one: its pixels that show
+  a farther depth there are more than ``min_change`` of the instance's;
+- that frame shows the rest apart: a body at least half its size that moves, farther than a
+  joint's contact (``CONTACT_M``, the video's test of separated parts) from it in 3-D, with what
+  lies between them in the picture seen: where that is mostly a hand or has no readings, the two
+  may meet out of sight. A laptop whose lid lies closed is one instance that stays, with no body
+  beside it; a monitor whose neck the picture misses has its screen within a contact of its foot;
+  a dark lid seen edge-on shows its far edge beyond a face without readings.
+
+A depth change counts when it exceeds ``change_m`` and four robust sigmas of the change over all the
+pixels both frames read (most of a scene stays), on the pixels away from a depth edge in both
+frames: an edge's readings flicker between its two sides when anything moves, the camera too. Each
+frame is compared with the frames a multiple of ``stride`` from the first within
+:data:`REACH_FRAMES`, at half the resolution.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from artclass_core import Intrinsics
+from artclass_core.video import CONTACT_M
+
+from .hands import widen
+from .support import clean_depth
+
+__all__ = ["REACH_FRAMES", "BodiesApart", "reach"]
+
+#: How far (frames each way) a body is sought apart: an object is carried clear of what it stood on
+#: within a second at 30 frames a second.
+REACH_FRAMES = 30
+#: A body lies in an instance when this share of its pixels does.
+INSIDE_SHARE = 0.5
+#: Where most of what lies between two bodies in the picture (within a contact of both) has no
+#: reading or is a hand, where they meet may be hidden.
+HIDDEN_SHARE = 0.5
+#: The tests read every second pixel each way.
+_STEP = 2
+
+
+def reach(j: int, n: int, stride: int, *, ahead: int = REACH_FRAMES) -> list[int]:
+    """The frames that frame ``j`` of ``n`` is compared with: the multiples of ``stride`` from
+    :data:`REACH_FRAMES` before it to ``ahead`` after it (a live stream is not waited for longer than
+    the choice waits)."""
+    first = -(-max(j - REACH_FRAMES, 0) // stride) * stride
+    return [u for u in range(first, min(j + ahead, n - 1) + 1, stride) if u != j]
+
+
+class BodiesApart:
+    """The cuts of one sequence (see the module docstring). Frames are added as their instances are
+    known, and forgotten once out of reach."""
+
+    def __init__(self, intrinsics: Intrinsics, *, stride: int, change_m: float, min_change: float):
+        self.intrinsics, self.stride, self.change_m, self.min_change = (
+            intrinsics,
+            stride,
+            change_m,
+            min_change,
+        )
+        self.depths: dict[int, np.ndarray] = {}  # half-resolution depth of each frame
+        self.spans: dict[int, np.ndarray] = {}  # the depth its pixels' 3x3 neighbourhoods span
+        self.bodies: dict[int, list[np.ndarray]] = {}  # half-resolution instances of each frame
+        self.boxes: dict[int, list[tuple[int, int, int, int]]] = {}  # their bounding boxes (x, y, w, h)
+        self.rims: dict[int, list[np.ndarray]] = {}  # the 3-D points of their outlines (full resolution)
+        self.unseen: dict[int, np.ndarray] = {}  # half-resolution pixels with no reading, or a hand's
+        self._taus: dict[tuple[int, int], float] = {}
+        self._left: dict[tuple[int, int, int], bool] = {}  # (frame, instance, other frame): it left
+        self._apart: dict[tuple[int, int, int], bool] = {}  # (frame, instance, instance): apart in 3-D
+
+    def add(self, u: int, instances: list[np.ndarray], depth_m: np.ndarray, hand: np.ndarray | None) -> None:
+        """Frame ``u``: its instances, depth and hand pixels (None: not sought)."""
+        if u not in self.depths:
+            depth = clean_depth(depth_m)
+            self.depths[u] = depth[::_STEP, ::_STEP]
+            # max - min over 3x3; a missing reading is 0, so every pixel next to one spans much
+            span = cv2.morphologyEx(depth, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8))
+            self.spans[u] = span[::_STEP, ::_STEP]
+            self.bodies[u] = [m[::_STEP, ::_STEP] for m in instances]
+            self.boxes[u] = [cv2.boundingRect(m.view(np.uint8)) for m in self.bodies[u]]
+            self.rims[u] = [self._rim_points(m, depth) for m in instances]
+            unseen = depth <= 0 if hand is None else (depth <= 0) | hand
+            self.unseen[u] = unseen[::_STEP, ::_STEP]
+
+    def forget_before(self, j: int) -> None:
+        """Forget the frames out of reach of frame ``j`` and those before it."""
+        old = {u for u in self.depths if u < j - REACH_FRAMES}
+        for u in old:
+            del self.depths[u], self.spans[u], self.bodies[u], self.boxes[u], self.rims[u], self.unseen[u]
+        self._taus = {k: t for k, t in self._taus.items() if not old & set(k)}
+        self._left = {k: t for k, t in self._left.items() if k[0] not in old and k[2] not in old}
+        self._apart = {k: t for k, t in self._apart.items() if k[0] not in old}
+
+    def split(
+        self, j: int, instances: list[np.ndarray], depth_m: np.ndarray, others: list[int]
+    ) -> list[np.ndarray]:
+        """``instances`` of frame ``j`` (added) with the bodies cut out that the frames ``others``
+        (added) show apart from them, each cut an instance of its own after them; the same list when
+        nothing is cut."""
+        out, cuts = list(instances), []
+        frames = others + [j]
+        for k, mine in enumerate(self.bodies[j]):
+            for u in others:
+                if not self._leaves(mine, j, u, box=self.boxes[j][k]):
+                    continue
+                for b, body in enumerate(self.bodies[u]):
+                    if self._separates(mine, j, k, u, b, frames):
+                        cut = self._cut(body & mine, j, u, depth_m) & out[k]
+                        if cut.any():
+                            out[k] = out[k] & ~cut
+                            cuts.append(cut)
+        return [m for m in out if m.any()] + cuts if cuts else instances
+
+    def _separates(self, mine: np.ndarray, j: int, k: int, u: int, b: int, frames: list[int]) -> bool:
+        """Whether body ``b`` of frame ``u`` is a body that instance ``k`` of frame ``j`` (``mine``)
+        holds and separates from (the module docstring's three tests)."""
+        body, bodies = self.bodies[u][b], self.bodies[u]
+        if (
+            not _overlap(self.boxes[j][k], self.boxes[u][b])
+            or any(self._left_by(u, b, v) for v in frames if v != u)
+            or np.count_nonzero(body & mine) < INSIDE_SHARE * np.count_nonzero(body)
+        ):
+            return False
+        rest = mine & ~body
+        if not self._leaves(rest, j, u, box=self.boxes[j][k], of=mine):
+            return False
+        least = INSIDE_SHARE * np.count_nonzero(rest)  # the rest, seen apart
+        return any(
+            np.count_nonzero(bodies[r]) >= least
+            and self._apart_from(u, b, r)
+            and any(self._left_by(u, r, v) for v in frames if v != u)
+            for r in range(len(bodies))
+            if r != b
+        )
+
+    # -- internals --------------------------------------------------------------------------------
+    def _tau(self, u: int, v: int) -> float:
+        """The depth change that counts between frames ``u`` and ``v``."""
+        key = (min(u, v), max(u, v))
+        if key not in self._taus:
+            a, b = self.depths[u][::4, ::4], self.depths[v][::4, ::4]  # plenty for a median
+            change = np.abs(a - b)[(a > 0) & (b > 0)]
+            sigma = 1.4826 * float(np.median(change)) if change.size else 0.0
+            self._taus[key] = max(self.change_m, 4.0 * sigma)
+        return self._taus[key]
+
+    def _leaves(self, mask: np.ndarray, u: int, v: int, *, box: tuple, of: np.ndarray | None = None) -> bool:
+        """Whether ``mask``'s pixels (half resolution, frame ``u``, within ``box``: x, y, w, h) that
+        show a farther depth in frame ``v`` (what was there left) are more than ``min_change`` of
+        those of ``of`` (default ``mask``) away from a depth edge in both frames: whose 3x3
+        neighbourhood spans no more than the change that counts (an edge's readings flicker between
+        its two sides when anything moves, the camera too)."""
+        x, y, w, h = box
+        crop = np.s_[y : y + h, x : x + w]
+        a, b, tau = self.depths[u][crop], self.depths[v][crop], self._tau(u, v)
+        read = (self.spans[u][crop] <= tau) & (self.spans[v][crop] <= tau)
+        left = np.count_nonzero(mask[crop] & read & (b > a + tau))
+        whole = mask if of is None else of
+        return left > self.min_change * np.count_nonzero(whole[crop] & read)
+
+    def _left_by(self, u: int, b: int, v: int) -> bool:
+        """Whether body ``b`` of frame ``u`` left its place by frame ``v``."""
+        key = (u, b, v)
+        if key not in self._left:
+            self._left[key] = self._leaves(self.bodies[u][b], u, v, box=self.boxes[u][b])
+        return self._left[key]
+
+    def _apart_from(self, u: int, b: int, r: int) -> bool:
+        """Whether bodies ``b`` and ``r`` of frame ``u`` are farther than :data:`CONTACT_M` apart in
+        3-D (their outlines' points), and the picture shows what lies between them: two bodies, not
+        two sides of a part whose joint the hand, or a surface without readings, hides."""
+        key = (u, b, r)
+        if key not in self._apart:
+            rims = [self.rims[u][k] for k in (b, r)]
+            apart = (
+                all(len(p) for p in rims)
+                and not np.isfinite(cKDTree(rims[0]).query(rims[1], distance_upper_bound=CONTACT_M)[0]).any()
+            )
+            if apart:
+                # a contact's width in half-resolution pixels, at the outlines' median depth
+                z = float(np.median(np.concatenate([p[:, 2] for p in rims])))
+                disc = cv2.getStructuringElement(
+                    cv2.MORPH_ELLIPSE, (2 * int(CONTACT_M * self.intrinsics.fx / z / _STEP) + 1,) * 2
+                )
+                near = [cv2.dilate(self.bodies[u][k].view(np.uint8), disc) > 0 for k in (b, r)]
+                between = near[0] & near[1] & ~self.bodies[u][b] & ~self.bodies[u][r]
+                hidden = np.count_nonzero(between & self.unseen[u])
+                apart = hidden <= HIDDEN_SHARE * np.count_nonzero(between)
+            self._apart[key] = bool(apart)
+        return self._apart[key]
+
+    def _rim_points(self, mask: np.ndarray, depth_m: np.ndarray) -> np.ndarray:
+        """The 3-D points (N, 3) of the outline of ``mask`` (bool (H, W)) where it has a reading."""
+        rim = mask & ~(cv2.erode(mask.view(np.uint8), np.ones((3, 3), np.uint8)) > 0) & (depth_m > 0)
+        v, x = np.nonzero(rim)
+        return self.intrinsics.points(x, v, depth_m[v, x].astype(np.float64))
+
+    def _cut(self, inside: np.ndarray, j: int, u: int, depth_m: np.ndarray) -> np.ndarray:
+        """The full-resolution pixels of frame ``j`` where the body (``inside``, half resolution) shows
+        itself at the depth it has in frame ``u``, and a pixel around them."""
+        a, b = self.depths[j], self.depths[u]
+        same = inside & (a > 0) & (np.abs(a - b) <= self._tau(j, u))
+        h, w = depth_m.shape
+        full = cv2.resize(same.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+        return widen(full, 1)
+
+
+def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    """Whether two (x, y, w, h) boxes share a pixel."""
+    return a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]
