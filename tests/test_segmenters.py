@@ -33,7 +33,7 @@ from artclass_core import (
     open_sequences,
 )
 from artclass_plugins.segmenters._compiled import colour_distance_kernel, share_mean_kernel
-from artclass_plugins.segmenters.apart import BodiesApart
+from artclass_plugins.segmenters.apart import BodiesApart, frame_view
 from artclass_plugins.segmenters.cache import PackedMask, params_hash
 from artclass_plugins.segmenters.depth_threshold import (
     DepthThresholdParams,
@@ -845,7 +845,7 @@ def test_bodies_are_apart_only_where_the_picture_shows_what_lies_between(between
     near[40:60, 60:100], far[62:80, 60:100] = True, True
     depth[near], depth[far], depth[60:62, 60:100] = 0.75, 0.85, between_m
     bodies = BodiesApart(INTR, stride=3, change_m=0.01, min_change=0.1)
-    bodies.add(0, [near, far], depth, None)
+    bodies.add(0, frame_view([near, far], depth, None, INTR))
     assert bodies._apart_from(0, 0, 1) is apart
 
 

@@ -28,6 +28,8 @@ frame is compared with the frames a multiple of ``stride`` from the first within
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
@@ -36,9 +38,9 @@ from artclass_core import Intrinsics
 from artclass_core.video import CONTACT_M
 
 from .hands import widen
-from .support import clean_depth
+from .support import clean_depth, grown_box
 
-__all__ = ["REACH_FRAMES", "BodiesApart", "reach"]
+__all__ = ["REACH_FRAMES", "BodiesApart", "FrameView", "frame_view", "reach"]
 
 #: How far (frames each way) a body is sought apart: an object is carried clear of what it stood on
 #: within a second at 30 frames a second.
@@ -60,6 +62,36 @@ def reach(j: int, n: int, stride: int, *, ahead: int = REACH_FRAMES) -> list[int
     return [u for u in range(first, min(j + ahead, n - 1) + 1, stride) if u != j]
 
 
+class FrameView(NamedTuple):
+    """What the tests read of a frame, at half the resolution but for the outlines."""
+
+    depth: np.ndarray  # depth, metres, 0 = no reading
+    span: np.ndarray  # the depth each pixel's 3x3 neighbourhood spans (much next to no reading)
+    bodies: list[np.ndarray]  # the instances
+    boxes: list[tuple[int, int, int, int]]  # their bounding boxes (x, y, w, h)
+    rims: list[np.ndarray]  # the 3-D points (N, 3) of their outlines, at full resolution
+    unseen: np.ndarray  # the pixels with no reading, or a hand's
+
+
+def frame_view(
+    instances: list[np.ndarray], depth_m: np.ndarray, hand: np.ndarray | None, intrinsics: Intrinsics
+) -> FrameView:
+    """The :class:`FrameView` of a frame's instances (bool (H, W) each), depth and hand pixels (None:
+    not sought)."""
+    depth = clean_depth(depth_m)
+    span = cv2.morphologyEx(depth, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8))  # max - min over 3x3
+    unseen = depth <= 0 if hand is None else (depth <= 0) | hand
+    bodies = [m[::_STEP, ::_STEP] for m in instances]
+    return FrameView(
+        depth[::_STEP, ::_STEP],
+        span[::_STEP, ::_STEP],
+        bodies,
+        [cv2.boundingRect(m.view(np.uint8)) for m in bodies],
+        [_rim_points(m, depth, intrinsics) for m in instances],
+        unseen[::_STEP, ::_STEP],
+    )
+
+
 class BodiesApart:
     """The cuts of one sequence (see the module docstring). Frames are added as their instances are
     known, and forgotten once out of reach."""
@@ -71,35 +103,20 @@ class BodiesApart:
             change_m,
             min_change,
         )
-        self.depths: dict[int, np.ndarray] = {}  # half-resolution depth of each frame
-        self.spans: dict[int, np.ndarray] = {}  # the depth its pixels' 3x3 neighbourhoods span
-        self.bodies: dict[int, list[np.ndarray]] = {}  # half-resolution instances of each frame
-        self.boxes: dict[int, list[tuple[int, int, int, int]]] = {}  # their bounding boxes (x, y, w, h)
-        self.rims: dict[int, list[np.ndarray]] = {}  # the 3-D points of their outlines (full resolution)
-        self.unseen: dict[int, np.ndarray] = {}  # half-resolution pixels with no reading, or a hand's
+        self.views: dict[int, FrameView] = {}  # the frames within reach
         self._taus: dict[tuple[int, int], float] = {}
         self._left: dict[tuple[int, int, int], bool] = {}  # (frame, instance, other frame): it left
         self._apart: dict[tuple[int, int, int], bool] = {}  # (frame, instance, instance): apart in 3-D
 
-    def add(self, u: int, instances: list[np.ndarray], depth_m: np.ndarray, hand: np.ndarray | None) -> None:
-        """Frame ``u``: its instances, depth and hand pixels (None: not sought)."""
-        if u not in self.depths:
-            depth = clean_depth(depth_m)
-            self.depths[u] = depth[::_STEP, ::_STEP]
-            # max - min over 3x3; a missing reading is 0, so every pixel next to one spans much
-            span = cv2.morphologyEx(depth, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8))
-            self.spans[u] = span[::_STEP, ::_STEP]
-            self.bodies[u] = [m[::_STEP, ::_STEP] for m in instances]
-            self.boxes[u] = [cv2.boundingRect(m.view(np.uint8)) for m in self.bodies[u]]
-            self.rims[u] = [self._rim_points(m, depth) for m in instances]
-            unseen = depth <= 0 if hand is None else (depth <= 0) | hand
-            self.unseen[u] = unseen[::_STEP, ::_STEP]
+    def add(self, u: int, view: FrameView) -> None:
+        """Frame ``u``'s :class:`FrameView`."""
+        self.views.setdefault(u, view)
 
     def forget_before(self, j: int) -> None:
         """Forget the frames out of reach of frame ``j`` and those before it."""
-        old = {u for u in self.depths if u < j - REACH_FRAMES}
+        old = {u for u in self.views if u < j - REACH_FRAMES}
         for u in old:
-            del self.depths[u], self.spans[u], self.bodies[u], self.boxes[u], self.rims[u], self.unseen[u]
+            del self.views[u]
         self._taus = {k: t for k, t in self._taus.items() if not old & set(k)}
         self._left = {k: t for k, t in self._left.items() if k[0] not in old and k[2] not in old}
         self._apart = {k: t for k, t in self._apart.items() if k[0] not in old}
@@ -112,30 +129,31 @@ class BodiesApart:
         nothing is cut."""
         out, cuts = list(instances), []
         frames = others + [j]
-        for k, mine in enumerate(self.bodies[j]):
-            for u in others:
-                if not self._leaves(mine, j, u, box=self.boxes[j][k]):
-                    continue
-                for b, body in enumerate(self.bodies[u]):
-                    if self._separates(mine, j, k, u, b, frames):
-                        cut = self._cut(body & mine, j, u, depth_m) & out[k]
-                        if cut.any():
-                            out[k] = out[k] & ~cut
-                            cuts.append(cut)
+        still = [
+            (u, b)
+            for u in others
+            for b in range(len(self.views[u].bodies))
+            if not any(self._left_by(u, b, v) for v in frames if v != u)
+        ]
+        for k, mine in enumerate(self.views[j].bodies):
+            for u, b in still:
+                if self._separates(mine, j, k, u, b, frames):
+                    cut = self._cut(self.views[u].bodies[b] & mine, j, u, depth_m) & out[k]
+                    if cut.any():
+                        out[k] = out[k] & ~cut
+                        cuts.append(cut)
         return [m for m in out if m.any()] + cuts if cuts else instances
 
     def _separates(self, mine: np.ndarray, j: int, k: int, u: int, b: int, frames: list[int]) -> bool:
-        """Whether body ``b`` of frame ``u`` is a body that instance ``k`` of frame ``j`` (``mine``)
-        holds and separates from (the module docstring's three tests)."""
-        body, bodies = self.bodies[u][b], self.bodies[u]
-        if (
-            not _overlap(self.boxes[j][k], self.boxes[u][b])
-            or any(self._left_by(u, b, v) for v in frames if v != u)
-            or np.count_nonzero(body & mine) < INSIDE_SHARE * np.count_nonzero(body)
-        ):
+        """Whether body ``b`` of frame ``u``, which stays where it is, is a body that instance ``k`` of
+        frame ``j`` (``mine``) holds and separates from (the module docstring's last two tests)."""
+        body, bodies = self.views[u].bodies[b], self.views[u].bodies
+        if not _overlap(self.views[j].boxes[k], self.views[u].boxes[b]) or np.count_nonzero(
+            body & mine
+        ) < INSIDE_SHARE * np.count_nonzero(body):
             return False
         rest = mine & ~body
-        if not self._leaves(rest, j, u, box=self.boxes[j][k], of=mine):
+        if not self._leaves(rest, j, u, box=self.views[j].boxes[k], of=mine):
             return False
         least = INSIDE_SHARE * np.count_nonzero(rest)  # the rest, seen apart
         return any(
@@ -151,7 +169,7 @@ class BodiesApart:
         """The depth change that counts between frames ``u`` and ``v``."""
         key = (min(u, v), max(u, v))
         if key not in self._taus:
-            a, b = self.depths[u][::4, ::4], self.depths[v][::4, ::4]  # plenty for a median
+            a, b = self.views[u].depth[::4, ::4], self.views[v].depth[::4, ::4]  # plenty for a median
             change = np.abs(a - b)[(a > 0) & (b > 0)]
             sigma = 1.4826 * float(np.median(change)) if change.size else 0.0
             self._taus[key] = max(self.change_m, 4.0 * sigma)
@@ -165,8 +183,8 @@ class BodiesApart:
         its two sides when anything moves, the camera too)."""
         x, y, w, h = box
         crop = np.s_[y : y + h, x : x + w]
-        a, b, tau = self.depths[u][crop], self.depths[v][crop], self._tau(u, v)
-        read = (self.spans[u][crop] <= tau) & (self.spans[v][crop] <= tau)
+        a, b, tau = self.views[u].depth[crop], self.views[v].depth[crop], self._tau(u, v)
+        read = (self.views[u].span[crop] <= tau) & (self.views[v].span[crop] <= tau)
         left = np.count_nonzero(mask[crop] & read & (b > a + tau))
         whole = mask if of is None else of
         return left > self.min_change * np.count_nonzero(whole[crop] & read)
@@ -175,7 +193,7 @@ class BodiesApart:
         """Whether body ``b`` of frame ``u`` left its place by frame ``v``."""
         key = (u, b, v)
         if key not in self._left:
-            self._left[key] = self._leaves(self.bodies[u][b], u, v, box=self.boxes[u][b])
+            self._left[key] = self._leaves(self.views[u].bodies[b], u, v, box=self.views[u].boxes[b])
         return self._left[key]
 
     def _apart_from(self, u: int, b: int, r: int) -> bool:
@@ -184,7 +202,7 @@ class BodiesApart:
         two sides of a part whose joint the hand, or a surface without readings, hides."""
         key = (u, b, r)
         if key not in self._apart:
-            rims = [self.rims[u][k] for k in (b, r)]
+            rims = [self.views[u].rims[k] for k in (b, r)]
             apart = (
                 all(len(p) for p in rims)
                 and not np.isfinite(cKDTree(rims[0]).query(rims[1], distance_upper_bound=CONTACT_M)[0]).any()
@@ -195,23 +213,17 @@ class BodiesApart:
                 disc = cv2.getStructuringElement(
                     cv2.MORPH_ELLIPSE, (2 * int(CONTACT_M * self.intrinsics.fx / z / _STEP) + 1,) * 2
                 )
-                near = [cv2.dilate(self.bodies[u][k].view(np.uint8), disc) > 0 for k in (b, r)]
-                between = near[0] & near[1] & ~self.bodies[u][b] & ~self.bodies[u][r]
-                hidden = np.count_nonzero(between & self.unseen[u])
+                near = [cv2.dilate(self.views[u].bodies[k].view(np.uint8), disc) > 0 for k in (b, r)]
+                between = near[0] & near[1] & ~self.views[u].bodies[b] & ~self.views[u].bodies[r]
+                hidden = np.count_nonzero(between & self.views[u].unseen)
                 apart = hidden <= HIDDEN_SHARE * np.count_nonzero(between)
             self._apart[key] = bool(apart)
         return self._apart[key]
 
-    def _rim_points(self, mask: np.ndarray, depth_m: np.ndarray) -> np.ndarray:
-        """The 3-D points (N, 3) of the outline of ``mask`` (bool (H, W)) where it has a reading."""
-        rim = mask & ~(cv2.erode(mask.view(np.uint8), np.ones((3, 3), np.uint8)) > 0) & (depth_m > 0)
-        v, x = np.nonzero(rim)
-        return self.intrinsics.points(x, v, depth_m[v, x].astype(np.float64))
-
     def _cut(self, inside: np.ndarray, j: int, u: int, depth_m: np.ndarray) -> np.ndarray:
         """The full-resolution pixels of frame ``j`` where the body (``inside``, half resolution) shows
         itself at the depth it has in frame ``u``, and a pixel around them."""
-        a, b = self.depths[j], self.depths[u]
+        a, b = self.views[j].depth, self.views[u].depth
         same = inside & (a > 0) & (np.abs(a - b) <= self._tau(j, u))
         h, w = depth_m.shape
         full = cv2.resize(same.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
@@ -221,3 +233,13 @@ class BodiesApart:
 def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
     """Whether two (x, y, w, h) boxes share a pixel."""
     return a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]
+
+
+def _rim_points(mask: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """The 3-D points (N, 3) of the outline of ``mask`` (bool (H, W)) where it has a reading."""
+    box = grown_box(mask, 1)  # the erosion gives there what it gives on the whole image
+    m = mask[box]
+    rim = m & ~(cv2.erode(m.view(np.uint8), np.ones((3, 3), np.uint8)) > 0) & (depth_m[box] > 0)
+    v, x = np.nonzero(rim)
+    v, x = v + box[0].start, x + box[1].start
+    return intrinsics.points(x, v, depth_m[v, x].astype(np.float64))

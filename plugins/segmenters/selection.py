@@ -66,7 +66,7 @@ import numpy as np
 from artclass_core import Frame, Params, Segmenter, Sequence, param
 
 from ._compiled import steady_kernel
-from .apart import REACH_FRAMES, BodiesApart, reach
+from .apart import REACH_FRAMES, BodiesApart, FrameView, frame_view, reach
 from .cache import DiskMaskCache, PackedMask
 from .hands import HOLD_LINE_M, HandParams, held, widen
 from .support import as_numpy_compares, clean_depth
@@ -364,6 +364,7 @@ class _SequenceState:
     choices: list[Choice | None] = field(default_factory=list)  # None: the mask came from the disk cache
     reference: PackedMask | None = None  # the choice that "previous" refers to (see _append)
     apart: BodiesApart | None = None  # the bodies that touch and separate, made on first use
+    views: dict[int, FrameView] = field(default_factory=dict)  # what ``apart`` reads, until it takes it
 
 
 class InstanceSegmenter(Segmenter):
@@ -443,8 +444,13 @@ class InstanceSegmenter(Segmenter):
             found = state.instances.get(i)
         if found is None:  # worked out outside the lock (unless the caller holds it): a pure function
             frame = frame if frame is not None and frame.index == i else sequence[i]
-            found = [PackedMask.pack(m) for m in self.instances(frame, sequence=sequence) if np.any(m)]
+            masks = [m for m in self.instances(frame, sequence=sequence) if np.any(m)]
+            found = [PackedMask.pack(m) for m in masks]
+            view = frame_view(
+                masks, frame.depth_m, self.hand_mask(frame, sequence=sequence), sequence.intrinsics
+            )
             with self._lock:
+                state.views.setdefault(i, view)
                 found = state.instances.setdefault(i, found)
         return found
 
@@ -543,11 +549,12 @@ class InstanceSegmenter(Segmenter):
             )
         apart, others = state.apart, self._reach(sequence, j)
         for u in (j, *others):
-            if u not in apart.depths:
-                frame = sequence[u]
-                found = instances if u == j else [m.unpack() for m in self._instances(sequence, u)]
-                apart.add(u, found, frame.depth_m, self.hand_mask(frame, sequence=sequence))
+            if u not in apart.views:
+                self._instances(sequence, u)  # and its view
+                apart.add(u, state.views.pop(u))
         apart.forget_before(j)
+        for u in [u for u in state.views if u < j]:  # frames left behind (asked out of order)
+            del state.views[u]
         return apart.split(j, instances, depth_m, others)
 
     def _reach(self, sequence: Sequence, j: int) -> list[int]:
