@@ -844,7 +844,7 @@ def test_bodies_are_apart_only_where_the_picture_shows_what_lies_between(between
     near, far = np.zeros((2, H, W), bool)
     near[40:60, 60:100], far[62:80, 60:100] = True, True
     depth[near], depth[far], depth[60:62, 60:100] = 0.75, 0.85, between_m
-    bodies = BodiesApart(INTR, stride=3, change_m=0.01, min_change=0.1)
+    bodies = BodiesApart(INTR, change_m=0.01, min_change=0.1)
     bodies.add(0, frame_view([near, far], depth, None, INTR))
     assert bodies._apart_from(0, 0, 1) is apart
 

@@ -22,8 +22,8 @@ of an instance of this frame that holds most of it, when:
 A depth change counts when it exceeds ``change_m`` and four robust sigmas of the change over all the
 pixels both frames read (most of a scene stays), on the pixels away from a depth edge in both
 frames: an edge's readings flicker between its two sides when anything moves, the camera too. Each
-frame is compared with the frames a multiple of ``stride`` from the first within
-:data:`REACH_FRAMES`, at half the resolution.
+frame is compared with the frames a multiple of the choice's ``neighbour_frames`` from the first
+within :data:`REACH_FRAMES` (:func:`reach`), at half the resolution.
 """
 
 from __future__ import annotations
@@ -96,13 +96,9 @@ class BodiesApart:
     """The cuts of one sequence (see the module docstring). Frames are added as their instances are
     known, and forgotten once out of reach."""
 
-    def __init__(self, intrinsics: Intrinsics, *, stride: int, change_m: float, min_change: float):
-        self.intrinsics, self.stride, self.change_m, self.min_change = (
-            intrinsics,
-            stride,
-            change_m,
-            min_change,
-        )
+    def __init__(self, intrinsics: Intrinsics, *, change_m: float, min_change: float):
+        self.intrinsics = intrinsics
+        self.change_m, self.min_change = change_m, min_change
         self.views: dict[int, FrameView] = {}  # the frames within reach
         self._taus: dict[tuple[int, int], float] = {}
         self._left: dict[tuple[int, int, int], bool] = {}  # (frame, instance, other frame): it left

@@ -544,9 +544,7 @@ class InstanceSegmenter(Segmenter):
             return instances
         p = self.params
         if state.apart is None:
-            state.apart = BodiesApart(
-                sequence.intrinsics, stride=p.neighbour_frames, change_m=p.change_m, min_change=p.min_change
-            )
+            state.apart = BodiesApart(sequence.intrinsics, change_m=p.change_m, min_change=p.min_change)
         apart, others = state.apart, self._reach(sequence, j)
         for u in (j, *others):
             if u not in apart.views:
