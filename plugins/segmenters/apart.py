@@ -117,9 +117,7 @@ class BodiesApart:
         self._left = {k: t for k, t in self._left.items() if k[0] not in old and k[2] not in old}
         self._apart = {k: t for k, t in self._apart.items() if k[0] not in old}
 
-    def split(
-        self, j: int, instances: list[np.ndarray], depth_m: np.ndarray, others: list[int]
-    ) -> list[np.ndarray]:
+    def split(self, j: int, instances: list[np.ndarray], others: list[int]) -> list[np.ndarray]:
         """``instances`` of frame ``j`` (added) with the bodies cut out that the frames ``others``
         (added) show apart from them, each cut an instance of its own after them; the same list when
         nothing is cut."""
@@ -134,7 +132,7 @@ class BodiesApart:
         for k, mine in enumerate(self.views[j].bodies):
             for u, b in still:
                 if self._separates(mine, j, k, u, b, frames):
-                    cut = self._cut(self.views[u].bodies[b] & mine, j, u, depth_m) & out[k]
+                    cut = self._cut(self.views[u].bodies[b] & mine, j, u, out[k].shape) & out[k]
                     if cut.any():
                         out[k] = out[k] & ~cut
                         cuts.append(cut)
@@ -216,12 +214,12 @@ class BodiesApart:
             self._apart[key] = bool(apart)
         return self._apart[key]
 
-    def _cut(self, inside: np.ndarray, j: int, u: int, depth_m: np.ndarray) -> np.ndarray:
-        """The full-resolution pixels of frame ``j`` where the body (``inside``, half resolution) shows
-        itself at the depth it has in frame ``u``, and a pixel around them."""
+    def _cut(self, inside: np.ndarray, j: int, u: int, shape: tuple[int, int]) -> np.ndarray:
+        """The pixels of frame ``j`` (full resolution, ``shape``) where the body (``inside``, half
+        resolution) shows itself at the depth it has in frame ``u``, and a pixel around them."""
         a, b = self.views[j].depth, self.views[u].depth
         same = inside & (a > 0) & (np.abs(a - b) <= self._tau(j, u))
-        h, w = depth_m.shape
+        h, w = shape
         full = cv2.resize(same.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
         return widen(full, 1)
 

@@ -495,7 +495,7 @@ class InstanceSegmenter(Segmenter):
         nb = self._neighbour(j, n)
         mine = [m.unpack() for m in self._instances(sequence, j, frame)]
         depth = (frame if frame is not None else sequence[j]).depth_m
-        mine = self._apart(state, sequence, j, mine, depth)
+        mine = self._apart(state, sequence, j, mine)
         if 0 <= nb < n and nb != j:
             others = [m.unpack() for m in self._instances(sequence, nb)]
             other_depth = sequence[nb].depth_m
@@ -530,12 +530,7 @@ class InstanceSegmenter(Segmenter):
         self._append(state, packed, choice)
 
     def _apart(
-        self,
-        state: _SequenceState,
-        sequence: Sequence,
-        j: int,
-        instances: list[np.ndarray],
-        depth_m: np.ndarray,
+        self, state: _SequenceState, sequence: Sequence, j: int, instances: list[np.ndarray]
     ) -> list[np.ndarray]:
         """Frame ``j``'s instances with the bodies cut out that separate from them in the frames within
         reach (:mod:`.apart`: a mug lifted off its stand and the stand are two instances while they
@@ -553,7 +548,7 @@ class InstanceSegmenter(Segmenter):
         apart.forget_before(j)
         for u in [u for u in state.views if u < j]:  # frames left behind (asked out of order)
             del state.views[u]
-        return apart.split(j, instances, depth_m, others)
+        return apart.split(j, instances, others)
 
     def _reach(self, sequence: Sequence, j: int) -> list[int]:
         """The frames :meth:`_apart` compares frame ``j`` with; of a live stream, none later than the
