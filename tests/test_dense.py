@@ -8,13 +8,15 @@ so the colour image carries a texture that moves with the surface, as optical fl
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from artclass_core import Frame, Intrinsics, MotionEvidence
-from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN
+from artclass_core import Cloud, Frame, Intrinsics, MotionEvidence
+from artclass_core.types import FREE_SPACE, OCCLUDED, OFF_OBJECT, SURFACE, UNSEEN, View
+from artclass_plugins.dense.flow import Landings
 from artclass_plugins.dense.image import ImagePreprocessor, depth_step, filter_depth
 from artclass_plugins.dense.projective import Target, kabsch, look_all, robust_kabsch
 from artclass_plugins.dense.registrar import DenseRegistrar
@@ -397,6 +399,20 @@ def test_a_part_that_slides_along_its_base_shows_by_texture_unless_it_is_a_fit_o
     whole = dataclasses.replace(slide, names=["identity", "a", "object (flow)"])
     assert DenseRule().decide(whole).decision == "RM"
 
+    def landing(grey: float) -> MotionEvidence:
+        """The slide, with the base's motion landing the drawer's points on texture ``grey`` grey
+        levels unlike theirs, where the flow's own matches are 4 +- 1 unlike."""
+        on_drawer = np.where(region, grey, np.nan)
+        return dataclasses.replace(
+            slide,
+            landing_grey=np.stack([np.full(len(region), np.nan), on_drawer, on_drawer]).astype(np.float32),
+            info=dict(slide.info, flow_grey=[4.0, 1.0]),
+        )
+
+    # Stripes a period off: the flow cannot tell the two motions apart there. One motion.
+    assert DenseRule().decide(landing(6.5)).decision == "RM"
+    assert DenseRule().decide(landing(7.5)).decision == "AM"
+
 
 def test_motions_closer_than_the_noise_are_one():
     """Two hypotheses that each explain their own region, but move the points by less than the
@@ -426,3 +442,108 @@ def test_staying_still_needs_fewer_points_than_a_fitted_motion():
     out = DenseRule().decide(still)
     assert out.decision == "AM" and (out.labels[strip] == 1).all(), out.reason
     assert DenseRule().decide(evidence).decision == "RM"
+
+
+@pytest.mark.parametrize(
+    "pattern, off_px, alike",
+    [
+        ("stripes", 12.0, True),  # a whole period off: the same texture
+        ("stripes", 18.0, False),  # one and a half: light where it was dark
+        ("noise", 12.0, False),  # texture that does not repeat
+    ],
+)
+def test_a_motion_a_period_off_on_stripes_looks_like_the_flow(pattern, off_px, alike):
+    """Vertical stripes 12 px apart move 4 px right, and the flow sees it. A motion that lands the
+    points a whole period further lands them on texture as like the source's as the flow's own
+    matches are (within 3 robust sigmas); half a period further, or on texture that does not repeat,
+    it does not."""
+    rng = np.random.default_rng(5)
+    columns = np.arange(K.width + 40)
+    if pattern == "stripes":
+        image = np.repeat(np.where(columns % 12 < 6, 60.0, 190.0)[None], K.height, axis=0)
+    else:
+        image = cv2.resize(_NOISE, (K.width + 40, K.height)).astype(float)
+    source_gray, target_gray = (  # the target moved 4 px right; each frame has its own noise
+        np.clip(image[:, c : c + K.width] + rng.normal(0, 2, (K.height, K.width)), 0, 255).astype(np.uint8)
+        for c in (20, 16)
+    )
+    v, u = np.mgrid[60:180:4, 60:260:4]
+    pixels = np.column_stack([u.ravel(), v.ravel()])
+
+    def cloud_of(gray):
+        return Cloud(
+            0, np.zeros((len(pixels), 3)), view=View(gray, np.zeros(gray.shape, np.float32), K), pixels=pixels
+        )
+
+    flow = pixels + [4.0, 0.0]
+    landings = Landings(cloud_of(source_gray), cloud_of(target_gray), flow, beyond_px=2.5)
+    misfit = np.full((2, len(pixels)), [[1.0], [off_px]], np.float32)
+    grey = landings(misfit, lambda h, i: flow[i] + np.column_stack([misfit[h, i], np.zeros(len(i))]))
+    assert np.isnan(grey[0]).all()  # within the flow's typical error nothing is measured
+    median, spread = landings.flow_grey
+    assert np.mean(grey[1] <= median + 3 * spread) == pytest.approx(float(alike), abs=0.05)
+
+
+def test_flow_a_stripe_period_off_makes_no_part(monkeypatch):
+    """A plate with stripes 2 cm apart slides 1 cm along itself. Over its right third the optical
+    flow locks on the neighbouring stripe (it says that third slid 1 cm the other way), as flow does
+    when a motion nears half a stripe period. The true slide lands those points on stripes as like
+    theirs as the flow's: one motion, not a part. Taking the flow at its word makes a part."""
+    import artclass_plugins.dense.registrar as registrar
+
+    slide = pose(t=(0.01, 0.0, 0.0))
+
+    def aliased(source, target, **_):
+        moved = source.points @ slide[:3, :3].T + slide[:3, 3]
+        right = source.points[:, 0] > np.quantile(source.points[:, 0], 2 / 3)
+        moved[right, 0] -= 0.02
+        u, v = K.fx * moved[:, 0] / moved[:, 2] + K.cx, K.fy * moved[:, 1] / moved[:, 2] + K.cy
+        return np.column_stack([u, v]), np.full((len(u), 2), np.nan)
+
+    monkeypatch.setattr(registrar, "flow_targets", aliased)
+    monkeypatch.setitem(globals(), "texture", lambda xy: 125 + 65 * np.sin(np.pi * xy[:, 0] / 0.01))
+    a = frame([(BASE, pose(t=(0.0, 0.0, DEPTH_M)), 1), TABLE])
+    b = frame([(BASE, slide @ pose(t=(0.0, 0.0, DEPTH_M)), 1), TABLE], 1)
+    rng = np.random.default_rng(4)
+    for f in (a, b):  # each frame its own sensor noise
+        f.rgb[:] = np.clip(f.rgb + rng.normal(0, 3, f.rgb.shape[:2])[..., None], 0, 255)
+    assert decide(a, b)[1].decision == "RM"
+    monkeypatch.setattr(
+        registrar.Landings, "__call__", lambda self, misfit, landing: np.full(misfit.shape, np.nan)
+    )
+    assert decide(a, b)[1].decision == "AM"
+
+
+def test_a_striped_banana_carried_along_its_length_is_one_motion(monkeypatch):
+    """A rendered pair (time of flight, 0.68 m): a banana with stripes about 12 px apart, carried
+    2-3 cm along its length in 5 frames. The flow locks on the next stripe over its far end, which
+    pulls every fit with the flow off the true motion there, and depth barely fixes a slide along
+    the banana. Refitted on depth alone from each selected motion, the whole banana takes one
+    motion; without that refit, its far end is a "part"."""
+    import artclass_plugins.dense.registrar as registrar
+
+    pair = np.load(Path(__file__).parent / "data" / "striped_banana_pair.npz")
+    fx, fy, cx, cy = pair["intrinsics"]
+    camera = Intrinsics(fx, fy, cx, cy, 640, 480)
+    (r0, c0), (h, w) = pair["origin"], pair["mask"].shape[1:]
+
+    def cloud_of(k: int):
+        rgb, depth, mask = (
+            np.zeros((480, 640, 3), np.uint8),
+            np.zeros((480, 640), np.float32),
+            np.zeros((480, 640), bool),
+        )
+        rgb[r0 : r0 + h, c0 : c0 + w] = pair["rgb"][k]
+        depth[r0 : r0 + h, c0 : c0 + w] = pair["depth_mm"][k] / 1000
+        mask[r0 : r0 + h, c0 : c0 + w] = pair["mask"][k]
+        return ImagePreprocessor().process(Frame(k, str(k), rgb, depth, mask), mask, intrinsics=camera)
+
+    source, target = cloud_of(0), cloud_of(1)
+    assert DenseRule().decide(DenseRegistrar().register_pair(source, target)).decision == "RM"
+    each = registrar._Fit.each
+    monkeypatch.setattr(  # the refit on depth alone is the one given ``among``
+        registrar._Fit,
+        "each",
+        lambda fit, *a, among=None: np.empty((0, 4, 4)) if among is not None else each(fit, *a),
+    )
+    assert DenseRule().decide(DenseRegistrar().register_pair(source, target)).decision == "AM"

@@ -30,6 +30,7 @@ _MARGIN_PX = 24
 STRUCTURE_WINDOW_PX = 5
 # How far from a pixel :func:`structure` looks: the Sobel filter's pixel and half its window.
 _STRUCTURE_REACH_PX = 1 + STRUCTURE_WINDOW_PX // 2
+_REMAP_ROWS = 32000
 _thread = threading.local()
 
 
@@ -118,3 +119,49 @@ def flow_targets(
     out[ok, 1] = source.pixels[ok, 1] + f[ok, 1] / sy
     normal[edge] = across[edge]
     return out, normal
+
+
+def patch_difference(
+    source_gray: np.ndarray, target_gray: np.ndarray, pixels: np.ndarray, landings: np.ndarray
+) -> np.ndarray:
+    """Mean absolute difference (grey levels) between the source's window about each of ``pixels``
+    (N, 2, int column and row) and the target's about each of ``landings`` (N, 2, float: sampled
+    bilinearly), both ``STRUCTURE_WINDOW_PX`` wide: the window in which the texture was judged."""
+    half = STRUCTURE_WINDOW_PX // 2
+    offsets = np.arange(-half, half + 1)
+    du, dv = (o.ravel() for o in np.meshgrid(offsets, offsets))
+    h, w = source_gray.shape
+    a = source_gray[
+        np.clip(pixels[:, 1, None] + dv, 0, h - 1), np.clip(pixels[:, 0, None] + du, 0, w - 1)
+    ].astype(np.float32)
+    b = np.empty_like(a)
+    for s in range(0, len(pixels), _REMAP_ROWS):  # cv2.remap's maps have fewer than 32767 rows
+        b[s : s + _REMAP_ROWS] = cv2.remap(
+            target_gray,
+            (landings[s : s + _REMAP_ROWS, 0, None] + du).astype(np.float32),
+            (landings[s : s + _REMAP_ROWS, 1, None] + dv).astype(np.float32),
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
+    return np.abs(a - b).mean(axis=1)
+
+
+class Landings:
+    """How unlike the source's texture the texture is where a motion lands each point, where the motion
+    and the optical flow disagree; and how unlike it is at the flow's own matches (noise, shading)."""
+
+    def __init__(self, source: Cloud, target: Cloud, flow_px: np.ndarray, *, beyond_px: float):
+        self.gray = source.view.gray, target.view.gray
+        self.pixels, self.beyond_px = source.pixels, beyond_px
+        known = np.isfinite(flow_px).all(axis=1)
+        own = patch_difference(*self.gray, self.pixels[known], flow_px[known])
+        centre = float(np.median(own)) if len(own) else np.nan
+        self.flow_grey = [centre, float(1.4826 * np.median(np.abs(own - centre))) if len(own) else np.nan]
+
+    def __call__(self, misfit: np.ndarray, landing) -> np.ndarray:
+        """(H, N) float32: the difference where ``misfit`` (H, N) exceeds ``beyond_px``, NaN elsewhere;
+        ``landing(h, i)`` gives the target pixels (M, 2) where motions ``h`` put points ``i``."""
+        h, i = np.nonzero(np.nan_to_num(misfit) > self.beyond_px)
+        out = np.full(misfit.shape, np.nan, np.float32)
+        out[h, i] = patch_difference(*self.gray, self.pixels[i], landing(h, i))
+        return out

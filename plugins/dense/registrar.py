@@ -9,7 +9,11 @@
    each cell's flow motion (or the object's), refined by ICP on the cell's points; all cells at once.
 4. Every hypothesis is scored on every point (:func:`~.projective.look_all`, and the flow), and the
    motions a default selection picks are refitted on the points they explain; a motion is also fitted
-   to the points none of them explains (a part that spans several cells). Near-copies are dropped.
+   to the points none of them explains (a part that spans several cells), and, when the selection
+   picks several, the whole object from each of them, with the flow and on depth alone (flow locked
+   on the next stripe pulls a fit with it back). Near-copies are dropped. Where a motion and the
+   flow disagree, the texture where the motion lands each point is compared with the source's
+   (:class:`~.flow.Landings`): on stripes, a motion a period off lands on the same texture.
 5. The hypotheses are scored the other way round too: every target point, moved by each motion's
    inverse, against the source image. A part sliding out of a still base leaves surface where the
    base's own motion says there should be none; only this direction sees that.
@@ -27,7 +31,7 @@ import numpy as np
 from artclass_core import Cloud, MotionEvidence, PairRegistrar, Params, param
 from artclass_core.types import SURFACE
 
-from .flow import flow_targets
+from .flow import Landings, flow_targets
 from .image import ImageParams, noise_m
 from .projective import Target, flow_misfit, icp, kernels, look_all, robust_kabsch
 from .rule import WHOLE_OBJECT, DenseRuleParams, point_costs, regions, select
@@ -113,6 +117,7 @@ class DenseRegistrar(PairRegistrar):
             if p.use_flow
             else (no_flow, no_flow)
         )
+        landings = Landings(source, target, flow_px, beyond_px=rule.flow_sigma_px) if p.use_flow else None
         matched, matches = _flow_points(flow_px, tgt)
         matched &= ~np.isfinite(across[:, 0])  # 3D matches only where the flow is known in full
 
@@ -121,12 +126,15 @@ class DenseRegistrar(PairRegistrar):
         inits = [np.eye(4), shift]
         if matched.sum() >= _MIN_FLOW_MATCHES:
             inits.append(robust_kabsch(points[matched], matches[matched], inlier_m=fine))
-        fit = _Fit(tgt, flow_px, across, noise / rule.flow_sigma_px)
+        fit, depth_fit = (
+            _Fit(tgt, flow_px, across, noise / rule.flow_sigma_px),
+            _Fit(tgt, no_flow, no_flow, 0.0),
+        )
         starts = np.stack(inits)
         whole = fit.each(points, starts, coarse)
         # The object's motion from depth alone too: flow on stripes can mislead the fit as a whole (a
         # helical stripe on a turning can seems to travel along its axis).
-        depth_only = _Fit(tgt, no_flow, no_flow, 0.0).each(points, starts[:2], coarse)
+        depth_only = depth_fit.each(points, starts[:2], coarse)
         kinds = ["", " (shift)", " (flow)"][: len(whole)] + [" (depth)", " (depth, shift)"]
         hyps = np.concatenate([np.eye(4)[None], whole, depth_only])
         names = ["identity"] + [f"{WHOLE_OBJECT}{k}" for k in kinds]
@@ -152,7 +160,7 @@ class DenseRegistrar(PairRegistrar):
 
         hyps, names = _distinct(hyps, names, points, sigma0)
         status, residual = _look_all(hyps, points, tgt, reach)
-        flow_err = _flow_errors(hyps, points, flow_px, across, tgt)
+        flow_err, grey = _flow_errors(hyps, points, flow_px, across, tgt, landings)
 
         for r in range(p.refine_rounds):
             ev = MotionEvidence(
@@ -167,7 +175,7 @@ class DenseRegistrar(PairRegistrar):
                 pixel_m,
                 dict(stride_px=int(source.info.get("stride_px", 1))),
             )
-            new, new_names = self._refits(ev, fit, rule, r, coarse)
+            new, new_names = self._refits(ev, (fit, depth_fit), rule, r, coarse)
             if not len(new):
                 break
             n_before = len(hyps)
@@ -176,7 +184,8 @@ class DenseRegistrar(PairRegistrar):
                 break
             more_status, more_residual = _look_all(hyps[n_before:], points, tgt, reach)
             status, residual = np.vstack([status, more_status]), np.vstack([residual, more_residual])
-            flow_err = np.vstack([flow_err, _flow_errors(hyps[n_before:], points, flow_px, across, tgt)])
+            more_err, more_grey = _flow_errors(hyps[n_before:], points, flow_px, across, tgt, landings)
+            flow_err, grey = np.vstack([flow_err, more_err]), np.vstack([grey, more_grey])
         # The other way round: each target point moved by each motion's inverse onto the source image.
         back = Target.of(source)
         inverse = np.linalg.inv(hyps)
@@ -189,6 +198,8 @@ class DenseRegistrar(PairRegistrar):
             n_points=len(points),
             seconds=round(time.perf_counter() - t0, 4),
         )
+        if landings is not None:
+            info["flow_grey"] = landings.flow_grey
         return MotionEvidence(
             hyps,
             names,
@@ -201,6 +212,7 @@ class DenseRegistrar(PairRegistrar):
             pixel_m,
             info,
             n_source=len(points),
+            landing_grey=np.hstack([grey, np.full(status_back.shape, np.nan, np.float32)]),
         )
 
     def reach(self, cloud: Cloud, fx: float) -> np.ndarray:
@@ -210,11 +222,19 @@ class DenseRegistrar(PairRegistrar):
         return self.params.reach_sigmas * noise_m(z, _sensor_noise(cloud)) + 2 * z / fx
 
     def _refits(
-        self, ev: MotionEvidence, fit: _Fit, rule: DenseRuleParams, round_: int, reach: list[float]
+        self,
+        ev: MotionEvidence,
+        fits: tuple[_Fit, _Fit],
+        rule: DenseRuleParams,
+        round_: int,
+        reach: list[float],
     ) -> tuple[np.ndarray, list]:
-        """The motions a default selection picks, refitted on the points they explain; and, for each
-        of the largest image regions of points that none of them explains, motions fitted to that
-        region from each selected motion (coarse to fine)."""
+        """The motions a default selection picks, refitted on the points they explain; for each of the
+        largest image regions of points that none of them explains, motions fitted to that region
+        from each selected motion; and, when it picks several, the whole object's from each of them,
+        with the flow and on depth alone (coarse to fine). ``fits``: the fit with the flow and the fit
+        on depth alone."""
+        fit, depth_fit = fits
         costs = point_costs(ev, noise_factor=rule.noise_factor, flow_sigma_px=rule.flow_sigma_px)
         seen = (ev.status == SURFACE).any(axis=0)
         if seen.sum() < self.params.min_seed_points:
@@ -267,7 +287,14 @@ class DenseRegistrar(PairRegistrar):
         groups = np.repeat(np.arange(len(members)), [len(m) for m in members])
         T = fit(ev.points, index, groups, np.stack(inits), reach)
         names = [f"refit {round_}.{g}" for g in range(len(T))]
-        return T, [f"{WHOLE_OBJECT} ({name})" if w else name for name, w in zip(names, whole)]
+        names = [f"{WHOLE_OBJECT} ({name})" if w else name for name, w in zip(names, whole)]
+        if len(chosen) > 1:
+            # Flow on stripes can pull the whole object's fit back to the motion it was selected for
+            # (a striped ruler or banana carried along its length: the flow locks on the next stripe).
+            on_depth = depth_fit.each(ev.points, ev.motions[chosen], reach, among=np.flatnonzero(seen))
+            T = np.concatenate([T, on_depth])
+            names += [f"{WHOLE_OBJECT} (depth, refit {round_}.{g})" for g in range(len(on_depth))]
+        return T, names
 
 
 def _sensor_noise(cloud: Cloud) -> float:
@@ -310,10 +337,13 @@ class _Fit:
         )
         return T
 
-    def each(self, points: np.ndarray, inits: np.ndarray, reach: list[float]) -> np.ndarray:
-        """All the points, from each of the initial motions."""
-        index = np.tile(np.arange(len(points)), len(inits))
-        return self(points, index, np.repeat(np.arange(len(inits)), len(points)), inits, reach)
+    def each(
+        self, points: np.ndarray, inits: np.ndarray, reach: list[float], *, among: np.ndarray | None = None
+    ) -> np.ndarray:
+        """All the points (or those indexed by ``among``), from each of the initial motions."""
+        among = np.arange(len(points)) if among is None else among
+        index = np.tile(among, len(inits))
+        return self(points, index, np.repeat(np.arange(len(inits)), len(among)), inits, reach)
 
 
 def _cells(points: np.ndarray, size_m: float, min_points: int) -> np.ndarray:
@@ -348,8 +378,18 @@ def _look_all(hyps: np.ndarray, points: np.ndarray, tgt: Target, reach: np.ndarr
 
 
 def _flow_errors(
-    hyps: np.ndarray, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray, tgt: Target
-) -> np.ndarray:
+    hyps: np.ndarray, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray, tgt: Target, landings
+) -> tuple[np.ndarray, np.ndarray]:
     """Distance (H, N) in pixels between where each motion and where the flow put each point (across
-    the edge only, at an edge point)."""
-    return flow_misfit(hyps, points, flow_px, across, tgt.intrinsics)
+    the edge only, at an edge point; NaN where the flow is unknown); and, where they disagree, how
+    unlike the source's texture the texture is where the motion lands the point (:class:`~.flow.Landings`)."""
+    misfit = flow_misfit(hyps, points, flow_px, across, tgt.intrinsics)
+    if landings is None:
+        return misfit, np.full(misfit.shape, np.nan, np.float32)
+    K = tgt.intrinsics
+
+    def landing(h: np.ndarray, i: np.ndarray) -> np.ndarray:
+        q = np.einsum("mij,mj->mi", hyps[h, :3, :3], points[i]) + hyps[h, :3, 3]
+        return np.column_stack([K.fx * q[:, 0] / q[:, 2] + K.cx, K.fy * q[:, 1] / q[:, 2] + K.cy])
+
+    return misfit, landings(misfit, landing)

@@ -434,6 +434,14 @@ class DenseRule(DecisionRule):
         limit = p.noise_factor * noise + ev.pixel_m / 2
         centre = np.median(ev.points, axis=0)
 
+        def repeats(b: int) -> np.ndarray:
+            """The points motion ``b`` lands on texture as like the source's as the flow's own matches
+            are (within ``noise_factor`` robust sigmas): there the flow cannot tell ``b`` from its own."""
+            if ev.landing_grey is None:
+                return np.zeros(len(ev.points), bool)
+            median, spread = ev.info.get("flow_grey", (np.nan, np.nan))
+            return ev.landing_grey[b] <= median + p.noise_factor * spread
+
         def fails(b: int, *, texture: bool) -> np.ndarray:
             """The points motion ``b`` misses in depth (or, with ``texture``, in optical flow)."""
             status, residual = ev.status[b], np.abs(np.nan_to_num(ev.residual_m[b], nan=np.inf))
@@ -441,7 +449,7 @@ class DenseRule(DecisionRule):
             out = (status == FREE_SPACE) | (status == OFF_OBJECT)
             out |= (status == SURFACE) & (residual >= limit + p.calibration_error * turned)
             if texture:
-                out |= np.nan_to_num(ev.flow_px[b]) >= p.noise_factor * flow_noise
+                out |= (np.nan_to_num(ev.flow_px[b]) >= p.noise_factor * flow_noise) & ~repeats(b)
             return out
 
         def needed(a: int, b: int, *, texture: bool = False, part: bool = True) -> bool:
