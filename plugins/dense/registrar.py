@@ -117,7 +117,11 @@ class DenseRegistrar(PairRegistrar):
             if p.use_flow
             else (no_flow, no_flow)
         )
-        landings = Landings(source, target, flow_px, beyond_px=rule.flow_sigma_px) if p.use_flow else None
+        landings = (
+            Landings(source, target, flow_px, beyond_px=rule.noise_factor * rule.flow_sigma_px)
+            if p.use_flow
+            else None
+        )
         matched, matches = _flow_points(flow_px, tgt)
         matched &= ~np.isfinite(across[:, 0])  # 3D matches only where the flow is known in full
 
