@@ -299,10 +299,11 @@ class MotionEvidence:
     landing_grey : ndarray, shape (H, N), float32, grey levels, or None
         Where a motion and the optical flow disagree by more than the default rule counts as a miss
         (``noise_factor`` times ``flow_sigma_px``), how unlike the source's texture the texture is
-        where the motion lands the point (mean absolute difference of the two windows); NaN elsewhere. ``info["flow_grey"]`` holds the median and
-        robust spread of the same difference at the flow's own matches. A motion that lands a point
-        on texture as like the source's as the flow's matches are (stripes a period off, a stripe
-        followed along itself) cannot be told from the flow's by that texture.
+        where the motion lands the point (mean absolute difference of the two windows); NaN
+        elsewhere. ``info["flow_grey"]`` holds the median and robust spread of the same difference at
+        the flow's own matches. A motion that lands a point on texture as like the source's as the
+        flow's matches are (stripes a period off, a stripe followed along itself) cannot be told from
+        the flow's by that texture.
     """
 
     motions: np.ndarray

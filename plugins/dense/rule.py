@@ -23,7 +23,8 @@ another's (two fits that each explain half of a rigid object) is not a part.
 Decision: two or more motions that really differ (their relative motion moves the median point of
 each side by more than ``noise_factor`` sigma plus one pixel, the part fails in depth points that the
 base explains, and the base fails points the part explains, in depth or, unless the part's motion is
-a fit of the whole object, in optical flow) are AM; one motion is RM when it moves the median point
+a fit of the whole object, in optical flow where it lands them on texture unlike theirs: on stripes a
+motion a period off lands on the same texture) are AM; one motion is RM when it moves the median point
 by as much and explains in depth points that staying still fails, else NM. A motion fails a point in
 depth when it misses it by more than ``noise_factor`` sigma plus half a pixel (the look-up rounds to
 the nearest pixel, up to half a pixel off the surface where the surface is steep: a still object on
