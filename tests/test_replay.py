@@ -39,7 +39,7 @@ def runs(replay, registry, data_root, tmp_path_factory) -> Path:
 def test_decided_again_under_a_new_setting_equals_a_fresh_evaluation(replay, registry, data_root, runs):
     assert len(list(runs.glob("*.pkl"))) == len(find_sequences(registry, data_root)[0])
     reports = []
-    for params in ([], ["noise_factor=8"], ["w=1", "min_part_share=0.3"]):
+    for params in ([], ["noise_factor=12"], ["w=1", "min_part_share=0.3"]):
         fresh = Config().with_overrides(registry, dict(p.split("=", 1) for p in params))
         expected = markdown([evaluate(registry, find_sequences(registry, data_root)[0], fresh)])
         reports.append(replay.decide(registry, runs, params))
