@@ -390,10 +390,9 @@ def _flow_errors(
     misfit = flow_misfit(hyps, points, flow_px, across, tgt.intrinsics)
     if landings is None:
         return misfit, np.full(misfit.shape, np.nan, np.float32)
-    K = tgt.intrinsics
 
     def landing(h: np.ndarray, i: np.ndarray) -> np.ndarray:
         q = np.einsum("mij,mj->mi", hyps[h, :3, :3], points[i]) + hyps[h, :3, 3]
-        return np.column_stack([K.fx * q[:, 0] / q[:, 2] + K.cx, K.fy * q[:, 1] / q[:, 2] + K.cy])
+        return np.column_stack(tgt.intrinsics.pixels(q))
 
     return misfit, landings(misfit, landing)

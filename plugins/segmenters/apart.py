@@ -121,6 +121,8 @@ class BodiesApart:
         """``instances`` of frame ``j`` (added) with the bodies cut out that the frames ``others``
         (added) show apart from them, each cut an instance of its own after them; the same list when
         nothing is cut."""
+        if not instances:
+            return instances
         out, cuts = list(instances), []
         frames = others + [j]
         still = [

@@ -535,8 +535,6 @@ class InstanceSegmenter(Segmenter):
         """Frame ``j``'s instances with the bodies cut out that separate from them in the frames within
         reach (:mod:`.apart`: a mug lifted off its stand and the stand are two instances while they
         touch too)."""
-        if not instances:
-            return instances
         p = self.params
         if state.apart is None:
             state.apart = BodiesApart(sequence.intrinsics, change_m=p.change_m, min_change=p.min_change)
