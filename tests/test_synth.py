@@ -903,6 +903,26 @@ def test_time_of_flight_reads_concave_corners_too_far():
     assert np.abs(np.median(err[far])) < 0.0005
 
 
+def test_multipath_bias_changes_gradually_as_an_edge_comes_near():
+    """A hand moving a pixel at a time towards a concave corner changes the corner's multipath bias a
+    little at each step: scattered light fades with distance; it does not switch off at once."""
+    from artclass_plugins.synth.sensors import multipath_bias_m
+
+    h, w = 120, 160
+    x = np.arange(w)
+    trough = np.tile(1.0 + 0.06 * (1 - np.abs(x - w / 2) / (w / 2)), (h, 1))  # its middle is farthest
+    corner = (slice(70, 110), slice(70, 90))
+    biases = []
+    for top in range(0, 50):  # a nearer square coming down to 11 px above the corner, a pixel a step
+        depth = trough.copy()
+        depth[top : top + 10, 70:90] = 0.5
+        biases.append(multipath_bias_m(depth, fx_px=150.0, scale_m=0.05, gain=0.8, max_m=0.03)[corner])
+    biases = np.array(biases)
+    assert biases[0].max() > 0.002  # millimetres, far from the square
+    before, after = biases[:-1], biases[1:]
+    assert (after / before)[before > 0.001].min() > 0.75  # a pixel's step never switches it off
+
+
 def test_stated_intrinsics_are_off_the_rendered_ones_within_bounds():
     from artclass_plugins.synth.sensors import draw_camera
 

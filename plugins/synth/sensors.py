@@ -395,9 +395,11 @@ def multipath_bias_m(
     A pixel that lies behind the mean of its surface neighbourhood (a Gaussian of ``scale_m`` at the
     median depth) sits in a concave corner, which neighbouring surfaces light: it reads ``gain`` times
     that depth difference farther, at most ``max_m``. Flat and convex surfaces (a pixel at or in
-    front of its neighbourhood) read true, and neighbourhoods that cross a depth edge are left out
-    (the background behind an object's silhouette is not a corner it lights). ``edges`` is
-    ``_depth_edges(depth_m)`` when the caller has it already.
+    front of its neighbourhood) read true. A neighbourhood that crosses a depth edge counts the less
+    the nearer the edge, nothing at it and in full two Gaussian sigmas away: the background behind an
+    object's silhouette is not a corner it lights, and scattered light fades with distance, so a hand
+    coming near a corner changes its bias a little for each pixel it moves, never switching it off.
+    ``edges`` is ``_depth_edges(depth_m)`` when the caller has it already.
     """
     valid = depth_m > 0
     if not valid.any():
@@ -417,8 +419,8 @@ def multipath_bias_m(
     mean = cv2.resize(mean, (w, h), interpolation=cv2.INTER_LINEAR)
     behind = np.clip(z - mean, 0.0, None)
     edges = (_depth_edges(depth_m) if edges is None else edges).astype(np.uint8)
-    near_edge = cv2.distanceTransform(1 - edges, cv2.DIST_L2, 3) <= 2 * sigma_px
-    return np.where(valid & ~near_edge, np.minimum(gain * behind, max_m), 0.0)
+    lit = np.clip(cv2.distanceTransform(1 - edges, cv2.DIST_L2, 3) / (2 * sigma_px), 0.0, 1.0)
+    return np.where(valid, lit * np.minimum(gain * behind, max_m), 0.0)
 
 
 def add_tof_noise(
