@@ -1153,7 +1153,7 @@ def test_randomised_sequences_repeat_by_seed(tmp_path):
     assert a == b
     assert {"meta.json", "truth.json", "depth/000000.png", "rgb/000000.png"} <= {k for k in a if a[k] != c[k]}
     meta = json.loads((tmp_path / "a" / "meta.json").read_text())
-    assert meta["noise"] in ("structured_light", "time_of_flight") and meta["generator"].endswith("0.4.0")
+    assert meta["noise"] in ("structured_light", "time_of_flight") and meta["generator"].endswith("0.4.1")
     seq = FolderReader().sequences(tmp_path / "a")[0]  # read as any sequence, with its truth
     assert seq.pair_truth(0, 2) in ("AM", "RM", None)
     with pytest.raises(ValueError, match="randomised"):

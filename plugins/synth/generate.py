@@ -38,7 +38,7 @@ __all__ = [
     "plan_sequence",
 ]
 
-GENERATOR_VERSION = "0.4.0"
+GENERATOR_VERSION = "0.4.1"
 
 #: Surface variants: ``textured`` pieces carry their printed pattern, ``plain`` ones are uniform
 #: colours with shading only.
