@@ -15,9 +15,12 @@ of an instance of this frame that holds most of it, when:
 - that frame shows the rest apart: a body at least half its size that moves, farther than a
   joint's contact (``CONTACT_M``, the video's test of separated parts) from it in 3-D, with what
   lies between them in the picture seen: where that is mostly a hand or has no readings, the two
-  may meet out of sight. A laptop whose lid lies closed is one instance that stays, with no body
-  beside it; a monitor whose neck the picture misses has its screen within a contact of its foot;
-  a dark lid seen edge-on shows its far edge beyond a face without readings.
+  may meet out of sight. A frame's bodies are its instances cut where neighbouring pixels differ in
+  depth by more than a contact (:func:`split_at_steps`): a kettle held above its base, seen against
+  it, is one instance with it, and that step is all that shows them apart. A laptop whose lid lies
+  closed is one instance that stays, with no body beside it; a monitor whose neck the picture
+  misses has its screen within a contact of its foot; a dark lid seen edge-on shows its far edge
+  beyond a face without readings.
 
 A depth change counts when it exceeds ``change_m`` and four robust sigmas of the change over all the
 pixels both frames read (most of a scene stays), on the pixels away from a depth edge in both
@@ -40,7 +43,7 @@ from artclass_core.video import CONTACT_M
 from .hands import widen
 from .support import clean_depth, grown_box
 
-__all__ = ["REACH_FRAMES", "BodiesApart", "FrameView", "frame_view", "reach"]
+__all__ = ["REACH_FRAMES", "BodiesApart", "FrameView", "frame_view", "reach", "split_at_steps"]
 
 #: How far (frames each way) a body is sought apart: an object is carried clear of what it stood on
 #: within a second at 30 frames a second.
@@ -69,7 +72,9 @@ class FrameView(NamedTuple):
     span: np.ndarray  # the depth each pixel's 3x3 neighbourhood spans (much next to no reading)
     bodies: list[np.ndarray]  # the instances
     boxes: list[tuple[int, int, int, int]]  # their bounding boxes (x, y, w, h)
-    rims: list[np.ndarray]  # the 3-D points (N, 3) of their outlines, at full resolution
+    pieces: list[np.ndarray]  # the instances cut where the depth steps by more than a contact
+    piece_boxes: list[tuple[int, int, int, int]]
+    rims: list[np.ndarray]  # the 3-D points (N, 3) of the pieces' outlines, at full resolution
     unseen: np.ndarray  # the pixels with no reading, or a hand's
 
 
@@ -82,14 +87,49 @@ def frame_view(
     span = cv2.morphologyEx(depth, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8))  # max - min over 3x3
     unseen = depth <= 0 if hand is None else (depth <= 0) | hand
     bodies = [m[::_STEP, ::_STEP] for m in instances]
+    whole = split_at_steps(instances, depth, step_m=CONTACT_M)
+    pieces = [m[::_STEP, ::_STEP] for m in whole]
     return FrameView(
         depth[::_STEP, ::_STEP],
         span[::_STEP, ::_STEP],
         bodies,
         [cv2.boundingRect(m.view(np.uint8)) for m in bodies],
-        [_rim_points(m, depth, intrinsics) for m in instances],
+        pieces,
+        [cv2.boundingRect(m.view(np.uint8)) for m in pieces],
+        [_rim_points(m, depth, intrinsics) for m in whole],
         unseen[::_STEP, ::_STEP],
     )
+
+
+def split_at_steps(instances: list[np.ndarray], depth_m: np.ndarray, *, step_m: float) -> list[np.ndarray]:
+    """The instances cut where neighbouring pixels (8-connected) both read depths more than ``step_m``
+    apart: the pixels on the far side of such a step go (the sensor mixes the two depths there), and
+    each instance falls into the pieces that connect through one surface. Pieces smaller than a tenth
+    of their instance go too (a rim of mixed readings). One step does not tell two bodies from one
+    body's cliff seen from above; the tests of :class:`BodiesApart` do, over time."""
+    out = []
+    for mask in instances:
+        box = grown_box(mask, 1)
+        m = mask[box]
+        z = np.where(m, depth_m[box], 0.0)
+        read, far = z > 0, np.zeros_like(m)
+        h, w = m.shape
+        around = np.pad(z, 1)
+        for dv in (0, 1, 2):
+            for du in (0, 1, 2):
+                other = around[dv : dv + h, du : du + w]
+                far |= read & (other > 0) & (z - other > step_m)
+        if not far.any():
+            out.append(mask)
+            continue
+        count, labels = cv2.connectedComponents((m & ~far).view(np.uint8), connectivity=8)
+        sizes = np.bincount(labels[m & ~far], minlength=count)
+        for k in np.flatnonzero(sizes >= 0.1 * np.count_nonzero(m)):
+            if k:
+                piece = np.zeros_like(mask)
+                piece[box] = labels == k
+                out.append(piece)
+    return out
 
 
 class BodiesApart:
@@ -128,23 +168,24 @@ class BodiesApart:
         still = [
             (u, b)
             for u in others
-            for b in range(len(self.views[u].bodies))
+            for b in range(len(self.views[u].pieces))
             if not any(self._left_by(u, b, v) for v in frames if v != u)
         ]
         for k, mine in enumerate(self.views[j].bodies):
             for u, b in still:
                 if self._separates(mine, j, k, u, b, frames):
-                    cut = self._cut(self.views[u].bodies[b] & mine, j, u, out[k].shape) & out[k]
+                    cut = self._cut(self.views[u].pieces[b] & mine, j, u, out[k].shape) & out[k]
                     if cut.any():
                         out[k] = out[k] & ~cut
                         cuts.append(cut)
         return [m for m in out if m.any()] + cuts if cuts else instances
 
     def _separates(self, mine: np.ndarray, j: int, k: int, u: int, b: int, frames: list[int]) -> bool:
-        """Whether body ``b`` of frame ``u``, which stays where it is, is a body that instance ``k`` of
-        frame ``j`` (``mine``) holds and separates from (the module docstring's last two tests)."""
-        body, bodies = self.views[u].bodies[b], self.views[u].bodies
-        if not _overlap(self.views[j].boxes[k], self.views[u].boxes[b]) or np.count_nonzero(
+        """Whether body ``b`` of frame ``u`` (a piece: :func:`split_at_steps`), which stays where it is,
+        is a body that instance ``k`` of frame ``j`` (``mine``) holds and separates from (the module
+        docstring's last two tests)."""
+        body, bodies = self.views[u].pieces[b], self.views[u].pieces
+        if not _overlap(self.views[j].boxes[k], self.views[u].piece_boxes[b]) or np.count_nonzero(
             body & mine
         ) < INSIDE_SHARE * np.count_nonzero(body):
             return False
@@ -189,7 +230,7 @@ class BodiesApart:
         """Whether body ``b`` of frame ``u`` left its place by frame ``v``."""
         key = (u, b, v)
         if key not in self._left:
-            self._left[key] = self._leaves(self.views[u].bodies[b], u, v, box=self.views[u].boxes[b])
+            self._left[key] = self._leaves(self.views[u].pieces[b], u, v, box=self.views[u].piece_boxes[b])
         return self._left[key]
 
     def _apart_from(self, u: int, b: int, r: int) -> bool:
@@ -209,8 +250,8 @@ class BodiesApart:
                 disc = cv2.getStructuringElement(
                     cv2.MORPH_ELLIPSE, (2 * int(CONTACT_M * self.intrinsics.fx / z / _STEP) + 1,) * 2
                 )
-                near = [cv2.dilate(self.views[u].bodies[k].view(np.uint8), disc) > 0 for k in (b, r)]
-                between = near[0] & near[1] & ~self.views[u].bodies[b] & ~self.views[u].bodies[r]
+                near = [cv2.dilate(self.views[u].pieces[k].view(np.uint8), disc) > 0 for k in (b, r)]
+                between = near[0] & near[1] & ~self.views[u].pieces[b] & ~self.views[u].pieces[r]
                 hidden = np.count_nonzero(between & self.views[u].unseen)
                 apart = hidden <= HIDDEN_SHARE * np.count_nonzero(between)
             self._apart[key] = bool(apart)
