@@ -382,7 +382,12 @@ def _look_all(hyps: np.ndarray, points: np.ndarray, tgt: Target, reach: np.ndarr
 
 
 def _flow_errors(
-    hyps: np.ndarray, points: np.ndarray, flow_px: np.ndarray, across: np.ndarray, tgt: Target, landings
+    hyps: np.ndarray,
+    points: np.ndarray,
+    flow_px: np.ndarray,
+    across: np.ndarray,
+    tgt: Target,
+    landings: Landings | None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Distance (H, N) in pixels between where each motion and where the flow put each point (across
     the edge only, at an edge point; NaN where the flow is unknown); and, where they disagree, how

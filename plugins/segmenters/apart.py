@@ -41,7 +41,7 @@ from artclass_core import Intrinsics
 from artclass_core.video import CONTACT_M
 
 from .hands import widen
-from .support import clean_depth, grown_box
+from .support import clean_depth, grown_box, label_box, region_mask
 
 __all__ = ["REACH_FRAMES", "BodiesApart", "FrameView", "frame_view", "reach", "split_at_steps"]
 
@@ -55,6 +55,8 @@ INSIDE_SHARE = 0.5
 HIDDEN_SHARE = 0.5
 #: The tests read every second pixel each way.
 _STEP = 2
+#: A depth farther than any reading, for the pixels without one.
+_NO_READING_M = 1e6
 
 
 def reach(j: int, n: int, stride: int, *, ahead: int = REACH_FRAMES) -> list[int]:
@@ -110,25 +112,22 @@ def split_at_steps(instances: list[np.ndarray], depth_m: np.ndarray, *, step_m: 
     out = []
     for mask in instances:
         box = grown_box(mask, 1)
-        m = mask[box]
-        z = np.where(m, depth_m[box], 0.0)
-        read, far = z > 0, np.zeros_like(m)
-        h, w = m.shape
-        around = np.pad(z, 1)
-        for dv in (0, 1, 2):
-            for du in (0, 1, 2):
-                other = around[dv : dv + h, du : du + w]
-                far |= read & (other > 0) & (z - other > step_m)
+        read = mask[box] & (depth_m[box] > 0)
+        z = np.where(read, depth_m[box], _NO_READING_M).astype(np.float32)
+        nearest = cv2.erode(z, np.ones((3, 3), np.uint8))  # the nearest reading among the 8 around
+        far = read & (z - nearest > step_m)
         if not far.any():
             out.append(mask)
             continue
-        count, labels = cv2.connectedComponents((m & ~far).view(np.uint8), connectivity=8)
-        sizes = np.bincount(labels[m & ~far], minlength=count)
-        for k in np.flatnonzero(sizes >= 0.1 * np.count_nonzero(m)):
-            if k:
-                piece = np.zeros_like(mask)
-                piece[box] = labels == k
-                out.append(piece)
+        kept = mask.copy()
+        kept[box] &= ~far
+        count, labels, stats, within = label_box(kept)
+        least = 0.1 * np.count_nonzero(mask)
+        out += [
+            region_mask(k, labels, stats, within, mask.shape)
+            for k in range(1, count)
+            if stats[k, cv2.CC_STAT_AREA] >= least
+        ]
     return out
 
 
