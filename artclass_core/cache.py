@@ -21,11 +21,12 @@ from typing import Any
 
 from .types import Sequence
 
-TABLES = ("frame", "register")
+TABLES = ("frame", "register", "hands")
 
 
 class StageCache:
-    """Frame clouds and pair registrations kept between runs, keyed on everything they depend on.
+    """Frame clouds and pair registrations kept between runs, keyed on everything they depend on (and a
+    sequence's hand-mask scores, which depend on what its frames do).
 
     Used by :meth:`Pipeline.run` (``cache=``) and :meth:`Pipeline.redecide`; the keys are
     :meth:`Pipeline.frame_key` and :meth:`Pipeline.pair_key`, built from
@@ -47,7 +48,7 @@ class StageCache:
     def __init__(self, *, max_frames: int = 512, max_pairs: int = 1024):
         self.max_frames, self.max_pairs = max_frames, max_pairs
         self._tables: dict[str, OrderedDict[tuple, Any]] = {t: OrderedDict() for t in TABLES}
-        self._limits = {"frame": max_frames, "register": max_pairs}
+        self._limits = {"frame": max_frames, "register": max_pairs, "hands": max_frames}
         self._scratch: dict[tuple, dict] = {}
         self._lock = threading.Lock()
         self._tokens: dict[int, int] = {}  # id(sequence) -> token, dropped when the sequence dies
@@ -68,7 +69,8 @@ class StageCache:
             return self._tokens[key]
 
     def get(self, stage: str, key: tuple) -> Any | None:
-        """The entry of ``stage`` (``"frame"`` or ``"register"``) under ``key``, or None (counted as a miss)."""
+        """The entry of ``stage`` (``"frame"``, ``"register"`` or ``"hands"``) under ``key``, or None
+        (counted as a miss)."""
         with self._lock:
             table = self._tables[stage]
             value = table.get(key)

@@ -15,6 +15,7 @@ from .articulation import forget_clouds
 from .config import JOINT_ESTIMATOR, PART_FINDER
 from .errors import ArtclassError
 from .interfaces import PartFinder
+from .io import read_mask
 from .joint_metrics import score_articulation
 from .pipeline import Config, Pipeline, StageCache
 from .plugins import Registry
@@ -41,6 +42,9 @@ class SequenceOutcome:
     observable: bool | None = (
         None  # some pair's truth is AM: the articulation can show at this k (None: no pair truth)
     )
+    n_frames: int = 0
+    segment_s: float = 0.0  # the run's time segmenting its frames
+    hands: dict[str, int] | None = None  # hand masks against the sequence's hand truth (score_hands)
 
     @property
     def correct(self) -> bool:
@@ -77,6 +81,7 @@ class Evaluation:
             members = [o for o in outs if o.truth == c]
             per_class[c] = sum(o.correct for o in members) / len(members)
         pair_total = sum(o.pair_total for o in outs)
+        frames = sum(o.n_frames for o in outs)
         legacy_total = sum(o.pair_total_legacy for o in outs)
         shown = [o for o in outs if o.truth == "articulated" and o.observable]
         return dict(
@@ -98,6 +103,13 @@ class Evaluation:
             if legacy_total
             else None,
             confusion=confusion,
+            false_articulated=[
+                o.name
+                for o in outs
+                if o.predicted == "articulated" and o.truth != "articulated" and not o.correct
+            ],
+            segment_ms_per_frame=1000 * sum(o.segment_s for o in outs) / frames if frames else None,
+            hands=hand_summary([o.hands for o in outs if o.hands]),
             per_object={
                 obj: dict(
                     truth=os_[0].truth,
@@ -120,6 +132,22 @@ class Evaluation:
             metrics=self.metrics(),
             sequences=[dict(o.__dict__, correct=o.correct) for o in self.outcomes],
         )
+
+
+def hand_summary(counts: list[dict[str, int]]) -> dict[str, Any] | None:
+    """The hand-mask IoU pooled over the frames with a hand, the share of those frames with the arm in
+    the object's mask, and the frames without a hand where one was found (None without counts)."""
+    if not counts:
+        return None
+    total = {k: sum(c[k] for c in counts) for k in counts[0]}
+    with_hand = total["frames_with_hand"]
+    return dict(
+        hand_iou=total["intersection"] / total["union"] if total["union"] else None,
+        arm_in_mask=total["arm_in_mask"] / with_hand if with_hand else None,
+        frames_with_hand=with_hand,
+        found_without_hand=total["found_without_hand"],
+        frames_without_hand=total["frames_without_hand"],
+    )
 
 
 def _mean(values: list[float]) -> float:
@@ -209,6 +237,7 @@ def run_outcome(
             except Exception as exc:  # the label stands; the parts are reported as failed
                 o.joints = dict(part_iou=None, part_iou_all_frames=None, joints=[], error=one_line(exc))
         score_labels(o, pipeline, seq, result)
+        o.hands = _hands_of(pipeline, seq, cache)
     o.seconds = time.perf_counter() - t0
     return o, result
 
@@ -228,8 +257,74 @@ def score_labels(o: SequenceOutcome, pipeline: Pipeline, seq: Sequence, result: 
     legacy = [(p, seq.pair_truth_legacy(p.i, p.j)) for p in result.pairs if p.decision != "skipped"]
     o.pair_total_legacy = sum(t is not None for _, t in legacy)
     o.pair_correct_legacy = sum(p.decision == t for p, t in legacy)
-    o.n_pairs = len(result.pairs)
+    o.n_pairs, o.n_frames = len(result.pairs), len(result.frames)
+    o.segment_s = result.timing_s.get("segment", 0.0)
     o.n_undecided = sum(p.decision == "undecided" for p in result.pairs)
+
+
+#: The arm is in the object's mask in a frame where it takes more than this share of the mask: a few
+#: mixed pixels along the contact are not counted, a wrist or a sleeve is.
+ARM_SHARE = 0.01
+#: What :func:`score_hands` counts.
+HAND_COUNTS = (
+    "intersection",
+    "union",
+    "frames_with_hand",
+    "arm_in_mask",
+    "frames_without_hand",
+    "found_without_hand",
+)
+
+
+def score_hands(
+    segmenter, seq: Sequence, *, arm_share: float = ARM_SHARE, every: int = 1
+) -> dict[str, int] | None:
+    """A segmenter's hand masks (``hand_mask``: the hand or gripper with its arm) against the hand truth
+    beside the sequence's frames (``hand/NAME.png``, non-zero on the hand and arm), as counts over the
+    frames: pixels of their intersection and union where the truth has a hand, the frames with a hand
+    and those where more than ``arm_share`` of the object's mask is the true hand, the frames without
+    a hand and those where one was found (every ``every``-th frame). None when the segmenter does not
+    look for hands or the sequence has no hand truth."""
+    folder = Path(seq.path) / "hand"
+    if not hasattr(segmenter, "hand_mask") or not folder.is_dir():
+        return None
+    out = dict.fromkeys(HAND_COUNTS, 0)
+    for i in range(0, len(seq), every):
+        frame = seq[i]
+        path = folder / f"{frame.name}.png"
+        if not path.is_file():
+            continue
+        found = segmenter.hand_mask(frame, sequence=seq)
+        if found is None:  # this segmenter does not look for hands
+            return None
+        truth = read_mask(path)
+        if not truth.any():
+            out["frames_without_hand"] += 1
+            out["found_without_hand"] += int(found.any())
+            continue
+        mask = segmenter.segment(frame, sequence=seq)
+        out["frames_with_hand"] += 1
+        out["intersection"] += int(np.count_nonzero(found & truth))
+        out["union"] += int(np.count_nonzero(found | truth))
+        out["arm_in_mask"] += int(
+            mask is not None and np.count_nonzero(mask & truth) > arm_share * mask.sum()
+        )
+    return out
+
+
+def _hands_of(pipeline: Pipeline, seq: Sequence, cache: StageCache | None) -> dict[str, int] | None:
+    """:func:`score_hands` of the pipeline's segmenter, once per sequence and segmenter in ``cache``:
+    settings that share the masks share the score (their segmenter never saw the frames)."""
+    key = None if cache is None else (cache.sequence_token(seq), *pipeline.depends(seq, "segment"))
+    if key is not None and (hit := cache.get("hands", key)) is not None:
+        return hit or None
+    try:
+        counts = score_hands(pipeline.segmenter(seq), seq)
+    except ArtclassError:  # unreadable hand truth: the labels stand
+        counts = None
+    if key is not None:
+        cache.put("hands", key, counts or {})
+    return counts
 
 
 def _observable(seq: Sequence, params) -> bool | None:
@@ -292,6 +387,22 @@ def _pct(x: float | None) -> str:
 
 def _number(x: float | None, digits: int = 1) -> str:
     return "–" if x is None else f"{x:.{digits}f}"
+
+
+def _hand_lines(ms: list[dict[str, Any]]) -> list[str]:
+    """Summary rows of the hand masks (segmenters that look for hands, on data with hand truth)."""
+    if not any(m["hands"] for m in ms):
+        return []
+    rows = (
+        ("hand-and-arm mask IoU, pooled over the frames with a hand", lambda h: _number(h["hand_iou"], 3)),
+        ("frames with a hand where the arm is in the object's mask %", lambda h: _pct(h["arm_in_mask"])),
+        ("frames with / without a hand", lambda h: f"{h['frames_with_hand']} / {h['frames_without_hand']}"),
+        ("frames without a hand where one is found", lambda h: str(h["found_without_hand"])),
+    )
+    return [
+        f"| {label} | " + " | ".join(cell(m["hands"]) if m["hands"] else "–" for m in ms) + " |"
+        for label, cell in rows
+    ]
 
 
 def _joint_lines(rules: list[str], ms: list[dict[str, Any]]) -> list[str]:
@@ -421,6 +532,19 @@ def markdown(evals: list[Evaluation]) -> str:
     lines.append(
         "| sequences / errors | " + " | ".join(f"{m['n_sequences']} / {m['errors']}" for m in ms) + " |"
     )
+    lines.append(
+        "| rigid or static called articulated | "
+        + " | ".join(
+            f"{len(m['false_articulated'])}"
+            + (f" ({', '.join(m['false_articulated'])})" if m["false_articulated"] else "")
+            for m in ms
+        )
+        + " |"
+    )
+    lines.append(
+        "| segmenting, ms a frame | " + " | ".join(_number(m["segment_ms_per_frame"]) for m in ms) + " |"
+    )
+    lines += _hand_lines(ms)
     lines += _joint_lines(rules, ms)
     for e, m in zip(evals, ms):
         lines += [

@@ -38,22 +38,14 @@ import numpy as np
 from bench_segmenters import make, parse_overrides
 
 from artclass_core import ArtclassError, find_sequences, load_registry
+from artclass_core.evaluate import HAND_COUNTS, score_hands
 from artclass_core.io import read_mask
 from artclass_plugins.segmenters.selection import mask_iou
 
 
 def empty_scores() -> dict:
     return dict(
-        inter=0,
-        union=0,
-        hand_ious=[],
-        border_ious=[],
-        alarms=0,
-        empty=0,
-        object_ious=[],
-        arm_in=0,
-        cpu_s=0.0,
-        frames=0,
+        hand_ious=[], border_ious=[], object_ious=[], cpu_s=0.0, frames=0, **dict.fromkeys(HAND_COUNTS, 0)
     )
 
 
@@ -63,7 +55,8 @@ def holder_of(seq) -> str:
 
 
 def score_sequence(seg, seq, *, every: int, arm_share: float) -> dict:
-    """Pooled hand intersection / union, per-frame hand IoUs, false alarms and object IoUs of a sequence."""
+    """Pooled hand counts (:func:`~artclass_core.evaluate.score_hands`), per-frame hand IoUs and object
+    IoUs of a sequence, and its segmenting time."""
     out = empty_scores()
     hand_dir = Path(seq.path) / "hand"
     for i in range(0, len(seq), every):
@@ -75,21 +68,14 @@ def score_sequence(seg, seq, *, every: int, arm_share: float) -> dict:
         if frame.mask is not None:
             out["object_ious"].append(0.0 if mask is None else mask_iou(mask, frame.mask))
         truth_file = hand_dir / f"{frame.name}.png"
-        if not truth_file.is_file():
-            continue
-        truth = read_mask(truth_file)
-        found = seg.hand_mask(frame, sequence=seq)
-        found = np.zeros_like(truth) if found is None else found
-        if truth.any():
-            out["arm_in"] += int(mask is not None and np.count_nonzero(mask & truth) > arm_share * mask.sum())
-            out["inter"] += int(np.count_nonzero(found & truth))
-            out["union"] += int(np.count_nonzero(found | truth))
+        truth = read_mask(truth_file) if truth_file.is_file() else None
+        if truth is not None and truth.any():
+            found = seg.hand_mask(frame, sequence=seq)
+            found = np.zeros_like(truth) if found is None else found
             out["hand_ious"].append(mask_iou(found, truth))
             if truth[0].any() or truth[-1].any() or truth[:, 0].any() or truth[:, -1].any():
                 out["border_ious"].append(mask_iou(found, truth))
-        else:
-            out["empty"] += 1
-            out["alarms"] += int(found.any())
+    out.update(score_hands(seg, seq, arm_share=arm_share, every=every) or {})
     return out
 
 
@@ -134,17 +120,23 @@ def main(argv: list[str] | None = None) -> int:
         for key in sorted(totals, key=lambda k: (k == "all", k)):
             t = totals[key]
             hand = (
-                f"hand IoU pooled {t['inter'] / t['union']:.3f}, mean {np.mean(t['hand_ious']):.3f} "
+                f"hand IoU pooled {t['intersection'] / t['union']:.3f}, mean {np.mean(t['hand_ious']):.3f} "
                 f"({len(t['hand_ious'])} frames), mean {np.mean(t['border_ious']):.3f} where it reaches the "
                 f"border ({len(t['border_ious'])} frames)"
                 if t["border_ious"]
                 else "no hand in the truth"
                 if not t["union"]
-                else f"hand IoU pooled {t['inter'] / t['union']:.3f}, mean {np.mean(t['hand_ious']):.3f}"
+                else f"hand IoU pooled {t['intersection'] / t['union']:.3f}, mean {np.mean(t['hand_ious']):.3f}"
             )
-            alarms = f"hand found in {t['alarms']} of {t['empty']} frames without" if t["empty"] else ""
+            alarms = (
+                f"hand found in {t['found_without_hand']} of {t['frames_without_hand']} frames without"
+                if t["frames_without_hand"]
+                else ""
+            )
             with_hand = len(t["hand_ious"])
-            arm = f"arm in the object's mask in {t['arm_in'] / with_hand:.1%} of them" if with_hand else ""
+            arm = (
+                f"arm in the object's mask in {t['arm_in_mask'] / with_hand:.1%} of them" if with_hand else ""
+            )
             objects = f"object IoU {np.mean(t['object_ious']):.3f} ({len(t['object_ious'])} frames)"
             cpu = f"segmenting {1000 * t['cpu_s'] / t['frames']:.1f} ms CPU a frame"
             print(f"    {key:<8} " + "; ".join(x for x in (objects, hand, arm, alarms, cpu) if x), flush=True)

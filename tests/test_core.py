@@ -647,3 +647,126 @@ def test_evaluation_counts_articulation_that_some_pair_shows(registry, rendered)
     assert (m["n"], m["of"], m["accuracy"]) == (1, 2, float(seen.correct))
     assert "where some pair shows the articulation" in markdown([both])
     assert "(1 of 2 sequences)" in markdown([both])
+
+
+class _Hands:
+    """A segmenter that finds given hand masks and gives given object masks, frame by frame."""
+
+    def __init__(self, hands, objects):
+        self.hands, self.objects = hands, objects
+
+    def hand_mask(self, frame, *, sequence):
+        return self.hands[frame.index]
+
+    def segment(self, frame, *, sequence):
+        return self.objects[frame.index]
+
+
+def test_hand_masks_are_scored_against_the_hand_truth(tmp_path):
+    """Pixels of the found and true hands are pooled over the frames with a hand; the arm counts in the
+    object's mask where it takes more than 1 % of it; a hand found where the truth has none is a
+    false alarm; frames without a truth file are not scored."""
+    from types import SimpleNamespace
+
+    import cv2
+
+    from artclass_core.evaluate import hand_summary, score_hands
+
+    def box(y0, y1, x0, x1):
+        m = np.zeros((20, 20), bool)
+        m[y0:y1, x0:x1] = True
+        return m
+
+    truths = [box(0, 10, 0, 4), box(0, 10, 0, 4), box(0, 0, 0, 0), None]  # 40, 40, no hand, no file
+    (tmp_path / "hand").mkdir()
+    for i, t in enumerate(truths):
+        if t is not None:
+            cv2.imwrite(str(tmp_path / "hand" / f"{i:06d}.png"), t.astype(np.uint8) * 255)
+    frames = [SimpleNamespace(index=i, name=f"{i:06d}") for i in range(len(truths))]
+    seq = type("Seq", (), {"path": tmp_path, "__len__": lambda s: 4, "__getitem__": lambda s, i: frames[i]})()
+    hands = [box(0, 10, 0, 2), box(0, 10, 0, 4), box(5, 6, 5, 6), box(0, 20, 0, 20)]
+    objects = [box(0, 10, 3, 20), box(0, 10, 4, 20), box(10, 20, 0, 20), None]  # arm: 10 of 170 px, 0
+    counts = score_hands(_Hands(hands, objects), seq)
+    assert counts == dict(
+        intersection=20 + 40,
+        union=40 + 40,
+        frames_with_hand=2,
+        arm_in_mask=1,
+        frames_without_hand=1,
+        found_without_hand=1,
+    )
+    summary = hand_summary([counts, counts])
+    assert summary["hand_iou"] == pytest.approx(60 / 80) and summary["arm_in_mask"] == 0.5
+    assert score_hands(_Hands([None] * 4, objects), seq) is None  # a segmenter that seeks no hands
+    (tmp_path / "hand").rename(tmp_path / "elsewhere")
+    assert score_hands(_Hands(hands, objects), seq) is None  # no hand truth
+
+
+def test_evaluation_names_what_it_called_articulated_wrongly():
+    """A rigid or static sequence called articulated is named in the summary; one whose label allows
+    it (a static scene the truth also accepts as rigid) is not, nor is an articulated one."""
+    from artclass_core.evaluate import Evaluation, SequenceOutcome, markdown
+
+    outs = [
+        SequenceOutcome("mug_carry", "mug", "rigid", ("rigid",), "articulated"),
+        SequenceOutcome("box_static", "box", "static", ("static", "articulated"), "articulated"),
+        SequenceOutcome("laptop_open", "laptop", "articulated", ("articulated",), "articulated"),
+        SequenceOutcome("can_static", "can", "static", ("static",), "static"),
+    ]
+    evaluation = Evaluation("dense", outs, {})
+    assert evaluation.metrics()["false_articulated"] == ["mug_carry"]
+    assert "| rigid or static called articulated | 1 (mug_carry) |" in markdown([evaluation])
+    assert "hand-and-arm mask IoU" not in markdown([evaluation])  # no segmenter sought hands
+
+
+@pytest.fixture(scope="module")
+def held_laptop(tmp_path_factory):
+    """A laptop opened by a hand, with the hand's truth beside its frames."""
+    from artclass_plugins.synth import generate_sequence
+
+    folder = tmp_path_factory.mktemp("held") / "laptop"
+    generate_sequence(
+        folder,
+        object_name="laptop",
+        motion="articulate",
+        noise="low",
+        hand="hand",
+        n_frames=12,
+        seed=0,
+        width=320,
+        height=240,
+    )
+    return folder
+
+
+def test_evaluation_scores_the_hands_a_segmenter_finds(registry, held_laptop):
+    """``artclass evaluate`` with a segmenter that seeks hands reports its hand masks against the
+    sequence's hand truth, and how long segmenting took."""
+    from artclass_core import open_sequences
+    from artclass_core.evaluate import HAND_COUNTS, evaluate, markdown
+
+    laptop = open_sequences(registry, held_laptop)[0]
+    evaluation = evaluate(registry, [laptop], Config(segmenter="depth_threshold"))
+    (outcome,) = evaluation.outcomes
+    assert set(outcome.hands) == set(HAND_COUNTS) and outcome.hands["frames_with_hand"] > 0
+    hands = evaluation.metrics()["hands"]
+    assert 0.0 < hands["hand_iou"] <= 1.0 and 0.0 <= hands["arm_in_mask"] <= 1.0
+    assert evaluation.metrics()["segment_ms_per_frame"] > 0
+    assert "hand-and-arm mask IoU, pooled over the frames with a hand" in markdown([evaluation])
+    assert evaluate(registry, [laptop], Config(segmenter="mask")).metrics()["hands"] is None
+
+
+def test_settings_that_share_masks_share_the_hand_scores(registry, held_laptop, monkeypatch):
+    """Two settings of the rule run on the same masks: the hands are scored once, for both."""
+    import artclass_core.evaluate as evaluate_module
+    from artclass_core import open_sequences
+    from artclass_core.sweep import grid_settings, sequence_rows
+
+    scored = []
+    score = evaluate_module.score_hands
+    monkeypatch.setattr(evaluate_module, "score_hands", lambda *a, **kw: scored.append(1) or score(*a, **kw))
+    laptop = open_sequences(registry, held_laptop)[0]
+    settings = grid_settings(registry, {"noise_factor": ["2", "4"]}, segmenter="depth_threshold")
+    outcomes = [o for _, _, o in sequence_rows(registry, laptop, settings)]
+    assert outcomes[0].hands and outcomes[0].hands == outcomes[1].hands
+    assert len(scored) == 1
