@@ -100,11 +100,13 @@ class FrameSteps:
             return FrameResult(raw.index, raw.name, None, skipped="no object found")
         cloud = raw.cloud
         if len(cloud) < self.params.min_cell_points:
+            read = cloud.info.get("n_raw")  # the mask's pixels the preprocessor found a depth reading on
             return FrameResult(
                 raw.index,
                 raw.name,
                 None,
-                skipped=f"only {len(cloud)} object points",
+                skipped=f"only {len(cloud)} object points from a mask of {raw.mask_pixels} pixels"
+                + ("" if read is None else f", {read} of them with a depth reading"),
                 mask_pixels=raw.mask_pixels,
                 info=dict(cloud.info),
             )

@@ -310,6 +310,19 @@ def test_empty_masks_on_every_frame(tmp_path, capfd):
     )
 
 
+def test_masks_without_depth_readings_say_so(tmp_path, capfd):
+    """A mask over pixels the sensor did not read (a thin dark object under time of flight): the
+    error says how large the masks are and how few of their pixels have depth."""
+    seq = write_folder(tmp_path)
+    for depth in (seq / "depth").glob("*.png"):
+        write_png(depth, np.zeros((48, 64), np.uint16))
+    assert_error(
+        *run(capfd, ["classify", seq, "--segmenter", "mask"], watch=tmp_path),
+        path=seq,
+        problem=r"only 0 object points from a mask of \d+ pixels, 0 of them with a depth reading",
+    )
+
+
 def test_sequence_shorter_than_k_plus_one(tmp_path, capfd):
     seq = write_folder(tmp_path, n_frames=3)
     assert_error(
