@@ -118,6 +118,17 @@ def test_a_gap_in_the_readings_that_does_not_reach_the_border_is_no_way_in():
     assert not _limbs(depth, shows).any()
 
 
+def test_a_slim_forearm_coming_from_far_away_is_as_wide_as_it_is_where_it_enters():
+    """A slim forearm (3.4 cm across) enters the picture half again as far as the box it reaches:
+    its width where it enters is measured at its own depth, not at the region's (there it would
+    seem too slim for a forearm)."""
+    depth, shows = _render(_cylinder((-1.6, 0.0, 1.7), ARM[1], radius=0.017), _box(*BOX))
+    arm = shows == 0
+    assert arm[:, 0].any() and np.median(depth[:, :3][arm[:, :3]]) > 1.5 * np.median(depth[shows >= 0])
+    found = _limbs(depth, shows)
+    assert np.count_nonzero(found & arm) >= 0.9 * np.count_nonzero(arm)
+
+
 def test_a_box_that_enters_the_picture_is_no_forearm():
     depth, shows = _render(_box((-1.0, -0.1, 0.7), (-0.1, 0.2, 1.0)))
     assert (shows == 0)[:, 0].any()

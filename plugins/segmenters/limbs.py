@@ -7,7 +7,8 @@ flight, leaves a gap in them that reaches the border. So, in each region standin
 background that reaches the image border, or such a gap:
 
 1. the *stub*: its points within :data:`STUB_M` of where it enters (the middle of a run of its
-   pixels along the border, or the gap, at least a forearm wide; each run is tried);
+   pixels along the border, or the gap, at least a forearm wide at the run's own depth, since a
+   forearm reaching in from far away looks slim there; each run is tried);
 2. the *cylinder* through them: its axis runs along the direction their surface normals are all
    square to, pointing into the picture; across the axis, a circle fitted to the points gives the
    axis's place and the radius. A stretch of points elongated along one direction
@@ -127,10 +128,11 @@ def limbs(
             region, depth_m, intrinsics, v[sample], u[sample], max(round(NORMAL_M * px_per_m), 1)
         )
         entries, points = runs[v, u], None
-        for r in np.unique(entries[entries > 0]):  # each as wide as a forearm
-            if not 2 * FOREARM_RADIUS_M[0] <= across[r] / px_per_m <= widest[r]:
-                continue
+        for r in np.unique(entries[entries > 0]):  # each as wide as a forearm, at its own depth
             at = entries == r
+            width_m = across[r] * float(np.median(z[at])) / intrinsics.fx
+            if not 2 * FOREARM_RADIUS_M[0] <= width_m <= widest[r]:
+                continue
             limb = _trace(traced, normals, intrinsics.points(u[at], v[at], z[at]).mean(axis=0))
             if limb is None:
                 continue
