@@ -299,27 +299,25 @@ def test_tum_list_line_without_timestamp(tmp_path, capfd):
 
 
 # -- sequences the pipeline cannot use --------------------------------------------------------------
-def test_empty_masks_on_every_frame(tmp_path, capfd):
+@pytest.mark.parametrize(
+    "blank, dtype, problem",
+    [
+        ("mask", np.uint8, r"no object in any of the 8 frames \(segmenter 'mask': no object found"),
+        # a mask over pixels the sensor did not read (a thin dark object under time of flight): the
+        # error says how large the masks are and how few of their pixels have depth
+        (
+            "depth",
+            np.uint16,
+            r"only 0 object points from a mask of \d+ pixels, 0 of them with a depth reading",
+        ),
+    ],
+)
+def test_no_object_on_any_frame(tmp_path, capfd, blank, dtype, problem):
     seq = write_folder(tmp_path)
-    for mask in (seq / "mask").glob("*.png"):
-        write_png(mask, np.zeros((48, 64), np.uint8))
+    for image in (seq / blank).glob("*.png"):
+        write_png(image, np.zeros((48, 64), dtype))
     assert_error(
-        *run(capfd, ["classify", seq, "--segmenter", "mask"], watch=tmp_path),
-        path=seq,
-        problem=r"no object in any of the 8 frames \(segmenter 'mask'",
-    )
-
-
-def test_masks_without_depth_readings_say_so(tmp_path, capfd):
-    """A mask over pixels the sensor did not read (a thin dark object under time of flight): the
-    error says how large the masks are and how few of their pixels have depth."""
-    seq = write_folder(tmp_path)
-    for depth in (seq / "depth").glob("*.png"):
-        write_png(depth, np.zeros((48, 64), np.uint16))
-    assert_error(
-        *run(capfd, ["classify", seq, "--segmenter", "mask"], watch=tmp_path),
-        path=seq,
-        problem=r"only 0 object points from a mask of \d+ pixels, 0 of them with a depth reading",
+        *run(capfd, ["classify", seq, "--segmenter", "mask"], watch=tmp_path), path=seq, problem=problem
     )
 
 
