@@ -25,8 +25,8 @@ TABLES = ("frame", "register", "hands")
 
 
 class StageCache:
-    """Frame clouds and pair registrations kept between runs, keyed on everything they depend on (and a
-    sequence's hand-mask scores, which depend on what its frames do).
+    """Frame clouds and pair registrations kept between runs, keyed on everything they depend on; and
+    the scores of a sequence's hand masks, which depend on its segmenter only.
 
     Used by :meth:`Pipeline.run` (``cache=``) and :meth:`Pipeline.redecide`; the keys are
     :meth:`Pipeline.frame_key` and :meth:`Pipeline.pair_key`, built from
