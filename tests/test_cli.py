@@ -212,9 +212,11 @@ def test_evaluate_on_a_local_dask_cluster_is_the_serial_evaluation(capsys, tmp_p
         )
         assert status == 0, err
         evals = json.loads(out)["evaluations"]
-        for e in evals:
+        for e in evals:  # times differ from run to run
+            e["metrics"].pop("segment_ms_per_frame")
             for s in e["sequences"]:
                 s.pop("seconds")
+                s.pop("segment_s")
         runs.append(evals)
     assert [e["rule"] for e in runs[0]] == ["dense", "paper"]
     assert runs[0] == runs[1]
