@@ -11,7 +11,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .articulation import forget_clouds
+from .articulation import Articulation, forget_clouds
 from .config import JOINT_ESTIMATOR, PART_FINDER
 from .errors import ArtclassError
 from .interfaces import PartFinder
@@ -20,6 +20,7 @@ from .joint_metrics import score_articulation
 from .pipeline import Config, Pipeline, StageCache
 from .plugins import Registry
 from .types import DECISIONS, LABELS, RunResult, Sequence
+from .video import JOINT_MODELS
 
 
 @dataclass
@@ -45,6 +46,7 @@ class SequenceOutcome:
     n_frames: int = 0
     segment_s: float = 0.0  # the run's time segmenting its frames
     hands: dict[str, int] | None = None  # hand masks against the sequence's hand truth (score_hands)
+    moved_against: str | None = None  # what a rigid or static object called articulated moved against
 
     @property
     def correct(self) -> bool:
@@ -108,6 +110,8 @@ class Evaluation:
                 for o in outs
                 if o.predicted == "articulated" and o.truth != "articulated" and not o.correct
             ],
+            # what each of them moved against, where the object and hand truth tell
+            false_articulated_against={o.name: o.moved_against for o in outs if o.moved_against},
             segment_ms_per_frame=1000 * sum(o.segment_s for o in outs) / frames if frames else None,
             hands=hand_summary([o.hands for o in outs if o.hands]),
             per_object={
@@ -226,17 +230,25 @@ def run_outcome(
     truth = getattr(seq, "truth", None)
     finder = pipeline.registry.create("part_finder", PART_FINDER)
     with_joints = isinstance(truth, dict) and "joints" in truth and finder.works_on(pipeline.rule)
+    # a rigid or static object called articulated is told what it moved against from its parts
+    with_parts = (
+        seq.label != "articulated" and (Path(seq.path) / "mask").is_dir() and finder.works_on(pipeline.rule)
+    )
     try:
-        result = pipeline.run(seq, workers=workers, cache=cache, keep_clouds=with_joints)
+        result = pipeline.run(seq, workers=workers, cache=cache, keep_clouds=with_joints or with_parts)
     except Exception as exc:  # bad data, or a plugin's bug: one line here, and the next sequence runs
         o.error = one_line(exc)
     else:
+        score_labels(o, pipeline, seq, result)
+        if with_parts and o.predicted == "articulated" and not o.correct:
+            o.moved_against = _moved_against(finder, pipeline, seq, result)
         if with_joints:
             try:
                 o.joints = _score_joints(finder, pipeline, seq, result, truth)
             except Exception as exc:  # the label stands; the parts are reported as failed
                 o.joints = dict(part_iou=None, part_iou_all_frames=None, joints=[], error=one_line(exc))
-        score_labels(o, pipeline, seq, result)
+        if with_joints or with_parts:
+            forget_clouds(result)  # the run's clouds and evidence were kept for the parts only
         o.hands = _hands_of(pipeline, seq, cache)
     o.seconds = time.perf_counter() - t0
     return o, result
@@ -327,6 +339,58 @@ def _hands_of(pipeline: Pipeline, seq: Sequence, cache: StageCache | None) -> di
     return counts
 
 
+#: What a rigid or static object called articulated moved against, as the summary says it: the hand
+#: or arm, something beside the object (a stand it was lifted from, the table), or itself (split in two).
+AGAINST_TEXT = dict(hand="a hand or arm", beside="what it stood on or beside", itself="itself")
+#: A part of the joint is the hand, or beside the object, when this share of its pixels is.
+AGAINST_SHARE = 1 / 3
+
+
+def moved_against(articulation: Articulation, object_masks: dict, hand_masks: dict) -> str | None:
+    """What the joint seen over the most pairs moves: ``"hand"`` or ``"beside"`` when at least
+    :data:`AGAINST_SHARE` of the pixels of one of its two parts lie on the true hand and arm
+    (``hand_masks``, frame -> bool (H, W)) or on neither the hand nor the object (``object_masks``),
+    the larger share when both do; else ``"itself"``. None without a joint or any frame with truth."""
+    joints = [j for j in articulation.joints if j.estimate.type in JOINT_MODELS]
+    if not joints:
+        return None
+    joint = max(joints, key=lambda j: j.n_pairs)
+    counts = np.zeros((2, 3))  # the joint's parent and child: pixels on the hand, beside, the object
+    for f in articulation.frames:
+        if f not in object_masks:
+            continue
+        labels, obj = articulation.label_image(f), object_masks[f]
+        hand = hand_masks.get(f, np.zeros_like(obj))
+        for row, part in enumerate((joint.parent, joint.child)):
+            on = labels == part + 1
+            counts[row] += [
+                np.count_nonzero(on & hand),
+                np.count_nonzero(on & ~hand & ~obj),
+                np.count_nonzero(on & obj & ~hand),
+            ]
+    if not counts.any():
+        return None
+    shares = counts[:, :2] / np.maximum(counts.sum(axis=1, keepdims=True), 1)
+    worst = shares.max(axis=0)  # the largest share of either part on the hand, and beside
+    return ("hand", "beside")[int(np.argmax(worst))] if worst.max() >= AGAINST_SHARE else "itself"
+
+
+def _moved_against(finder: PartFinder, pipeline: Pipeline, seq: Sequence, result: RunResult) -> str | None:
+    """:func:`moved_against` of a run (kept clouds) against the object and hand truth beside the
+    sequence's frames (``mask/``, ``hand/``); None when either cannot be read."""
+    try:
+        articulation = finder.find(
+            result, estimator=pipeline.registry.create("joint_estimator", JOINT_ESTIMATOR)
+        )
+        masks = {}
+        for kind in ("mask", "hand"):
+            paths = {f.index: Path(seq.path) / kind / f"{f.name}.png" for f in result.frames}
+            masks[kind] = {i: read_mask(p) for i, p in paths.items() if p.is_file()}
+    except ArtclassError:  # the label stands
+        return None
+    return moved_against(articulation, masks["mask"], masks["hand"])
+
+
 def _observable(seq: Sequence, params) -> bool | None:
     """Whether some pair the pipeline may decide, (i, i + k) or (i, i + slow_factor k), has AM for its
     truth (None when the sequence has no pair truth): a judgement of the truth alone, not of which
@@ -351,7 +415,6 @@ def _score_joints(
         path = Path(seq.path) / "parts" / f"{frame.name}.png"
         if path.is_file():
             images[frame.index] = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    forget_clouds(result)  # the run's clouds and evidence were kept for this only
     return score_articulation(articulation, truth, images)
 
 
@@ -387,6 +450,12 @@ def _pct(x: float | None) -> str:
 
 def _number(x: float | None, digits: int = 1) -> str:
     return "–" if x is None else f"{x:.{digits}f}"
+
+
+def _against(m: dict[str, Any], name: str) -> str:
+    """A sequence named in the false-articulation row, with what it moved against where known."""
+    against = m["false_articulated_against"].get(name)
+    return f"{name}: {AGAINST_TEXT[against]}" if against else name
 
 
 def _hand_lines(ms: list[dict[str, Any]]) -> list[str]:
@@ -536,7 +605,11 @@ def markdown(evals: list[Evaluation]) -> str:
         "| rigid or static called articulated | "
         + " | ".join(
             f"{len(m['false_articulated'])}"
-            + (f" ({', '.join(m['false_articulated'])})" if m["false_articulated"] else "")
+            + (
+                f" ({', '.join(_against(m, name) for name in m['false_articulated'])})"
+                if m["false_articulated"]
+                else ""
+            )
             for m in ms
         )
         + " |"

@@ -708,15 +708,65 @@ def test_evaluation_names_what_it_called_articulated_wrongly():
     from artclass_core.evaluate import Evaluation, SequenceOutcome, markdown
 
     outs = [
-        SequenceOutcome("mug_carry", "mug", "rigid", ("rigid",), "articulated"),
+        SequenceOutcome("mug_carry", "mug", "rigid", ("rigid",), "articulated", moved_against="hand"),
         SequenceOutcome("box_static", "box", "static", ("static", "articulated"), "articulated"),
         SequenceOutcome("laptop_open", "laptop", "articulated", ("articulated",), "articulated"),
         SequenceOutcome("can_static", "can", "static", ("static",), "static"),
     ]
     evaluation = Evaluation("dense", outs, {})
     assert evaluation.metrics()["false_articulated"] == ["mug_carry"]
-    assert "| rigid or static called articulated | 1 (mug_carry) |" in markdown([evaluation])
+    assert evaluation.metrics()["false_articulated_against"] == {"mug_carry": "hand"}
+    assert "| rigid or static called articulated | 1 (mug_carry: a hand or arm) |" in markdown([evaluation])
     assert "hand-and-arm mask IoU" not in markdown([evaluation])  # no segmenter sought hands
+
+
+def _halves(hand_cols: int, object_cols: tuple[int, int]):
+    """An articulation of a 20 x 20 picture whose left half is the base and right half the part, on a
+    joint, with a hand over the ``hand_cols`` rightmost columns and the object over ``object_cols``."""
+    from artclass_core.articulation import Articulation, JointEstimate, Part, PartJoint
+
+    states = np.linspace(0.0, 0.5, 2)
+    joint = PartJoint(0, 1, JointEstimate("revolute", np.ones(3), np.zeros(3), states, np.ones(2, bool)), 5)
+    parts = [
+        Part(0, "base", -1, np.zeros((1, 3)), [0, 1], 1),
+        Part(1, "part1", 0, np.zeros((1, 3)), [0, 1], 1),
+    ]
+    view = (np.array([[2, 10], [17, 10]]), np.array([0, 1]), np.ones((20, 20), bool), 1)
+    articulation = Articulation(parts, [joint], np.tile(np.eye(4), (2, 1, 1)), {0: view, 1: view})
+    hand, obj = np.zeros((2, 20, 20), bool)
+    hand[:, 20 - hand_cols :] = True
+    obj[:, object_cols[0] : object_cols[1]] = True
+    return articulation, {0: obj, 1: obj}, {0: hand, 1: hand}
+
+
+@pytest.mark.parametrize(
+    "hand_cols, object_cols, against",
+    [
+        (10, (0, 10), "hand"),  # the part is the hand
+        (0, (10, 20), "beside"),  # the base is the stand the part was lifted from
+        (0, (0, 20), "itself"),  # the object split in two
+        (2, (0, 20), "itself"),  # a fifth of the part is the hand: the object split, all the same
+    ],
+)
+def test_a_false_articulation_is_told_what_it_moved_against(hand_cols, object_cols, against):
+    """The joint's part or base counts as the hand, or as beside the object, when a third of its
+    pixels are; else the object moved against itself."""
+    from artclass_core.evaluate import moved_against
+
+    assert moved_against(*_halves(hand_cols, object_cols)) == against
+
+
+def test_evaluation_says_what_a_false_articulation_moved_against(registry, held_laptop):
+    """A run that calls a sequence articulated against its truth is told, from its parts and the
+    object's and hand's truth beside the frames, what it moved against: this laptop, taken as rigid,
+    opens its own lid."""
+    from artclass_core import open_sequences
+    from artclass_core.evaluate import evaluate
+
+    laptop = open_sequences(registry, held_laptop)[0]
+    laptop.label, laptop.accepted_labels = "rigid", ("rigid",)
+    metrics = evaluate(registry, [laptop], Config(segmenter="mask")).metrics()
+    assert metrics["false_articulated_against"] == {laptop.name: "itself"}
 
 
 @pytest.fixture(scope="module")
