@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import platform
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -424,12 +425,43 @@ def one_line(exc: BaseException) -> str:
     return text if isinstance(exc, ArtclassError) else f"{type(exc).__name__}: {text}".rstrip(": ")
 
 
+#: The packages whose versions an evaluation's numbers depend on: artclass, and those that render,
+#: read and compute (a renderer's or a library's release moves a few depth pixels, and labels near
+#: a decision's edge with them).
+PACKAGES = (
+    "artclass",
+    "numpy",
+    "scipy",
+    "opencv-python-headless",
+    "open3d-cpu",
+    "open3d",
+    "numba",
+    "onnxruntime",
+)
+
+
+def environment() -> dict[str, str]:
+    """The installed versions of :data:`PACKAGES` (those installed), and Python's."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    found = {"python": platform.python_version()}
+    for name in PACKAGES:
+        try:
+            found[name] = version(name)
+        except PackageNotFoundError:
+            continue
+    return found
+
+
 def evaluation(config: Config, outcomes: list[SequenceOutcome]) -> Evaluation:
-    """The :class:`Evaluation` of ``config`` made of these outcomes."""
+    """The :class:`Evaluation` of ``config`` made of these outcomes, with the :func:`environment`."""
     return Evaluation(
         config_label(config),
         outcomes,
-        dict(plugins={k: getattr(config, k) for k in ("segmenter", "preprocessor", "registrar", "rule")}),
+        dict(
+            plugins={k: getattr(config, k) for k in ("segmenter", "preprocessor", "registrar", "rule")},
+            environment=environment(),
+        ),
     )
 
 
@@ -533,7 +565,8 @@ def markdown(evals: list[Evaluation]) -> str:
     """A Markdown report; with several evaluations (e.g. the default rule and ``paper``) side by side."""
     ms = [e.metrics() for e in evals]
     rules = [e.rule for e in evals]
-    lines = ["# artclass evaluation", ""]
+    versions = ", ".join(f"{k} {v}" for k, v in evals[0].config.get("environment", {}).items())
+    lines = ["# artclass evaluation", ""] + ([f"Measured with {versions}.", ""] if versions else [])
     lines += [
         "## Sequences",
         "",

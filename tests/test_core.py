@@ -720,6 +720,15 @@ def test_evaluation_names_what_it_called_articulated_wrongly():
     assert "hand-and-arm mask IoU" not in markdown([evaluation])  # no segmenter sought hands
 
 
+def test_evaluation_records_the_versions_its_numbers_depend_on():
+    """The numpy the run imported, among the others, in the JSON and at the report's top."""
+    from artclass_core.evaluate import SequenceOutcome, evaluation, markdown
+
+    done = evaluation(Config(), [SequenceOutcome("can", "can", "static", ("static",), "static")])
+    assert done.config["environment"]["numpy"] == np.__version__
+    assert f"numpy {np.__version__}" in markdown([done]).splitlines()[2]
+
+
 def _halves(hand_cols: int, object_cols: tuple[int, int]):
     """An articulation of a 20 x 20 picture whose left half is the base and right half the part, on a
     joint, with a hand over the ``hand_cols`` rightmost columns and the object over ``object_cols``."""
