@@ -426,8 +426,8 @@ def one_line(exc: BaseException) -> str:
 
 
 #: The packages whose versions an evaluation's numbers depend on: artclass, and those that render,
-#: read and compute (a renderer's or a library's release moves a few depth pixels, and labels near
-#: a decision's edge with them).
+#: read and compute (two installs can render a few depth pixels apart, and the labels near a
+#: decision's edge move with them).
 PACKAGES = (
     "artclass",
     "numpy",
