@@ -15,7 +15,6 @@ import numpy as np
 from .articulation import Articulation, forget_clouds
 from .config import JOINT_ESTIMATOR, PART_FINDER
 from .errors import ArtclassError
-from .interfaces import PartFinder
 from .io import read_mask
 from .joint_metrics import score_articulation
 from .pipeline import Config, Pipeline, StageCache
@@ -241,13 +240,18 @@ def run_outcome(
         o.error = one_line(exc)
     else:
         score_labels(o, pipeline, seq, result)
-        if with_parts and o.predicted == "articulated" and not o.correct:
-            o.moved_against = _moved_against(finder, pipeline, seq, result)
-        if with_joints:
+        wrongly = with_parts and o.predicted == "articulated" and not o.correct
+        if with_joints or wrongly:
             try:
-                o.joints = _score_joints(finder, pipeline, seq, result, truth)
+                estimator = pipeline.registry.create("joint_estimator", JOINT_ESTIMATOR)
+                articulation = finder.find(result, estimator=estimator)
+                if wrongly:
+                    o.moved_against = _moved_against(articulation, seq, result)
+                if with_joints:
+                    o.joints = _score_joints(articulation, seq, result, truth)
             except Exception as exc:  # the label stands; the parts are reported as failed
-                o.joints = dict(part_iou=None, part_iou_all_frames=None, joints=[], error=one_line(exc))
+                if with_joints:
+                    o.joints = dict(part_iou=None, part_iou_all_frames=None, joints=[], error=one_line(exc))
         if with_joints or with_parts:
             forget_clouds(result)  # the run's clouds and evidence were kept for the parts only
         o.hands = _hands_of(pipeline, seq, cache)
@@ -376,14 +380,11 @@ def moved_against(articulation: Articulation, object_masks: dict, hand_masks: di
     return ("hand", "beside")[int(np.argmax(worst))] if worst.max() >= AGAINST_SHARE else "itself"
 
 
-def _moved_against(finder: PartFinder, pipeline: Pipeline, seq: Sequence, result: RunResult) -> str | None:
-    """:func:`moved_against` of a run (kept clouds) against the object and hand truth beside the
+def _moved_against(articulation: Articulation, seq: Sequence, result: RunResult) -> str | None:
+    """:func:`moved_against` of a run's parts against the object and hand truth beside the
     sequence's frames (``mask/``, ``hand/``); None when either cannot be read."""
+    masks = {}
     try:
-        articulation = finder.find(
-            result, estimator=pipeline.registry.create("joint_estimator", JOINT_ESTIMATOR)
-        )
-        masks = {}
         for kind in ("mask", "hand"):
             paths = {f.index: Path(seq.path) / kind / f"{f.name}.png" for f in result.frames}
             masks[kind] = {i: read_mask(p) for i, p in paths.items() if p.is_file()}
@@ -406,11 +407,10 @@ def _observable(seq: Sequence, params) -> bool | None:
 
 
 def _score_joints(
-    finder: PartFinder, pipeline: Pipeline, seq: Sequence, result: RunResult, truth: dict
+    articulation: Articulation, seq: Sequence, result: RunResult, truth: dict
 ) -> dict[str, Any]:
-    """The parts and joints ``finder`` finds in a run against the sequence's joint truth and part
-    images (``parts/``)."""
-    articulation = finder.find(result, estimator=pipeline.registry.create("joint_estimator", JOINT_ESTIMATOR))
+    """The parts and joints found in a run against the sequence's joint truth and part images
+    (``parts/``)."""
     images = {}
     for frame in result.frames:
         path = Path(seq.path) / "parts" / f"{frame.name}.png"
