@@ -34,6 +34,11 @@ union of:
   forearm's width that enters the picture at its border, held above the table, traced from the
   border until it meets something wider (the hand, or what it holds or rests on), with the hand's
   reach beyond it;
+* **the stretch of an arm that reads nothing** (too near the sensor, or too dark for it): pixels
+  without a reading, in solid regions that reach the image border (not the projector's shadow, not
+  the speckle of dropouts), of the hand's own colour where they meet it (chromaticity within
+  ``hand_chroma``), joined to the hand (:func:`unread_arm`). A window beyond the sensor's range
+  beside the arm is of another colour and stays out;
 * **a gripper by colour**: the same rule for the pixels inside the HSV box ``gripper_hsv`` (or in
   any of its boxes, for a gripper of several colours), or, when that is not set, the boxes the
   sequence's own settings give as ``gripper_hsv`` (a robot rig knows its gripper: the native
@@ -557,6 +562,7 @@ def find_hands(
         # pixels without a reading are the hand's where a closing of the margin's radius puts them
         # inside it (dropouts on skin), not a band along its side (the sensor's shadow on the table)
         hand &= (d > 0) | close_gaps(hand & (d > 0), params.hand_margin_px)
+        hand |= unread_arm(hand, d, frame.rgb, step_m=touch, tolerance=params.hand_chroma)
     return _with_given(hand, frame, params=params, sequence_path=sequence_path)
 
 
@@ -975,6 +981,39 @@ def _squared_norms(v: np.ndarray) -> np.ndarray:
     fraction of the time of a reduction over a short axis."""
     sq = v * v
     return sq[:, 0] + sq[:, 1] + sq[:, 2]
+
+
+def unread_arm(
+    hand: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, *, step_m: float, tolerance: float
+) -> np.ndarray:
+    """The stretch of the arm that reads nothing (too near the sensor, or too dark for it), bool (H, W):
+    in each solid region of pixels without a reading that reaches the image border (``_edge_gaps``
+    opened by a disc of ``MIXED_PX``: not the projector's shadow, nor the speckle of dropouts) and
+    touches ``hand``, the pixels whose :func:`chromaticity` lies within ``tolerance`` of the median of
+    the hand's where they meet (past its mixed outline when it has pixels there), connected to the
+    hand."""
+    out = np.zeros(hand.shape, bool)
+    gaps = _edge_gaps(depth_m, projector_shadows(depth_m, step_m=step_m)) & ~hand
+    if tolerance <= 0 or not gaps.any():
+        return out
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * MIXED_PX + 1,) * 2)
+    _, parts = cv2.connectedComponents(cv2.morphologyEx(as_uint8(gaps), cv2.MORPH_OPEN, disc), connectivity=8)
+    inner, beside = hand & ~widen(~hand, MIXED_PX), widen(hand, 1)
+    for k in np.unique(parts[beside & (parts > 0)]):
+        gap = parts == k
+        near = widen(gap, 2 * MIXED_PX)
+        meet = inner & near if (inner & near).any() else hand & near
+        alike = np.zeros(hand.shape, bool)
+        alike[gap] = (
+            _squared_norms(chromaticity(rgb, gap) - np.median(chromaticity(rgb, meet), axis=0))
+            <= tolerance**2
+        )
+        n, pieces = cv2.connectedComponents(as_uint8(alike), connectivity=8)
+        joined = np.zeros(n, bool)
+        joined[pieces[beside & alike]] = True
+        joined[0] = False
+        out |= joined[pieces]
+    return out
 
 
 def _edge_gaps(depth_m: np.ndarray, shadow: np.ndarray) -> np.ndarray:
