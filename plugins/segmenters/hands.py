@@ -562,7 +562,7 @@ def find_hands(
         # pixels without a reading are the hand's where a closing of the margin's radius puts them
         # inside it (dropouts on skin), not a band along its side (the sensor's shadow on the table)
         hand &= (d > 0) | close_gaps(hand & (d > 0), params.hand_margin_px)
-        hand |= unread_arm(hand, d, frame.rgb, step_m=touch, tolerance=params.hand_chroma)
+        hand |= unread_arm(hand, d, frame.rgb, shadow=shadow, tolerance=params.hand_chroma)
     return _with_given(hand, frame, params=params, sequence_path=sequence_path)
 
 
@@ -984,35 +984,37 @@ def _squared_norms(v: np.ndarray) -> np.ndarray:
 
 
 def unread_arm(
-    hand: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, *, step_m: float, tolerance: float
+    hand: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, *, shadow: np.ndarray, tolerance: float
 ) -> np.ndarray:
     """The stretch of the arm that reads nothing (too near the sensor, or too dark for it), bool (H, W):
     in each solid region of pixels without a reading that reaches the image border (``_edge_gaps``
-    opened by a disc of ``MIXED_PX``: not the projector's shadow, nor the speckle of dropouts) and
+    opened by a disc of ``MIXED_PX``: not the projector's ``shadow``, nor the speckle of dropouts) and
     touches ``hand``, the pixels whose :func:`chromaticity` lies within ``tolerance`` of the median of
     the hand's where they meet (past its mixed outline when it has pixels there), connected to the
     hand."""
     out = np.zeros(hand.shape, bool)
-    gaps = _edge_gaps(depth_m, projector_shadows(depth_m, step_m=step_m)) & ~hand
-    if tolerance <= 0 or not gaps.any():
+    gaps, beside = _edge_gaps(depth_m, shadow) & ~hand, widen(hand, 1)
+    if tolerance <= 0 or not (gaps & beside).any():
         return out
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * MIXED_PX + 1,) * 2)
     _, parts = cv2.connectedComponents(cv2.morphologyEx(as_uint8(gaps), cv2.MORPH_OPEN, disc), connectivity=8)
-    inner, beside = hand & ~widen(~hand, MIXED_PX), widen(hand, 1)
+    inner = hand & ~widen(~hand, MIXED_PX)
     for k in np.unique(parts[beside & (parts > 0)]):
         gap = parts == k
+        box = grown_box(gap, 2 * MIXED_PX + 1)  # all that follows looks at, with its 3x3 colour average
+        gap, mine = gap[box], hand[box]
         near = widen(gap, 2 * MIXED_PX)
-        meet = inner & near if (inner & near).any() else hand & near
-        alike = np.zeros(hand.shape, bool)
+        meet = inner[box] & near if (inner[box] & near).any() else mine & near
+        alike = np.zeros(gap.shape, bool)
         alike[gap] = (
-            _squared_norms(chromaticity(rgb, gap) - np.median(chromaticity(rgb, meet), axis=0))
+            _squared_norms(chromaticity(rgb[box], gap) - np.median(chromaticity(rgb[box], meet), axis=0))
             <= tolerance**2
         )
         n, pieces = cv2.connectedComponents(as_uint8(alike), connectivity=8)
         joined = np.zeros(n, bool)
-        joined[pieces[beside & alike]] = True
+        joined[pieces[beside[box] & alike]] = True
         joined[0] = False
-        out |= joined[pieces]
+        out[box] |= joined[pieces]
     return out
 
 
