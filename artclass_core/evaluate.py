@@ -6,6 +6,7 @@ import platform
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
@@ -442,8 +443,6 @@ PACKAGES = (
 
 def environment() -> dict[str, str]:
     """The installed versions of :data:`PACKAGES` (those installed), and Python's."""
-    from importlib.metadata import PackageNotFoundError, version
-
     found = {"python": platform.python_version()}
     for name in PACKAGES:
         try:

@@ -475,6 +475,7 @@ def find_hands(
         )
         for k, kind in enumerate(kinds)
     ]
+    edge = None  # the pixels without a reading that reach the image border, once found
     if support is None:
         hand = np.zeros(d.shape, bool)
         for region in (r for regions in found for r in regions):
@@ -527,7 +528,8 @@ def find_hands(
         skin = hand & kinds[0]
         doubtful = None  # pieces of the hand of another shade than its own: maybe an object it holds
         if params.hand_chroma > 0 and skin.any():
-            carriers = (hand & ~kinds[0]) | (_edge_gaps(d, shadow) if edge is None else edge)
+            edge = _edge_gaps(d, shadow) if edge is None else edge
+            carriers = (hand & ~kinds[0]) | edge
             own, doubtful = own_colour(
                 skin,
                 carriers,
@@ -562,7 +564,8 @@ def find_hands(
         # pixels without a reading are the hand's where a closing of the margin's radius puts them
         # inside it (dropouts on skin), not a band along its side (the sensor's shadow on the table)
         hand &= (d > 0) | close_gaps(hand & (d > 0), params.hand_margin_px)
-        hand |= unread_arm(hand, d, frame.rgb, shadow=shadow, tolerance=params.hand_chroma)
+        gaps = _edge_gaps(d, shadow) if edge is None else edge
+        hand |= unread_arm(hand, gaps, frame.rgb, tolerance=params.hand_chroma)
     return _with_given(hand, frame, params=params, sequence_path=sequence_path)
 
 
@@ -983,17 +986,15 @@ def _squared_norms(v: np.ndarray) -> np.ndarray:
     return sq[:, 0] + sq[:, 1] + sq[:, 2]
 
 
-def unread_arm(
-    hand: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, *, shadow: np.ndarray, tolerance: float
-) -> np.ndarray:
+def unread_arm(hand: np.ndarray, gaps: np.ndarray, rgb: np.ndarray, *, tolerance: float) -> np.ndarray:
     """The stretch of the arm that reads nothing (too near the sensor, or too dark for it), bool (H, W):
-    in each solid region of pixels without a reading that reaches the image border (``_edge_gaps``
-    opened by a disc of ``MIXED_PX``: not the projector's ``shadow``, nor the speckle of dropouts) and
-    touches ``hand``, the pixels whose :func:`chromaticity` lies within ``tolerance`` of the median of
-    the hand's where they meet (past its mixed outline when it has pixels there), connected to the
-    hand."""
+    in each solid region of ``gaps`` (the pixels without a reading that reach the image border, other
+    than the projector's shadow: :func:`_edge_gaps`; opened by a disc of ``MIXED_PX``, so not the
+    speckle of dropouts) that touches ``hand``, the pixels whose :func:`chromaticity` lies within
+    ``tolerance`` of the median of the hand's where they meet (past its mixed outline when it has
+    pixels there), connected to the hand."""
     out = np.zeros(hand.shape, bool)
-    gaps, beside = _edge_gaps(depth_m, shadow) & ~hand, widen(hand, 1)
+    gaps, beside = gaps & ~hand, widen(hand, 1)
     if tolerance <= 0 or not (gaps & beside).any():
         return out
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * MIXED_PX + 1,) * 2)
@@ -1002,9 +1003,8 @@ def unread_arm(
     for k in np.unique(parts[beside & (parts > 0)]):
         gap = parts == k
         box = grown_box(gap, 2 * MIXED_PX + 1)  # all that follows looks at, with its 3x3 colour average
-        gap, mine = gap[box], hand[box]
-        near = widen(gap, 2 * MIXED_PX)
-        meet = inner[box] & near if (inner[box] & near).any() else mine & near
+        gap, near = gap[box], widen(gap[box], 2 * MIXED_PX)
+        meet = inner[box] & near if (inner[box] & near).any() else hand[box] & near
         alike = np.zeros(gap.shape, bool)
         alike[gap] = (
             _squared_norms(chromaticity(rgb[box], gap) - np.median(chromaticity(rgb[box], meet), axis=0))
@@ -1012,8 +1012,7 @@ def unread_arm(
         )
         n, pieces = cv2.connectedComponents(as_uint8(alike), connectivity=8)
         joined = np.zeros(n, bool)
-        joined[pieces[beside[box] & alike]] = True
-        joined[0] = False
+        joined[pieces[beside[box] & alike]] = True  # never the background: alike is False there
         out[box] |= joined[pieces]
     return out
 
