@@ -304,6 +304,10 @@ class MotionEvidence:
         the flow's own matches. A motion that lands a point on texture as like the source's as the
         flow's matches are (stripes a period off, a stripe followed along itself) cannot be told from
         the flow's by that texture.
+    scene_error_m : ndarray, shape (N,), float32, metres, or None
+        How much the depth of the still scene about each point changed between the two frames: the
+        sensor's own error there (a time-of-flight camera's multipath near a passing hand), which no
+        motion need explain. None when nothing about the object was seen still (a moving camera).
     """
 
     motions: np.ndarray
@@ -318,6 +322,7 @@ class MotionEvidence:
     info: dict[str, Any] = field(default_factory=dict)
     n_source: int | None = None
     landing_grey: np.ndarray | None = None
+    scene_error_m: np.ndarray | None = None
 
     @property
     def forward(self) -> np.ndarray:

@@ -272,6 +272,45 @@ def test_nothing_moving_is_no_motion():
     assert out.decision == "NM", out.reason
 
 
+HAND = panel_points(0.06, 0.08, spacing_m=0.0008)
+
+
+def still_plate_with_a_hand(index: int, hand_at, *, shift_m: float = 0.0) -> Frame:
+    """A still plate on the table, a hand 15 cm in front of the plate (not the object), and the
+    whole scene shifted by ``shift_m`` sideways (the camera moved)."""
+    scene = pose(t=(shift_m, 0.0, 0.0))
+    plate = (BASE, scene @ pose(t=(0.0, 0.0, DEPTH_M)), 1)
+    table = (TABLE[0], scene @ TABLE[1], 0)
+    return frame([plate, table, (HAND, scene @ pose(t=(*hand_at, DEPTH_M - 0.15)), 0)], index)
+
+
+def test_a_depth_error_that_a_hand_brings_is_no_motion_where_the_still_scene_shows_it():
+    """A time-of-flight camera reads surfaces near a hand farther (light the hand scatters): here by
+    up to 8 mm, falling off over a fifth of the image, on the still plate and the table alike. The
+    plate fits a small motion better than staying still; the table beside it, which the optical
+    flow shows still, shows the same change, so the pair shows no motion. Measured without the
+    table (the evidence's ``scene_error_m`` dropped), the same depth makes the plate move."""
+    a = still_plate_with_a_hand(0, (0.03, -0.02))
+    b = still_plate_with_a_hand(1, (0.06, -0.02))
+    v, u = np.indices(b.depth_m.shape)
+    centre_u, sigma_px = K.cx + 0.08 * K.fx / DEPTH_M, 60.0
+    bias = 0.008 * np.exp(-((u - centre_u) ** 2 + (v - K.cy) ** 2) / (2 * sigma_px**2))
+    hand = (b.owner == 0) & (b.depth_m < DEPTH_M)
+    b.depth_m = np.where((b.depth_m > 0) & ~hand, b.depth_m + bias, b.depth_m).astype(np.float32)
+    evidence, out, _ = decide(a, b)
+    assert out.decision == "NM", out.reason
+    assert np.median(evidence.scene_error_m) > 0.002
+    blind = DenseRule().decide(dataclasses.replace(evidence, scene_error_m=None))
+    assert blind.decision != "NM", blind.reason
+
+
+def test_a_moving_camera_leaves_no_still_scene_to_measure():
+    evidence, _, _ = decide(
+        still_plate_with_a_hand(0, (0.03, -0.02)), still_plate_with_a_hand(1, (0.03, -0.02), shift_m=0.015)
+    )
+    assert evidence.scene_error_m is None
+
+
 # -- model selection on drawn evidence -----------------------------------------------------------
 
 

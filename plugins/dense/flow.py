@@ -17,6 +17,7 @@ flow does not depend on the pairs before it.
 from __future__ import annotations
 
 import threading
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -65,23 +66,23 @@ def structure(
     return (xx + yy) / 2 - half, (xx + yy) / 2 + half, 0.5 * np.arctan2(2 * xy, xx - yy)
 
 
-def flow_targets(
-    source: Cloud, target: Cloud, *, min_texture: float, max_roundtrip_px: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Where optical flow takes each source point.
+@dataclass(frozen=True)
+class CropFlow:
+    """DIS optical flow both ways on the two objects' crop (the union of their masks' boxes, widened
+    by ``_MARGIN_PX``), at the crop's working scale."""
 
-    Returns
-    -------
-    pixel : (N, 2) target (column, row), not rounded; NaN where unknown
-    normal : (N, 2) unit image direction across the edge at an edge point (compare along it only);
-        NaN at points with two-dimensional texture and where the flow is unknown
-    """
+    forward: np.ndarray  # (h, w, 2) float32, crop pixels
+    backward: np.ndarray  # (h, w, 2) float32, crop pixels
+    box: tuple[int, int, int, int]  # (row0, row1, column0, column1) of the crop in the image
+    scale: tuple[float, float]  # (sx, sy): crop pixels per image pixel
+
+
+def crop_flow(source: Cloud, target: Cloud) -> CropFlow | None:
+    """The optical flow between the two clouds' images about the objects; None without their masks."""
     a, b = source.view, target.view
-    out = np.full((len(source), 2), np.nan)
-    normal = np.full((len(source), 2), np.nan)
     boxes = [bounding_box(v.mask) for v in (a, b) if v is not None and v.mask is not None]
     if len(boxes) < 2 or None in boxes:
-        return out, normal
+        return None
     h, w = a.gray.shape
     ((r0, r1), (c0, c1)), ((s0, s1), (d0, d1)) = boxes
     r0, c0 = max(min(r0, s0) - _MARGIN_PX, 0), max(min(c0, d0) - _MARGIN_PX, 0)
@@ -93,7 +94,35 @@ def flow_targets(
     dis = _dis()
     forward = dis.calc(ga, gb, None)
     backward = dis.calc(gb, ga, None)
-    sx, sy = size[0] / (c1 - c0), size[1] / (r1 - r0)
+    return CropFlow(forward, backward, (r0, r1, c0, c1), (size[0] / (c1 - c0), size[1] / (r1 - r0)))
+
+
+def flow_targets(
+    source: Cloud,
+    target: Cloud,
+    *,
+    min_texture: float,
+    max_roundtrip_px: float,
+    flow: CropFlow | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where optical flow takes each source point (``flow``: the pair's :func:`crop_flow`, computed
+    when not given).
+
+    Returns
+    -------
+    pixel : (N, 2) target (column, row), not rounded; NaN where unknown
+    normal : (N, 2) unit image direction across the edge at an edge point (compare along it only);
+        NaN at points with two-dimensional texture and where the flow is unknown
+    """
+    a = source.view
+    out = np.full((len(source), 2), np.nan)
+    normal = np.full((len(source), 2), np.nan)
+    flow = flow or crop_flow(source, target)
+    if flow is None:
+        return out, normal
+    forward, backward = flow.forward, flow.backward
+    (r0, _, c0, _), (sx, sy) = flow.box, flow.scale
+    size = forward.shape[1::-1]
     px = (source.pixels[:, 0] - c0) * sx
     py = (source.pixels[:, 1] - r0) * sy
     iu = np.clip(np.rint(px).astype(int), 0, size[0] - 1)

@@ -17,6 +17,8 @@
 5. The hypotheses are scored the other way round too: every target point, moved by each motion's
    inverse, against the source image. A part sliding out of a still base leaves surface where the
    base's own motion says there should be none; only this direction sees that.
+6. The still scene beside the object (textured, unmoved in the optical flow) shows how much the
+   sensor's depth changed there by itself (:mod:`.scene`).
 
 The result (:class:`~artclass_core.types.MotionEvidence`) holds no decision: a rule selects from it.
 """
@@ -31,10 +33,11 @@ import numpy as np
 from artclass_core import Cloud, MotionEvidence, PairRegistrar, Params, param
 from artclass_core.types import SURFACE
 
-from .flow import Landings, flow_targets
+from .flow import Landings, crop_flow, flow_targets
 from .image import ImageParams, noise_m
 from .projective import Target, flow_misfit, icp, kernels, look_all, robust_kabsch
 from .rule import WHOLE_OBJECT, DenseRuleParams, point_costs, regions, select
+from .scene import still_scene_error
 
 _MIN_FLOW_MATCHES = 6
 
@@ -112,8 +115,11 @@ class DenseRegistrar(PairRegistrar):
         )
         rule = DenseRuleParams()
         no_flow = np.full((len(points), 2), np.nan)
+        flow = crop_flow(source, target) if p.use_flow else None
         flow_px, across = (
-            flow_targets(source, target, min_texture=p.min_texture, max_roundtrip_px=p.max_roundtrip_px)
+            flow_targets(
+                source, target, min_texture=p.min_texture, max_roundtrip_px=p.max_roundtrip_px, flow=flow
+            )
             if p.use_flow
             else (no_flow, no_flow)
         )
@@ -217,12 +223,24 @@ class DenseRegistrar(PairRegistrar):
             info,
             n_source=len(points),
             landing_grey=np.hstack([grey, np.full(status_back.shape, np.nan, np.float32)]),
+            scene_error_m=still_scene_error(
+                source,
+                target,
+                flow,
+                lambda z: self.reach_at(z, source, tgt.intrinsics.fx),
+                min_texture=p.min_texture,
+                still_px=rule.flow_sigma_px,
+                spread_px=rule.noise_lag_rad * tgt.intrinsics.fx,
+            ),
         )
 
     def reach(self, cloud: Cloud, fx: float) -> np.ndarray:
         """How far from the observed depth each moved point of ``cloud`` still counts as on that surface
         (metres): ``reach_sigmas`` sensor noise sigmas at its depth, plus two pixels."""
-        z = cloud.points[:, 2]
+        return self.reach_at(cloud.points[:, 2], cloud, fx)
+
+    def reach_at(self, z: np.ndarray, cloud: Cloud, fx: float) -> np.ndarray:
+        """The same at depths ``z`` (metres), with ``cloud``'s sensor noise."""
         return self.params.reach_sigmas * noise_m(z, _sensor_noise(cloud)) + 2 * z / fx
 
     def _refits(

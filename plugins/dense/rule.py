@@ -26,9 +26,11 @@ base explains, and the base fails points the part explains, in depth or, unless 
 a fit of the whole object, in optical flow where it lands them on texture unlike theirs: on stripes a
 motion a period off lands on the same texture) are AM; one motion is RM when it moves the median point
 by as much and explains in depth points that staying still fails, else NM. A motion fails a point in
-depth when it misses it by more than ``noise_factor`` sigma plus half a pixel (the look-up rounds to
-the nearest pixel, up to half a pixel off the surface where the surface is steep: a still object on
-a shaking camera, half hidden by a moving hand, misses a slide along itself by less), plus
+depth when it misses it by more than ``noise_factor`` times sigma, or times the depth change of the
+still scene about the point where that is larger (the sensor's own error there, such as a
+time-of-flight camera's multipath near a passing hand: :mod:`.scene`), plus half a pixel (the look-up
+rounds to the nearest pixel, up to half a pixel off the surface where the surface is steep: a still
+object on a shaking camera, half hidden by a moving hand, misses a slide along itself by less), plus
 ``calibration_error`` times how far the motion's rotation moves it about the object's centre (a
 calibration a few percent off bends a rigid motion by that much). Too few points seen in both
 frames: skipped. A pair whose kept motions fail most of its points, or whose parts none of the
@@ -315,6 +317,11 @@ def _layout(ev: MotionEvidence) -> np.ndarray:
     return pixels
 
 
+def scene_error(ev: MotionEvidence) -> np.ndarray | float:
+    """The sensor's systematic depth error about each point, from the still scene; 0 unmeasured."""
+    return 0.0 if ev.scene_error_m is None else np.nan_to_num(ev.scene_error_m)
+
+
 def _displacement(points: np.ndarray, A: np.ndarray, B: np.ndarray) -> float:
     """Median distance between the points moved by A and by B (metres)."""
     return (
@@ -430,9 +437,9 @@ class DenseRule(DecisionRule):
             few = p.min_part_points * area
             return few if h == 0 else max(few, int(p.min_part_share * seen.sum()))
 
-        # A miss counts beyond noise_factor sigma plus the look-up's half pixel, plus what the
-        # calibration's error makes of the motion's rotation.
-        limit = p.noise_factor * noise + ev.pixel_m / 2
+        # A miss counts beyond noise_factor sigma (or the still scene's change about the point) plus
+        # the look-up's half pixel, plus what the calibration's error makes of the motion's rotation.
+        limit = p.noise_factor * np.maximum(noise, scene_error(ev)) + ev.pixel_m / 2
         centre = np.median(ev.points, axis=0)
 
         def repeats(b: int) -> np.ndarray:
