@@ -27,10 +27,8 @@ from artclass_core import Cloud
 from .image import bounding_box
 
 FLOW_WIDTH_PX = 320
-_MARGIN_PX = 24
+_MARGIN_PX = 24  # well beyond what the structure tensor reads about a point (3 px)
 STRUCTURE_WINDOW_PX = 5
-# How far from a pixel :func:`structure` looks: the Sobel filter's pixel and half its window.
-_STRUCTURE_REACH_PX = 1 + STRUCTURE_WINDOW_PX // 2
 _REMAP_ROWS = 32000
 _thread = threading.local()
 
@@ -58,10 +56,21 @@ def structure(
     small, large : (N,) float32 smaller and larger eigenvalue (grey levels per pixel, squared)
     angle : (N,) float32 angle (radians) of the larger one's eigenvector, the direction across an edge
     """
+    return eigen(tensor(gray, window_px=window_px), pixels)
+
+
+def tensor(gray: np.ndarray, *, window_px: int = STRUCTURE_WINDOW_PX) -> tuple[np.ndarray, ...]:
+    """The structure tensor of every pixel of ``gray``: the gradients' products (xx, yy, xy), each
+    (H, W) float32, averaged over a square window of ``window_px``."""
     gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
     gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
     k = (window_px, window_px)
-    xx, yy, xy = (cv2.blur(a, k)[pixels[:, 1], pixels[:, 0]] for a in (gx * gx, gy * gy, gx * gy))
+    return tuple(cv2.blur(a, k) for a in (gx * gx, gy * gy, gx * gy))
+
+
+def eigen(products: tuple[np.ndarray, ...], pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`structure`'s eigenvalues and angle at ``pixels`` (N, 2: column, row) of a :func:`tensor`."""
+    xx, yy, xy = (a[pixels[:, 1], pixels[:, 0]] for a in products)
     half = np.sqrt(np.square((xx - yy) / 2) + np.square(xy))
     return (xx + yy) / 2 - half, (xx + yy) / 2 + half, 0.5 * np.arctan2(2 * xy, xx - yy)
 
@@ -69,12 +78,14 @@ def structure(
 @dataclass(frozen=True)
 class CropFlow:
     """DIS optical flow both ways on the two objects' crop (the union of their masks' boxes, widened
-    by ``_MARGIN_PX``), at the crop's working scale."""
+    by ``_MARGIN_PX``), at the crop's working scale, and the source image's structure tensor there
+    (full resolution: :func:`tensor`)."""
 
     forward: np.ndarray  # (h, w, 2) float32, crop pixels
     backward: np.ndarray  # (h, w, 2) float32, crop pixels
     box: tuple[int, int, int, int]  # (row0, row1, column0, column1) of the crop in the image
     scale: tuple[float, float]  # (sx, sy): crop pixels per image pixel
+    texture: tuple[np.ndarray, ...]  # the source's tensor on the crop, full resolution
 
 
 def crop_flow(source: Cloud, target: Cloud) -> CropFlow | None:
@@ -94,7 +105,13 @@ def crop_flow(source: Cloud, target: Cloud) -> CropFlow | None:
     dis = _dis()
     forward = dis.calc(ga, gb, None)
     backward = dis.calc(gb, ga, None)
-    return CropFlow(forward, backward, (r0, r1, c0, c1), (size[0] / (c1 - c0), size[1] / (r1 - r0)))
+    return CropFlow(
+        forward,
+        backward,
+        (r0, r1, c0, c1),
+        (size[0] / (c1 - c0), size[1] / (r1 - r0)),
+        tensor(a.gray[r0:r1, c0:c1]),
+    )
 
 
 def flow_targets(
@@ -114,7 +131,6 @@ def flow_targets(
     normal : (N, 2) unit image direction across the edge at an edge point (compare along it only);
         NaN at points with two-dimensional texture and where the flow is unknown
     """
-    a = source.view
     out = np.full((len(source), 2), np.nan)
     normal = np.full((len(source), 2), np.nan)
     flow = flow or crop_flow(source, target)
@@ -136,9 +152,7 @@ def flow_targets(
         borderMode=cv2.BORDER_CONSTANT,
         borderValue=np.nan,
     )[:, 0]
-    # The structure tensor only about the source's points: its mask's box, widened by the filters' reach.
-    (q0, q1), (p0, p1) = bounding_box(a.mask, margin_px=_STRUCTURE_REACH_PX)
-    small, large, angle = structure(a.gray[q0:q1, p0:p1], source.pixels - [p0, q0])
+    small, large, angle = eigen(flow.texture, source.pixels - [c0, r0])
     across = np.column_stack([np.cos(angle), np.sin(angle)])
     miss = np.column_stack([(f[:, 0] + back[:, 0]) / sx, (f[:, 1] + back[:, 1]) / sy])
     full = (small >= min_texture) & (np.hypot(miss[:, 0], miss[:, 1]) <= max_roundtrip_px)

@@ -317,11 +317,6 @@ def _layout(ev: MotionEvidence) -> np.ndarray:
     return pixels
 
 
-def scene_error(ev: MotionEvidence) -> np.ndarray | float:
-    """The sensor's systematic depth error about each point, from the still scene; 0 unmeasured."""
-    return 0.0 if ev.scene_error_m is None else np.nan_to_num(ev.scene_error_m)
-
-
 def _displacement(points: np.ndarray, A: np.ndarray, B: np.ndarray) -> float:
     """Median distance between the points moved by A and by B (metres)."""
     return (
@@ -439,7 +434,8 @@ class DenseRule(DecisionRule):
 
         # A miss counts beyond noise_factor sigma (or the still scene's change about the point) plus
         # the look-up's half pixel, plus what the calibration's error makes of the motion's rotation.
-        limit = p.noise_factor * np.maximum(noise, scene_error(ev)) + ev.pixel_m / 2
+        scene = 0.0 if ev.scene_error_m is None else ev.scene_error_m
+        limit = p.noise_factor * np.maximum(noise, scene) + ev.pixel_m / 2
         centre = np.median(ev.points, axis=0)
 
         def repeats(b: int) -> np.ndarray:

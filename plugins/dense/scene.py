@@ -21,7 +21,7 @@ import numpy as np
 
 from artclass_core import Cloud
 
-from .flow import CropFlow, structure
+from .flow import CropFlow, eigen
 
 #: The error is summarised on square cells of this side, pixels.
 CELL_PX = 8
@@ -78,8 +78,9 @@ def still_scene_error(
     still = (near == 0) & (za > 0) & (zb > 0) & (np.abs(change) <= reach(np.maximum(za, zb)))
     still &= ~moved(flow.forward) & ~moved(flow.backward)
     rows, cols = np.indices(za.shape) * _STEP
-    texture = structure(a.gray[r0:r1, c0:c1], np.column_stack([cols.ravel(), rows.ravel()]))[1]
-    still &= texture.reshape(za.shape) >= min_texture
+    still &= (
+        eigen(flow.texture, np.column_stack([cols.ravel(), rows.ravel()]))[1].reshape(za.shape) >= min_texture
+    )
     if not still.any():
         return None
     cell = CELL_PX // _STEP
