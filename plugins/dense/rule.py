@@ -143,8 +143,8 @@ def _grid(pixels: np.ndarray, stride: int, *, pad: int) -> tuple[np.ndarray, tup
     """Each point's (column, row) cell on the ``stride`` grid, offset so that ``pad`` empty cells
     surround the points, and the grid's shape (rows, columns)."""
     g = pixels // max(stride, 1)
-    g = g - g.min(axis=0) + pad
-    return g, tuple(g.max(axis=0)[::-1] + 1 + pad)
+    g -= np.array([g[:, 0].min(), g[:, 1].min()]) - pad  # a column at a time: (N, 2) reduces slowly
+    return g, (int(g[:, 1].max()) + 1 + pad, int(g[:, 0].max()) + 1 + pad)
 
 
 def _coherence(members: np.ndarray, pixels: np.ndarray, stride: int) -> float:
@@ -159,19 +159,14 @@ def label_coherence(labels: np.ndarray, pixels: np.ndarray, stride: int) -> np.n
     """For each point, the share of its 8 image neighbours (points on the ``stride`` grid) that carry
     its label, among those labelled -1 or more (a label below -1 marks a point to leave out); NaN for
     a point without such neighbours."""
-    g, shape = _grid(pixels, stride, pad=1)
-    image = np.full(shape, -2, np.int64)
-    image[g[:, 1], g[:, 0]] = labels
-    same = np.zeros(len(labels))
-    present = np.zeros(len(labels))
-    for dv in (-1, 0, 1):
-        for du in (-1, 0, 1):
-            if dv or du:
-                other = image[g[:, 1] + dv, g[:, 0] + du]
-                present += other >= -1
-                same += other == labels
+    g, (rows, columns) = _grid(pixels, stride, pad=1)
+    cell = g[:, 1] * columns + g[:, 0]
+    image = np.full(rows * columns, -2, np.int64)
+    image[cell] = labels
+    steps = [dv * columns + du for dv in (-1, 0, 1) for du in (-1, 0, 1) if dv or du]
+    neighbour = image[cell + np.array(steps)[:, None]]  # (8, N)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return same / present
+        return (neighbour == labels).sum(axis=0) / (neighbour >= -1).sum(axis=0)
 
 
 def regions(
