@@ -112,6 +112,29 @@ def cost_kernel(residual, status, flow, scale, worst, half, flow_scale, flow_wor
             out[h, i] = c + f
 
 
+@njit(cache=True, nogil=True)
+def totals_kernel(costs, out):
+    """``out`` (H,) := each hypothesis's total cost over the points (:func:`.rule.select`), summed
+    point by point in the costs' dtype: numpy's order for the costs of some of the points,
+    ``costs[:, seen]``, which are stored point by point, so the totals are numpy's to the bit."""
+    out[:] = 0
+    for i in range(costs.shape[1]):
+        for h in range(costs.shape[0]):
+            out[h] += costs[h, i]
+
+
+@njit(cache=True, nogil=True)
+def savings_kernel(costs, best, out):
+    """``out`` (H,) := what each hypothesis saves over the points' costs ``best`` (N,), the sum of
+    ``max(best - costs[h], 0)`` (:func:`.rule.select`), in the order of :func:`totals_kernel`."""
+    out[:] = 0
+    for i in range(costs.shape[1]):
+        for h in range(costs.shape[0]):
+            saved = best[i] - costs[h, i]
+            if not saved <= 0:  # as np.maximum: NaN stays NaN
+                out[h] += saved
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def flow_kernel(motions, points, flow_px, across, camera, out):
     for k in range(motions.shape[0]):

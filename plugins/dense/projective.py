@@ -304,6 +304,9 @@ def warm_up() -> None:
         np.eye(3) + [0, 0, 0.5], np.eye(3) + [0, 0, 0.5], inlier_m=0.01, groups=np.zeros(3, np.int64)
     )
     kernels().distinct_kernel(motions[:, :3].copy(), np.eye(4), 0.001, np.empty(1, np.bool_))
+    costs = np.zeros((2, n), np.float32)[:, np.ones(n, bool)]  # as selection has them: point by point
+    kernels().totals_kernel(costs, np.empty(2, np.float32))
+    kernels().savings_kernel(costs, costs[0].copy(), np.empty(2, np.float32))
     valid_median(finite_depth(depth), depth > 0)
     normal_map(vertex_map(depth, target.intrinsics))
 

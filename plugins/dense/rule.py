@@ -49,7 +49,7 @@ from artclass_core import DecisionRule, Motion, MotionEvidence, Params, RuleDeci
 from artclass_core.geometry import transform
 from artclass_core.types import FREE_SPACE, OFF_OBJECT, SURFACE
 
-from .projective import hypothesis_costs
+from .projective import hypothesis_costs, kernels
 
 # The registrar's hypotheses fitted to all of the object's points are named with this first.
 WHOLE_OBJECT = "object"
@@ -211,16 +211,20 @@ def select(
     its edges only.
     Finally each chosen motion is swapped for the best one given the others (:func:`_swapped`).
     """
-    chosen = [int(np.argmin(costs.sum(axis=1)))]
+    compiled = kernels()
+    total, saving = np.empty((2, len(costs)), costs.dtype)
+    compiled.totals_kernel(costs, total)
+    chosen = [int(np.argmin(total))]
     best = costs[chosen[0]].copy()
     while True:
-        saving = np.maximum(best[None] - costs, 0).sum(axis=1)
+        compiled.savings_kernel(costs, best, saving)
         saving[chosen] = 0
         order = np.argsort(-saving, kind="stable")
+        unexplained = best >= misfit
         for h in order[:5]:
             if saving[h] <= penalty:
                 return _swapped(costs, chosen)
-            members = (costs[h] < misfit / 2) & (best >= misfit)
+            members = (costs[h] < misfit / 2) & unexplained
             enough = min_points if h or min_still_points is None else min_still_points
             if members.sum() >= enough and _coherence(members, pixels, stride) >= min_coherence:
                 chosen.append(int(h))
