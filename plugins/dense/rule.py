@@ -343,9 +343,11 @@ class DenseRule(DecisionRule):
             flow_sigma_px=flow_px or self.params.flow_sigma_px,
         )
 
-    def noise(self, ev: MotionEvidence, seen: np.ndarray) -> tuple[float, float, np.ndarray, int]:
+    def noise(
+        self, ev: MotionEvidence, seen: np.ndarray, layout: np.ndarray
+    ) -> tuple[float, float, np.ndarray, int]:
         """The depth and flow noise of the pair, the costs under them, and the points that make one
-        independent observation.
+        independent observation (``layout``: the points' pixels, :func:`_layout`).
 
         The depth noise is that of the residual field of the single motion that explains the pair
         best (:func:`field_noise`, never below the frames' own noise), and so is the number of
@@ -363,8 +365,8 @@ class DenseRule(DecisionRule):
             lag_px=self.params.noise_lag_rad * fx,
             floor_m=ev.noise_m,
         )
-        sigma, area = float(np.nanmax([field, ev.noise_m])), int(round(area))
-        chosen = self.choose(ev, costs, seen, area=area)
+        sigma, area = float(np.fmax(field, ev.noise_m)), int(round(area))
+        chosen = self.choose(ev, costs, seen, layout, area=area)
         owner = np.asarray(chosen)[np.argmin(costs[chosen], axis=0)]
         point = np.arange(len(owner))
         f = ev.flow_px[owner, point][seen & np.isfinite(ev.flow_px[owner, point])]
@@ -375,14 +377,16 @@ class DenseRule(DecisionRule):
         )
         return sigma, flow, self.costs(ev, sigma, flow), area
 
-    def choose(self, ev: MotionEvidence, costs: np.ndarray, seen: np.ndarray, *, area: int = 1) -> list[int]:
-        """The hypotheses selected for the seen points (indices into ``ev.motions``), ``area`` points
-        making one independent observation."""
+    def choose(
+        self, ev: MotionEvidence, costs: np.ndarray, seen: np.ndarray, layout: np.ndarray, *, area: int = 1
+    ) -> list[int]:
+        """The hypotheses selected for the seen points (indices into ``ev.motions``; ``layout``: the
+        points' pixels, :func:`_layout`), ``area`` points making one independent observation."""
         p = self.params
         n = int(seen.sum())
         return select(
             costs[:, seen],
-            _layout(ev)[seen],
+            layout[seen],
             penalty=p.bic_factor * area * 6 * np.log(max(n / area, 2)),
             misfit=p.noise_factor**2,
             min_points=max(p.min_part_points * area, int(p.min_part_share * n)),
@@ -397,7 +401,8 @@ class DenseRule(DecisionRule):
         forward = ev.forward
         if not seen.any():
             return RuleDecision("skipped", [], reason="no point lands on the target surface under any motion")
-        noise, flow_noise, costs, area = self.noise(ev, seen)
+        layout, stride = _layout(ev), ev.stride_px
+        noise, flow_noise, costs, area = self.noise(ev, seen, layout)
         first = int(np.argmin(costs.sum(axis=1)))
         share = float((ev.status[first, forward] == SURFACE).mean()) if forward.any() else 0.0
         if share < p.min_seen_share:
@@ -408,7 +413,7 @@ class DenseRule(DecisionRule):
                 f"(alpha = {p.min_seen_share:g})",
                 info=dict(seen_share=share),
             )
-        chosen = self.choose(ev, costs, seen, area=area)
+        chosen = self.choose(ev, costs, seen, layout, area=area)
         labels = np.where(seen, np.asarray(chosen)[np.argmin(costs[chosen], axis=0)], -1)
         threshold = p.noise_factor * noise + ev.pixel_m
         base = chosen[0]
@@ -421,7 +426,6 @@ class DenseRule(DecisionRule):
             if len(chosen) > 1
             else labels
         )
-        layout, stride = _layout(ev), ev.stride_px
         coherence = label_coherence(decisive, layout, stride)
         misfit = p.noise_factor**2
 
