@@ -135,6 +135,30 @@ def savings_kernel(costs, best, out):
                 out[h] += saved
 
 
+@njit(cache=True, nogil=True)
+def second_differences_kernel(value, across, down, out):
+    """The finite second differences ``v[p - L] - 2 v[p] + v[p + L]`` of the grid ``value`` (rows,
+    columns) at lag ``across`` along the rows, then at lag ``down`` along the columns (0: none), into
+    ``out`` in numpy's order (:func:`.rule.field_noise`); returns how many."""
+    rows, columns = value.shape
+    n = 0
+    if across:
+        for r in range(rows):
+            for c in range(across, columns - across):
+                d = value[r, c - across] - 2 * value[r, c] + value[r, c + across]
+                if np.isfinite(d):
+                    out[n] = d
+                    n += 1
+    if down:
+        for r in range(down, rows - down):
+            for c in range(columns):
+                d = value[r - down, c] - 2 * value[r, c] + value[r + down, c]
+                if np.isfinite(d):
+                    out[n] = d
+                    n += 1
+    return n
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def flow_kernel(motions, points, flow_px, across, camera, out):
     for k in range(motions.shape[0]):

@@ -307,6 +307,7 @@ def warm_up() -> None:
     costs = np.zeros((2, n), np.float32)[:, np.ones(n, bool)]  # as selection has them: point by point
     kernels().totals_kernel(costs, np.empty(2, np.float32))
     kernels().savings_kernel(costs, costs[0].copy(), np.empty(2, np.float32))
+    kernels().second_differences_kernel(np.zeros(shape), 1, 1, np.empty(2 * depth.size))
     valid_median(finite_depth(depth), depth > 0)
     normal_map(vertex_map(depth, target.intrinsics))
 

@@ -286,12 +286,8 @@ def field_noise(
         """At ``lag`` grid steps, or an eighth of the field's extent along a row or a column if
         that is less: a part's edges must stay a small share of the differences."""
         across, down = (min(lag, max(1, n // 8)) if n >= 3 else 0 for n in shape[::-1])
-        d = []
-        if across:
-            d.append(value[:, : -2 * across] - 2 * value[:, across:-across] + value[:, 2 * across :])
-        if down:
-            d.append(value[: -2 * down] - 2 * value[down:-down] + value[2 * down :])
-        d = np.concatenate([x[np.isfinite(x)] for x in d]) if d else np.empty(0)
+        d = np.empty(2 * value.size)
+        d = d[: kernels().second_differences_kernel(value, across, down, d)]
         return _spread(d, centred=False) / np.sqrt(6) if len(d) >= 20 else np.nan
 
     lag = max(1, int(round(lag_px / max(stride, 1))))
