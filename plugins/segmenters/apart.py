@@ -15,9 +15,10 @@ of an instance of this frame that holds most of it, when:
 - that frame shows the rest apart: a body at least half its size that moves, farther than a
   joint's contact (``CONTACT_M``, the video's test of separated parts) from it in 3-D, with what
   lies between them in the picture seen: where that is mostly a hand or has no readings, the two
-  may meet out of sight. A frame's bodies are its instances cut where neighbouring pixels differ in
-  depth by more than a contact (:func:`split_at_steps`): a kettle held above its base, seen against
-  it, is one instance with it, and that step is all that shows them apart. A laptop whose lid lies
+  may meet out of sight. A frame's bodies are its instances cut where their depth steps by more
+  than a contact, read across the pixel that a sensor mixes at a step (:func:`split_at_steps`): a
+  kettle held above its base, seen against it, is one instance with it, and that step is all that
+  shows them apart. A laptop whose lid lies
   closed is one instance that stays, with no body beside it; a monitor whose neck the picture
   misses has its screen within a contact of its foot; a dark lid seen edge-on shows its far edge
   beyond a face without readings.
@@ -43,7 +44,7 @@ from artclass_core.video import CONTACT_M
 from .hands import widen
 from .support import clean_depth, grown_box, label_box, region_mask
 
-__all__ = ["REACH_FRAMES", "BodiesApart", "FrameView", "frame_view", "reach", "split_at_steps"]
+__all__ = ["MIXED_PX", "REACH_FRAMES", "BodiesApart", "FrameView", "frame_view", "reach", "split_at_steps"]
 
 #: How far (frames each way) a body is sought apart: an object is carried clear of what it stood on
 #: within a second at 30 frames a second.
@@ -53,6 +54,10 @@ INSIDE_SHARE = 0.5
 #: Where most of what lies between two bodies in the picture (within a contact of both) has no
 #: reading or is a hand, where they meet may be hidden.
 HIDDEN_SHARE = 0.5
+#: A step in depth reads through a mixed pixel: a sensor's window (a time-of-flight pixel, a stereo
+#: or structured-light match) that straddles it reads between the two depths. So readings this many
+#: pixels apart, and one more, show the step.
+MIXED_PX = 1
 #: The tests read every second pixel each way.
 _STEP = 2
 #: A depth farther than any reading, for the pixels without one.
@@ -78,6 +83,7 @@ class FrameView(NamedTuple):
     piece_boxes: list[tuple[int, int, int, int]]
     rims: list[np.ndarray]  # the 3-D points (N, 3) of the pieces' outlines, at full resolution
     unseen: np.ndarray  # the pixels with no reading, or a hand's
+    stepped: np.ndarray  # the instances' pixels beyond a step, which no piece holds
 
 
 def frame_view(
@@ -89,7 +95,7 @@ def frame_view(
     span = cv2.morphologyEx(depth, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8))  # max - min over 3x3
     unseen = depth <= 0 if hand is None else (depth <= 0) | hand
     bodies = [m[::_STEP, ::_STEP] for m in instances]
-    whole = split_at_steps(instances, depth, step_m=CONTACT_M)
+    whole, stepped = split_at_steps(instances, depth, step_m=CONTACT_M)
     pieces = [m[::_STEP, ::_STEP] for m in whole]
     return FrameView(
         depth[::_STEP, ::_STEP],
@@ -100,25 +106,32 @@ def frame_view(
         [cv2.boundingRect(m.view(np.uint8)) for m in pieces],
         [_rim_points(m, depth, intrinsics) for m in whole],
         unseen[::_STEP, ::_STEP],
+        stepped[::_STEP, ::_STEP],
     )
 
 
-def split_at_steps(instances: list[np.ndarray], depth_m: np.ndarray, *, step_m: float) -> list[np.ndarray]:
-    """The instances cut where neighbouring pixels (8-connected) both read depths more than ``step_m``
-    apart: the pixels on the far side of such a step go (the sensor mixes the two depths there), and
-    each instance falls into the pieces that connect through one surface. Pieces smaller than a tenth
-    of their instance go too (a rim of mixed readings). One step does not tell two bodies from one
-    body's cliff seen from above; the tests of :class:`BodiesApart` do, over time."""
-    out = []
+def split_at_steps(
+    instances: list[np.ndarray], depth_m: np.ndarray, *, step_m: float
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """The instances cut where they step in depth by more than ``step_m``: a reading whose instance
+    reads a nearer depth by more than that within ``MIXED_PX + 1`` pixels is on the far side of a
+    step, or one of the mixed readings across it, and goes; each instance falls into the pieces that
+    connect through one surface. Pieces smaller than a tenth of their instance go too (a rim of mixed
+    readings). One step does not tell two bodies from one body's cliff seen from above; the tests of
+    :class:`BodiesApart` do, over time.
+
+    Returns the pieces and the pixels that went (bool (H, W))."""
+    out, gone = [], np.zeros(depth_m.shape, bool)
+    window = np.ones((2 * MIXED_PX + 3,) * 2, np.uint8)
     for mask in instances:
-        box = grown_box(mask, 1)
+        box = grown_box(mask, MIXED_PX + 1)
         read = mask[box] & (depth_m[box] > 0)
         z = np.where(read, depth_m[box], _NO_READING_M).astype(np.float32)
-        nearest = cv2.erode(z, np.ones((3, 3), np.uint8))  # the nearest reading among the 8 around
-        far = read & (z - nearest > step_m)
+        far = read & (z - cv2.erode(z, window) > step_m)
         if not far.any():
             out.append(mask)
             continue
+        gone[box] |= far
         kept = mask.copy()
         kept[box] &= ~far
         count, labels, stats, within = label_box(kept)
@@ -128,7 +141,7 @@ def split_at_steps(instances: list[np.ndarray], depth_m: np.ndarray, *, step_m: 
             for k in range(1, count)
             if stats[k, cv2.CC_STAT_AREA] >= least
         ]
-    return out
+    return out, gone
 
 
 class BodiesApart:
@@ -173,7 +186,7 @@ class BodiesApart:
         for k, mine in enumerate(self.views[j].bodies):
             for u, b in still:
                 if self._separates(mine, j, k, u, b, frames):
-                    cut = self._cut(self.views[u].pieces[b] & mine, j, u, out[k].shape) & out[k]
+                    cut = self._cut(self.views[u].pieces[b], mine, j, u, out[k].shape) & out[k]
                     if cut.any():
                         out[k] = out[k] & ~cut
                         cuts.append(cut)
@@ -256,11 +269,25 @@ class BodiesApart:
             self._apart[key] = bool(apart)
         return self._apart[key]
 
-    def _cut(self, inside: np.ndarray, j: int, u: int, shape: tuple[int, int]) -> np.ndarray:
-        """The pixels of frame ``j`` (full resolution, ``shape``) where the body (``inside``, half
-        resolution) shows itself at the depth it has in frame ``u``, and a pixel around them."""
-        a, b = self.views[j].depth, self.views[u].depth
-        same = inside & (a > 0) & (np.abs(a - b) <= self._tau(j, u))
+    def _cut(self, body: np.ndarray, mine: np.ndarray, j: int, u: int, shape: tuple[int, int]) -> np.ndarray:
+        """The pixels of frame ``j`` (full resolution, ``shape``) where the body (of frame ``u``,
+        half resolution) shows itself in ``mine`` at the depth it has in frame ``u``; the pieces of
+        frame ``j`` that lie mostly there and hold none of what left ``mine`` (a farther depth in
+        frame ``u``): what frame ``u`` did not see of the body, uncovered since; the readings beyond a
+        step beside them (the body's own, and mixed ones, next to what lies in front of it); and a
+        pixel around them."""
+        view, tau = self.views[j], self._tau(j, u)
+        a, b = view.depth, self.views[u].depth
+        same = body & mine & (a > 0) & (np.abs(a - b) <= tau)
+        left = mine & (a > 0) & (b > a + tau)
+        for piece in view.pieces:
+            if (
+                np.count_nonzero(piece & same) >= INSIDE_SHARE * np.count_nonzero(piece)
+                and not (piece & left).any()
+            ):
+                same |= piece
+        reach = -(-(MIXED_PX + 1) // _STEP)  # at half resolution, rounded up
+        same |= view.stepped & widen(same, reach)
         h, w = shape
         full = cv2.resize(same.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
         return widen(full, 1)
