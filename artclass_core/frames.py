@@ -80,17 +80,19 @@ class FrameSteps:
             return hit
         t0, read0 = time.perf_counter(), reading_seconds()
         frame = sequence[i]
-        mask = self.segmenter(sequence).segment(frame, sequence=sequence)
+        segmenter = self.segmenter(sequence)
+        mask = segmenter.segment(frame, sequence=sequence)
         t2, read = time.perf_counter(), reading_seconds() - read0
         # A segmenter that compares the frame with later ones reads them ahead: reading, not segmenting.
         merge_timing(timing, {"read": read, "segment": t2 - t0 - read})
         n_mask = 0 if mask is None else int(np.count_nonzero(mask))
         raw = _RawFrame(i, frame.name, None, 0)
         if n_mask:
-            raw = _RawFrame(
-                i, frame.name, self.preprocessor.process(frame, mask, intrinsics=sequence.intrinsics), n_mask
-            )
+            cloud = self.preprocessor.process(frame, mask, intrinsics=sequence.intrinsics)
             add_time(timing, "preprocess", time.perf_counter() - t2)
+            if cloud.view is not None and hasattr(segmenter, "covered"):
+                cloud.view.covered = segmenter.covered(frame, sequence=sequence)
+            raw = _RawFrame(i, frame.name, cloud, n_mask)
         if key is not None:
             cache.put("frame", key, raw)
         return raw

@@ -53,6 +53,12 @@ class Segmenter(Plugin):
         """Boolean mask (H, W) of the handled object in ``frame``, or ``None`` when there is none."""
         raise NotImplementedError
 
+    def covered(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
+        """Boolean mask (H, W) of the pixels left out of the object's mask because something the
+        segmenter found there (a hand and its outline) may cover the object: an object point seen
+        there later is hidden, not gone. ``None``: no such pixels."""
+        return None
+
 
 class Preprocessor(Plugin):
     def process(self, frame: Frame, mask: np.ndarray, *, intrinsics: Intrinsics) -> Cloud:

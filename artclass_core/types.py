@@ -181,6 +181,7 @@ class View:
     scene_depth_m: np.ndarray | None = None  # (H, W) float32, metres: the whole frame's depth (0 = none)
     mask: np.ndarray | None = None  # (H, W) bool: the segmenter's object mask, before any erosion
     normals: np.ndarray | None = None  # (H, W, 3) float32 unit normals of depth_m's pixels (0 = none)
+    covered: np.ndarray | None = None  # (H, W) bool: pixels a hand may cover (Segmenter.covered)
 
 
 @dataclass
@@ -277,9 +278,10 @@ class MotionEvidence:
         lands on the object's surface (``status == SURFACE``); NaN elsewhere.
     status : ndarray, shape (H, N), int8
         What the moved point finds at its target pixel: ``SURFACE`` (a surface within reach),
-        ``OCCLUDED`` (something in front of it: no evidence), ``FREE_SPACE`` (the camera sees past
-        where the point should be: evidence against the motion), ``OFF_OBJECT`` (a surface at the
-        right depth that is not the object), ``UNSEEN`` (out of the image or no depth).
+        ``OCCLUDED`` (something in front of it, or a hand the segmenter left out of the object's
+        mask there: no evidence), ``FREE_SPACE`` (the camera sees past where the point should be:
+        evidence against the motion), ``OFF_OBJECT`` (a surface at the right depth that is not the
+        object), ``UNSEEN`` (out of the image or no depth).
     flow_px : ndarray, shape (H, N), float32, pixels
         Distance between where the motion puts a point in the target image and where optical flow
         says it went; NaN where the colour image has no texture to follow.

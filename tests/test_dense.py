@@ -143,6 +143,26 @@ def test_look_tells_surface_occluded_free_space_off_object_and_unseen():
     assert np.isnan(residual[0, 1:]).all()
 
 
+def test_a_point_landing_where_a_hand_may_cover_the_object_is_hidden_not_off_it():
+    """A segmenter leaves a hand's pixels (and its outline's) out of the object's mask: it cannot
+    tell whether the object is under them. A point landing there beside the mask is no evidence
+    against its motion; a point the camera sees past is still free space."""
+    f = frame([(BASE, pose(t=(0.0, 0.0, DEPTH_M)), 1), TABLE])
+    c = cloud(f)
+    points = np.array([[0.12, 0.0, DEPTH_M + 0.03], [0.12, 0.0, DEPTH_M - 0.02]])  # on the table; before it
+
+    def look():
+        return look_all(np.eye(4)[None], points, Target.of(c), reach_m=np.full(2, 0.005), off_object_px=3.0)
+
+    assert look()[0][0].tolist() == [OFF_OBJECT, FREE_SPACE]
+    c.view.covered = np.zeros_like(f.mask)
+    right = round(K.cx + K.fx * 0.09 / DEPTH_M)
+    c.view.covered[:, right:] = True  # a hand over the table right of the plate
+    status, residual = look()
+    assert status[0].tolist() == [OCCLUDED, FREE_SPACE]
+    assert np.isnan(residual).all()
+
+
 def test_robust_kabsch_recovers_a_motion_despite_wrong_matches():
     rng = np.random.default_rng(0)
     source = rng.uniform(-0.1, 0.1, (200, 3)) + [0, 0, DEPTH_M]

@@ -377,6 +377,17 @@ def test_the_held_box_is_chosen_without_the_hand_that_carries_it():
         assert choice.held and choice.held[choice.index], i
 
 
+def test_the_pixels_a_hand_may_cover_reach_the_registration():
+    """The pipeline keeps, with each frame's cloud, the pixels the segmenter left out for a hand (and
+    its outline), where a point of the object landing later is hidden rather than gone."""
+    scene, _, hands = carrying_scene(4)
+    cloud = Pipeline(load_registry(), Config(segmenter="depth_threshold")).frame(scene, 2).cloud
+    covered = cloud.view.covered
+    assert covered[hands[2]].mean() > 0.95
+    assert not (covered & cloud.view.mask).any()
+    assert covered.sum() < 2 * hands[2].sum()
+
+
 @pytest.mark.slow
 def test_u2net_leaves_the_hand_out_too(u2netp_path):  # noqa: F811
     """u2net on the waving scene (real u2netp weights): the box is chosen in all 6 frames (measured

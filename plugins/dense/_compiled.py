@@ -58,7 +58,7 @@ def _outside_at(outside, v0, u0, v, u):
 
 @njit(cache=True, nogil=True)
 def look_kernel(
-    motions, points, scene, depth, normals, outside, v0, u0, camera, reach, off_px, status, residual
+    motions, points, scene, depth, normals, outside, v0, u0, covered, camera, reach, off_px, status, residual
 ):
     h, w = scene.shape
     for k in range(motions.shape[0]):
@@ -75,7 +75,8 @@ def look_kernel(
             elif gap > reach[i]:
                 status[k, i] = FREE_SPACE
             elif _outside_at(outside, v0, u0, v, u) > off_px:
-                status[k, i] = OFF_OBJECT
+                # a surface beside the object, unless a hand there may cover the object: hidden
+                status[k, i] = OCCLUDED if covered.shape[0] and covered[v, u] else OFF_OBJECT
             else:
                 status[k, i] = SURFACE
                 plane = _plane_residual(q0, q1, q2, u, v, depth, normals, camera)

@@ -41,6 +41,7 @@ class Target:
     # top-left pixel is outside_origin (row, column); inf beyond the box
     outside_px: np.ndarray
     outside_origin: tuple[int, int]
+    covered: np.ndarray  # (H, W) bool: pixels a hand may cover (a point there is hidden); (0, 0): none
 
     @classmethod
     def of(cls, cloud: Cloud) -> Target:
@@ -50,7 +51,10 @@ class Target:
                 "the dense registrar needs clouds that keep their image (pixels, normals and mask), "
                 "as the 'image' preprocessor gives; use it, or a per-cell registrar"
             )
-        return cls(view.intrinsics, view.scene_depth_m, view.depth_m, view.normals, *_outside(view.mask))
+        covered = np.zeros((0, 0), bool) if view.covered is None else np.ascontiguousarray(view.covered, bool)
+        return cls(
+            view.intrinsics, view.scene_depth_m, view.depth_m, view.normals, *_outside(view.mask), covered
+        )
 
 
 def _outside(mask: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
@@ -75,7 +79,8 @@ def look_all(
     points : (N, 3) source points, metres
     target : the target frame
     reach_m : (N,) how far from the observed depth a point still counts as on a surface
-    off_object_px : a point on a surface farther than this from the object's mask is off the object
+    off_object_px : a point on a surface farther than this from the object's mask is off the object,
+        or hidden where the target's ``covered`` pixels say a hand may cover the object
 
     Returns
     -------
@@ -93,6 +98,7 @@ def look_all(
         target.normals,
         target.outside_px,
         *target.outside_origin,
+        target.covered,
         _camera(target.intrinsics),
         np.ascontiguousarray(reach_m, np.float64),
         float(off_object_px),
@@ -280,6 +286,7 @@ def warm_up() -> None:
         normals,
         np.zeros(shape, np.float32),
         (0, 0),
+        np.zeros((0, 0), bool),
     )
     points = np.column_stack([np.zeros((n, 2)), np.full(n, 0.5)])
     motions = np.eye(4)[None]

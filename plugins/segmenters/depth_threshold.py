@@ -628,10 +628,10 @@ class MaskFreeSegmenter(InstanceSegmenter):
             support_height_m=scene.heights_m[0] if scene.planes else None,
         )
 
-    def not_hand(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
-        """The pixels that are not hand, its margin included (None when hands are not looked for)."""
+    def covered(self, frame: Frame, *, sequence: Sequence) -> np.ndarray | None:
+        """The hand's pixels, its margin included (None when hands are not looked for)."""
         hand = self.hand_mask(frame, sequence=sequence)
-        return None if hand is None else ~widen(hand, self.params.hand_margin_px)
+        return None if hand is None else widen(hand, self.params.hand_margin_px)
 
 
 def without_arm(instances: list[np.ndarray], hand: np.ndarray, *, share: float) -> list[np.ndarray]:
@@ -675,7 +675,8 @@ class DepthThresholdSegmenter(MaskFreeSegmenter):
     def instances(self, frame: Frame, *, sequence: Sequence) -> list[np.ndarray]:
         p, K = self.params, sequence.intrinsics
         planes, background, valid, depth, heights = self.scene(frame, sequence=sequence)
-        allowed = self.not_hand(frame, sequence=sequence)
+        covered = self.covered(frame, sequence=sequence)
+        allowed = None if covered is None else ~covered
         objects = valid & ~background if allowed is None else valid & ~background & allowed
         found = components(objects, open_px=p.open_px, min_area_fraction=p.min_area_fraction)
         if p.grow_sigmas > 0:

@@ -291,8 +291,8 @@ class U2netSegmenter(DepthThresholdSegmenter):
         found = super().instances(frame, sequence=sequence)
         scene = self.scene(frame, sequence=sequence)
         prob = saliency(frame.rgb, session=load_u2net(p.model_path))
-        allowed = self.not_hand(frame, sequence=sequence)
-        allowed = np.ones(prob.shape, bool) if allowed is None else allowed
+        covered = self.covered(frame, sequence=sequence)
+        allowed = np.ones(prob.shape, bool) if covered is None else ~covered
         salient = (prob > p.threshold) & allowed
         if scene.planes:  # salient regions a little above the support plane lie flat on it
             table = scene.valid & scene.background & (np.abs(scene.heights_m[0]) < p.plane_distance_m)
