@@ -9,8 +9,9 @@ background that reaches the image border, or such a gap:
 1. the *stub*: its points within :data:`STUB_M` of where it enters (the middle of a run of its
    pixels along the border, or the gap, at least a forearm wide at the run's own depth, since a
    forearm reaching in from far away looks slim there; each run is tried);
-2. the *cylinder* through them: its axis runs along the direction their surface normals are all
-   square to, pointing into the picture; across the axis, a circle fitted to the points gives the
+2. the *cylinder* through them: its axis runs along the direction their surface normals (of the
+   readings averaged over :data:`NORMAL_M`, which the sensor's noise tilts little) are all square
+   to, pointing into the picture; across the axis, a circle fitted to the points gives the
    axis's place and the radius. A stretch of points elongated along one direction
    (:data:`ELONGATED`) gives the axis by its length instead. The stub must be a cylinder: its
    points scatter about the circle by no more than :data:`RADIUS_SLACK_M`, and its arc bulges off
@@ -73,9 +74,13 @@ HAND_REACH_M = 0.19
 HAND_RADIUS_M = 0.05
 #: The trace follows pixels this far apart on the surface, in x and y (at the region's median depth).
 SAMPLE_M = 0.005
-#: Normals from the points this far to either side (a forearm's surface turns little over it; the
-#: sensor's noise, a few millimetres at 1-2 m, tilts them little).
+#: Normals from the points this far to either side (a forearm's surface turns little over it), each
+#: the readings averaged over as many pixels: the sensor's noise (a dark sleeve under time of flight
+#: reads centimetres off) would tilt normals from single readings by tens of degrees.
 NORMAL_M = 0.01
+#: The steepest surface averaged over: its depth changes by at most this many times the width it
+#: spans (72 degrees from facing the camera); more is a step between two surfaces.
+STEEPEST = 3.0
 #: A region rests on the support plane when at least this many of its pixels come down to it (a line
 #: of contact, not a stray reading).
 CONTACT_PX = 3
@@ -124,9 +129,9 @@ def limbs(
         stride = max(int(SAMPLE_M * px_per_m), 1)
         sample = (u % stride == 0) & (v % stride == 0)
         traced = intrinsics.points(u[sample], v[sample], z[sample])
-        normals = _normals(
-            region, depth_m, intrinsics, v[sample], u[sample], max(round(NORMAL_M * px_per_m), 1)
-        )
+        apart = max(round(NORMAL_M * px_per_m), 1)
+        smooth = _smoothed(region, depth_m, apart, intrinsics.fx)
+        normals = _normals(region, smooth, intrinsics, v[sample], u[sample], apart)
         entries, points = runs[v, u], None
         for r in np.unique(entries[entries > 0]):  # each as wide as a forearm, at its own depth
             at = entries == r
@@ -208,6 +213,27 @@ def _normals(
 
     normals = np.cross(point(0, d) - point(0, -d), point(d, 0) - point(-d, 0))
     return normals / np.linalg.norm(normals, axis=1, keepdims=True)
+
+
+def _smoothed(region: np.ndarray, depth_m: np.ndarray, size: int, fx: float) -> np.ndarray:
+    """The readings of ``region`` averaged over ``size`` x ``size`` pixels of it, where they span no
+    depth step (at most :data:`STEEPEST` times the window's width on the surface); elsewhere, and
+    off the region, the readings as they are. The sensor's noise, which tilts normals taken from
+    single readings, shrinks by ``size``; a forearm in front of the object it passes keeps its own
+    depth at its edge. ``fx``: the focal length, pixels."""
+    out = np.array(depth_m, np.float32)
+    x, y, w, h = cv2.boundingRect(as_uint8(region))
+    inside, crop = region[y : y + h, x : x + w], out[y : y + h, x : x + w]
+    readings = np.where(inside, crop, 0).astype(np.float32)
+    kernel = np.ones((size, size), np.uint8)
+    steady = cv2.medianBlur(readings, 5)  # the span of single readings is mostly the noise's
+    far = cv2.dilate(np.where(inside, steady, 0), kernel)
+    near = cv2.erode(np.where(inside, steady, np.inf).astype(np.float32), kernel)
+    total = cv2.boxFilter(readings, -1, (size, size), normalize=False)
+    count = cv2.boxFilter(inside.astype(np.float32), -1, (size, size), normalize=False)
+    flat = inside & (far - near <= STEEPEST * size * crop / fx)
+    crop[flat] = (total / np.maximum(count, 1))[flat]
+    return out
 
 
 def _trace(points: np.ndarray, normals: np.ndarray, start: np.ndarray) -> _Limb | None:
