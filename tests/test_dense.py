@@ -304,12 +304,14 @@ def still_plate_with_a_hand(index: int, hand_at, *, shift_m: float = 0.0) -> Fra
     return frame([plate, table, (HAND, scene @ pose(t=(*hand_at, DEPTH_M - 0.15)), 0)], index)
 
 
-def test_a_depth_error_that_a_hand_brings_is_no_motion_where_the_still_scene_shows_it():
+def plain(monkeypatch) -> None:
+    """Every surface drawn from now on is plain: one grey, which no optical flow can follow."""
+    monkeypatch.setattr("test_dense.texture", lambda surface_xy: np.full(len(surface_xy), 128, np.uint8))
+
+
+def still_plate_read_farther_near_a_hand() -> tuple[Frame, Frame]:
     """A time-of-flight camera reads surfaces near a hand farther (light the hand scatters): here by
-    up to 8 mm, falling off over a fifth of the image, on the still plate and the table alike. The
-    plate fits a small motion better than staying still; the table beside it, which the optical
-    flow shows still, shows the same change, so the pair shows no motion. Measured without the
-    table (the evidence's ``scene_error_m`` dropped), the same depth makes the plate move."""
+    up to 8 mm, falling off over a fifth of the image, on the still plate and the table alike."""
     a = still_plate_with_a_hand(0, (0.03, -0.02))
     b = still_plate_with_a_hand(1, (0.06, -0.02))
     v, u = np.indices(b.depth_m.shape)
@@ -317,11 +319,33 @@ def test_a_depth_error_that_a_hand_brings_is_no_motion_where_the_still_scene_sho
     bias = 0.008 * np.exp(-((u - centre_u) ** 2 + (v - K.cy) ** 2) / (2 * sigma_px**2))
     hand = (b.owner == 0) & (b.depth_m < DEPTH_M)
     b.depth_m = np.where((b.depth_m > 0) & ~hand, b.depth_m + bias, b.depth_m).astype(np.float32)
-    evidence, out, _ = decide(a, b)
+    return a, b
+
+
+def test_a_depth_error_that_a_hand_brings_is_no_motion_where_the_still_scene_shows_it():
+    """The plate read farther near a hand fits a small motion better than staying still; the table
+    beside it, which the optical flow shows still, shows the same change, so the pair shows no
+    motion. Measured without the table (the evidence's ``scene_error_m`` dropped), the same depth
+    makes the plate move."""
+    evidence, out, _ = decide(*still_plate_read_farther_near_a_hand())
     assert out.decision == "NM", out.reason
     assert np.median(evidence.scene_error_m) > 0.002
     blind = DenseRule().decide(dataclasses.replace(evidence, scene_error_m=None))
     assert blind.decision != "NM", blind.reason
+
+
+def test_a_plain_table_shows_the_depth_error_unless_a_hand_may_cover_it(monkeypatch):
+    """On a plain table the flow finds no motion, as on a still textured one: the depth change there
+    is the sensor's (the bias peaks at 8 mm by the plate's side). Where the segmenter says a hand
+    may cover the scene, a plain surface that the flow finds still may be the hand's skin moving
+    towards the camera: it measures no error."""
+    plain(monkeypatch)
+    source, target = (cloud(f) for f in still_plate_read_farther_near_a_hand())
+    error = DenseRegistrar().register_pair(source, target).scene_error_m
+    assert error is not None and np.median(error) > 0.002
+    for c in (source, target):
+        c.view.covered = ~c.view.mask
+    assert DenseRegistrar().register_pair(source, target).scene_error_m is None
 
 
 def test_a_moving_camera_leaves_no_still_scene_to_measure():

@@ -228,7 +228,6 @@ class DenseRegistrar(PairRegistrar):
                 target,
                 flow,
                 lambda z: self.reach_at(z, source, tgt.intrinsics.fx),
-                min_texture=p.min_texture,
                 still_px=rule.flow_sigma_px,
                 spread_px=rule.noise_lag_rad * tgt.intrinsics.fx,
             ),

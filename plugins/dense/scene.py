@@ -10,6 +10,12 @@ On a still camera the scene beside the object shows the error: surfaces that the
 not move, whose depth changed nonetheless between the two frames. Its robust size about each point
 is the depth change there that the sensor alone makes: a motion that misses the point by less is not
 refuted by it. A moving camera leaves no still scene (most of the scene flows): nothing is measured.
+
+The flow cannot follow a plain surface (a plain or faintly textured table), so it counts as still
+where the flow finds no motion, as a textured one does, but for what a hand may cover (the
+segmenter's ``covered`` pixels): beside the object, what moves unseen so, towards the camera, is a
+hand or an arm. A plain surface that slides along itself unseen keeps its depth: it understates the
+error, never overstates it.
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ import numpy as np
 
 from artclass_core import Cloud
 
-from .flow import CropFlow, eigen
+from .flow import CropFlow
 
 #: The error is summarised on square cells of this side, pixels.
 CELL_PX = 8
@@ -35,7 +41,6 @@ def still_scene_error(
     flow: CropFlow | None,
     reach: Callable[[np.ndarray], np.ndarray],
     *,
-    min_texture: float,
     still_px: float,
     spread_px: float,
 ) -> np.ndarray | None:
@@ -47,9 +52,6 @@ def still_scene_error(
     flow : the pair's optical flow about the objects
     reach : the depth change (metres) beyond which a pixel shows another surface, come or gone, not
         the same one read differently, as a function of the depth
-    min_texture : only an edge or texture (the larger structure-tensor eigenvalue reaching this)
-        shows that a surface stood still: a plain one may slide along itself unseen (an arm along
-        its length)
     still_px : a surface that the flow moves less than this, both ways, did not move (pixels)
     spread_px : the error is taken as smooth over this many pixels (a Gaussian's sigma)
 
@@ -75,12 +77,11 @@ def still_scene_error(
     near = cv2.dilate((a.mask | b.mask)[r0:r1, c0:c1].astype(np.uint8), np.ones((edge, edge), np.uint8))
     near = near[::_STEP, ::_STEP]
     change = zb - za
-    still = (near == 0) & (za > 0) & (zb > 0) & (np.abs(change) <= reach(np.maximum(za, zb)))
-    still &= ~moved(flow.forward) & ~moved(flow.backward)
-    rows, cols = np.indices(za.shape) * _STEP
-    still &= (
-        eigen(flow.texture, np.column_stack([cols.ravel(), rows.ravel()]))[1].reshape(za.shape) >= min_texture
-    )
+    scene = (near == 0) & (za > 0) & (zb > 0) & (np.abs(change) <= reach(np.maximum(za, zb)))
+    for view in (a, b):
+        if view.covered is not None:
+            scene &= ~view.covered[crop]
+    still = scene & ~moved(flow.forward) & ~moved(flow.backward)
     if not still.any():
         return None
     cell = CELL_PX // _STEP
