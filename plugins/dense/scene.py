@@ -9,13 +9,13 @@ moves with the hand over many pixels, the object's and the scene's alike, and a 
 On a still camera the scene beside the object shows the error: surfaces that the optical flow says did
 not move, whose depth changed nonetheless between the two frames. Its robust size about each point
 is the depth change there that the sensor alone makes: a motion that misses the point by less is not
-refuted by it. A moving camera leaves no still scene (most of the scene flows): nothing is measured.
+refuted by it. A moving camera leaves little still scene: its texture flows.
 
-The flow cannot follow a plain surface (a plain or faintly textured table), so it counts as still
-where the flow finds no motion, as a textured one does, but for what a hand may cover (the
-segmenter's ``covered`` pixels): beside the object, what moves unseen so, towards the camera, is a
-hand or an arm. A plain surface that slides along itself unseen keeps its depth: it understates the
-error, never overstates it.
+The flow cannot follow a plain surface (a plain or faintly textured table), so a plain pixel counts
+as still where the flow finds no motion, as a textured one does, unless a hand may cover it (the
+segmenter's ``covered`` pixels): beside an object on a still camera, what moves towards the camera
+unseen is a hand or an arm. A plain surface that slides along itself unseen keeps its depth, so it
+understates the error, never overstates it.
 """
 
 from __future__ import annotations
