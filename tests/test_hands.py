@@ -569,15 +569,17 @@ def test_a_stretch_of_forearm_is_as_wide_as_one_and_joins_arm_and_hand_at_its_tw
 
 
 def test_projector_shadows_lie_between_a_near_and_a_far_reading_in_their_row():
-    depth = np.full((3, 12), 0.8, np.float32)
+    """At fx = 100 px a projector 10 cm beside the camera shifts 0.6 m against 0.8 m by 4.2 px."""
+    depth = np.full((4, 60), 0.8, np.float32)
     depth[:, 3:6] = 0.0  # between 0.8 (left) and 0.6 (right): a shadow
     depth[:, 6:9] = 0.6
     depth[1, 9:] = 0.0  # from the object to the border: no reading on one side, not a shadow
     depth[2, 3:6] = 0.0
     depth[2, 6:] = 0.81  # between two readings 1 cm apart: a dropout on one surface
-    shadows = projector_shadows(depth, step_m=0.02)
+    depth[3, 9:49] = 0.0  # 40 px between 0.6 and 0.8: wider than any projector's shadow
+    shadows = projector_shadows(depth, step_m=0.02, fx=100.0)
     assert shadows[0, 3:6].all() and shadows[1, 3:6].all() and not shadows[1, 9:].any()
-    assert not shadows[2].any() and not shadows[depth > 0].any()
+    assert not shadows[2].any() and not shadows[3, 9:49].any() and not shadows[depth > 0].any()
 
 
 def _random_depth(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
@@ -589,7 +591,8 @@ def _random_depth(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarra
 
 def test_projector_shadows_match_a_numpy_scan_of_the_rows():
     """The compiled row scan against the same rule written with numpy: each dropout's nearest reading
-    to the left and to the right (running maxima of column indices) more than step_m apart."""
+    to the left and to the right (running maxima of column indices) more than step_m apart, in a gap
+    no wider than the disparity between them (plus a pixel)."""
     rng = np.random.default_rng(0)
     for _ in range(50):
         depth = _random_depth(rng, tuple(rng.integers(1, 40, 2)))
@@ -599,9 +602,12 @@ def test_projector_shadows_match_a_numpy_scan_of_the_rows():
         right = w - 1 - np.maximum.accumulate(np.where(gaps[:, ::-1], -1, columns), axis=1)[:, ::-1]
         expected = np.zeros(depth.shape, bool)
         v, u = np.nonzero(gaps & (left >= 0) & (right < w))
-        apart = np.abs(depth[v, left[v, u]] - depth[v, right[v, u]]) > 0.02
+        near, far = depth[v, left[v, u]], depth[v, right[v, u]]
+        apart = np.abs(near - far) > 0.02
+        disparity = float(np.float32(0.1 * 3.0)) * np.abs(1 / near.astype(float) - 1 / far.astype(float))
+        apart &= right[v, u] - left[v, u] - 2 <= disparity
         expected[v[apart], u[apart]] = True
-        assert np.array_equal(projector_shadows(depth, step_m=0.02), expected)
+        assert np.array_equal(projector_shadows(depth, step_m=0.02, fx=3.0), expected)
 
 
 def _full_range(depth: np.ndarray, where: np.ndarray, reach_px: int) -> tuple[np.ndarray, np.ndarray]:
@@ -784,6 +790,30 @@ def test_a_carried_object_of_another_skin_shade_is_not_the_hand():
     before = DepthThresholdSegmenter(DepthThresholdParams(hand_max_area_m2=0.0))
     assert before.hand_mask(scene[0], sequence=scene)[box].mean() > 0.9
     assert before.segment(scene[0], sequence=scene) is None
+
+
+def test_a_box_carried_by_a_bare_arm_beside_an_unread_band_is_not_the_hand():
+    """A bare arm carries a wooden box (skin-coloured, another chromaticity) 0.45 m from the camera,
+    and a band without a reading (a window beyond the sensor's range) runs from the box's far side to
+    the image border. The hand's colour is read where its arm leaves the picture, not along that
+    band, which is no arm: the box (larger than any hand) is the object and the hand mask stops where
+    the colour changes. Read along the band as well, the box's colour outvotes the arm's and the hand
+    mask takes all of the box."""
+    box = box_mask(40, 50, 150, 120)
+    hand = hand_shape(215, 120) & ~box
+    band = np.zeros((H, W), bool)
+    band[50:170, :40] = True
+    depth = table_depth()
+    depth[box | hand] = 0.45
+    rgb, depth = render(box, hand, hand_depth_m=0.45, depth=depth)
+    paint(rgb, box, (205, 160, 100), seed=1)
+    paint(rgb, band, WALL, seed=2)
+    depth[band] = 0.0
+    assert skin_mask(rgb)[box].mean() > 0.9
+    scene = Scene([Frame(0, "0", rgb, depth)], name="wooden box carried by a bare arm")
+    seg = DepthThresholdSegmenter()
+    assert mask_iou(seg.hand_mask(scene[0], sequence=scene), hand) > 0.9
+    assert mask_iou(seg.segment(scene[0], sequence=scene), box) > 0.9
 
 
 def test_the_surfaces_of_labelled_regions_are_each_one_s_surface():

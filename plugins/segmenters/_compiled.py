@@ -11,10 +11,11 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def shadow_kernel(depth, step, out):
+def shadow_kernel(depth, step, disparity, out):
     """Mark in ``out`` (bool (H, W), all False) the pixels without a reading (``depth`` == 0, float32
     (H, W)) whose nearest readings to the left and to the right in their row differ by more than
-    ``step`` (float32)."""
+    ``step`` (float32), in a gap no wider than ``disparity`` (float32, pixel metres) times the
+    difference of their inverse depths, plus a pixel."""
     h, w = depth.shape
     for v in range(h):
         left = -1  # the last column with a reading
@@ -22,7 +23,8 @@ def shadow_kernel(depth, step, out):
             if depth[v, u] == 0:
                 continue
             if left >= 0 and u > left + 1 and abs(depth[v, left] - depth[v, u]) > step:
-                out[v, left + 1 : u] = True
+                if u - left - 2 <= disparity * abs(1 / depth[v, left] - 1 / depth[v, u]):
+                    out[v, left + 1 : u] = True
             left = u
 
 
@@ -287,7 +289,7 @@ def warm_up() -> None:
     (or compiling it)."""
     depth = np.full((4, 6), 0.5, np.float32)
     flags = np.zeros(depth.shape, bool)
-    shadow_kernel(depth, np.float32(0.01), flags)
+    shadow_kernel(depth, np.float32(0.01), np.float32(30.0), flags)
     step_kernel(depth, np.float32(0.01), flags)
     steady_kernel(depth, np.float32(0.01), flags)
     colour = np.zeros(depth.shape + (3,), np.float32)

@@ -463,7 +463,7 @@ def find_hands(
     # casts on it): the pieces of the gripper this cuts off rejoin it as its fingers; a hand's
     # pieces would not (a small skin-coloured object in the hand looks the same), so its shadows
     # stay joined
-    shadow = projector_shadows(d, step_m=touch)
+    shadow = projector_shadows(d, step_m=touch, fx=intrinsics.fx)
     apart = candidates & ~step
     found = [  # each kind's regions
         _hand_regions(
@@ -528,8 +528,7 @@ def find_hands(
         skin = hand & kinds[0]
         doubtful = None  # pieces of the hand of another shade than its own: maybe an object it holds
         if params.hand_chroma > 0 and skin.any():
-            edge = _edge_gaps(d, shadow) if edge is None else edge
-            carriers = (hand & ~kinds[0]) | edge
+            carriers = hand & ~kinds[0]
             own, doubtful = own_colour(
                 skin,
                 carriers,
@@ -881,13 +880,21 @@ def pixels_across(distance_m: float, fx: float, depths_m: np.ndarray) -> int:
     return max(int(np.ceil(distance_m * fx / float(np.median(depths_m)))), 1)
 
 
-def projector_shadows(depth_m: np.ndarray, *, step_m: float) -> np.ndarray:
+#: The widest baseline between a structured-light or active-stereo sensor's camera and its projector
+#: (or second camera), metres: 7.5 cm on a Kinect v1, 5 cm on a RealSense D400.
+BASELINE_M = 0.1
+
+
+def projector_shadows(depth_m: np.ndarray, *, step_m: float, fx: float) -> np.ndarray:
     """The pixels without a reading whose nearest readings to the left and to the right in their row
     differ by more than ``step_m``: the projector's shadow of a structured-light sensor (its projector
     sits beside the camera along x), which lies beside a depth edge on whatever is behind it and must
-    not join the two sides. bool (H, W)."""
+    not join the two sides. A shadow is as wide as the disparity its two sides differ by, at most
+    :data:`BASELINE_M` ``fx`` (1 / z_near - 1 / z_far) pixels: a wider gap holds something the sensor
+    does not read (a sleeve too near or too dark for it). bool (H, W)."""
     out = np.zeros(depth_m.shape, bool)
-    shadow_kernel(np.ascontiguousarray(depth_m, dtype=np.float32), np.float32(step_m), out)
+    depth = np.ascontiguousarray(depth_m, dtype=np.float32)
+    shadow_kernel(depth, np.float32(step_m), np.float32(BASELINE_M * fx), out)
     return out
 
 
@@ -930,8 +937,8 @@ def own_colour(
     Parameters
     ----------
     skin : ndarray of bool, shape (H, W) -- the skin-coloured pixels of the hand mask
-    carriers : ndarray of bool, shape (H, W) -- what holds the hand out: its arm, sleeve, and the
-        pixels without a reading where the arm is too near the sensor
+    carriers : ndarray of bool, shape (H, W) -- what holds the hand out: its arm and sleeve, as read
+        (a band without a reading is not one: it is as often the shadow beside a box the hand holds)
     rgb : ndarray, shape (H, W, 3), uint8, RGB order
     tolerance : distance in normalised rgb; 0 = ``skin`` unchanged
     contact : ndarray of bool, shape (H, W) -- the pixels on the support plane (:func:`on_plane`)
