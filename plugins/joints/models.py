@@ -75,7 +75,8 @@ class BICJointParams(Params):
         0.09,
         unit="rad",
         bounds=(1e-5, 1.0),
-        help="Highest orientation noise the estimate may assume (0.09 rad is about 5 degrees).",
+        help="Highest orientation noise the estimate may assume (0.09 rad is about 5 degrees): a "
+        "part whose orientations scatter more about the general joint (the screw) moves freely.",
     )
     outlier_level: float = param(
         0.999,
@@ -501,19 +502,20 @@ def _recentred(fit: _Fit, poses: _Poses) -> _Fit:
 
 def _noise_levels(
     per_pose: np.ndarray, poses: _Poses, *, n_fitted: float, share: float, params: BICJointParams
-) -> tuple[float, float]:
+) -> tuple[float, float, bool]:
     """Noise levels (m, rad) from the normalised residuals (N, 6) of the general model: the median
     squared position and rotation error against the median of chi-square with 3 degrees of freedom
     (robust to up to half the poses being outliers), scaled up for the ``n_fitted`` parameters that
     took part of the noise out of the ``share`` of the residuals that are independent, kept between
-    the bounds unless given."""
+    the bounds unless given; and whether the orientations scatter beyond their bound (unless given)."""
     n_residuals = share * per_pose.size
     scale = np.sqrt(n_residuals / max(n_residuals - n_fitted, 1) / chi2.median(3))
     sigma_m = poses.sigma_m * scale * np.sqrt(np.median(np.sum(per_pose[:, :3] ** 2, axis=1)))
     sigma_rad = poses.sigma_rad * scale * np.sqrt(np.median(np.sum(per_pose[:, 3:] ** 2, axis=1)))
+    scattered = params.sigma_orientation_rad is None and sigma_rad > params.max_sigma_orientation_rad
     sigma_m = float(np.clip(sigma_m, params.min_sigma_position_m, params.max_sigma_position_m))
     sigma_rad = float(np.clip(sigma_rad, params.min_sigma_orientation_rad, params.max_sigma_orientation_rad))
-    return params.sigma_position_m or sigma_m, params.sigma_orientation_rad or sigma_rad
+    return params.sigma_position_m or sigma_m, params.sigma_orientation_rad or sigma_rad, scattered
 
 
 def _subset(poses: _Poses, keep: np.ndarray, sigma_m: float, sigma_rad: float) -> _Poses:
@@ -595,8 +597,13 @@ def fit_joint(
     ``n_independent`` = m of N known poses, every pose counts m / N of an independent one (the
     chi-square and the number of poses in the BIC and in the degrees of freedom are scaled by m / N,
     the variances by N / m), as for m poses each given N / m times. The noise levels are
-    the screw model's residual RMS unless given. Uncertainties are one standard deviation from the
-    inverse of JᵀJ of the chosen model at its optimum.
+    the screw model's residual RMS unless given. Where that RMS exceeds
+    ``max_sigma_orientation_rad``, the motion is ``free`` (their free-body alternative): a part's
+    orientation, registered from hundreds of points of a few centimetres, errs by a degree or two,
+    and poses that turn more than 5 degrees off every one-degree-of-freedom path follow none. So is
+    a motion of which the chosen model explains fewer than ``min_inlier_fraction`` of the poses.
+    Uncertainties are one standard deviation from the inverse of JᵀJ of the chosen model at its
+    optimum.
     """
     poses = np.asarray(poses, dtype=float)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4):
@@ -621,7 +628,7 @@ def fit_joint(
     # 1. the general model, robustly: noise levels and outliers
     start = _best_start("screw", observed, pairs) or _best_start("fixed", observed, pairs)
     general = _refine(start, observed, robust=True)
-    sigma_m, sigma_rad = _noise_levels(
+    sigma_m, sigma_rad, scattered = _noise_levels(
         general.pose_residuals(general.x, observed),
         observed,
         n_fitted=_n_params(general.shape, share * len(known)),
@@ -682,6 +689,7 @@ def fit_joint(
         scores=scores,
         share=share,
         params=params,
+        free=scattered,
         info=dict(
             sigma_position_m=float(sigma_m),
             sigma_orientation_rad=float(sigma_rad),
@@ -739,6 +747,7 @@ def _estimate(
     scores: dict,
     share: float,
     params: BICJointParams,
+    free: bool,
     info: dict,
 ) -> JointEstimate:
     xi, R0, t0 = fit.unpack()
@@ -768,7 +777,7 @@ def _estimate(
     inliers = np.zeros(n_frames, bool)
     inliers[known[inlier]] = True
     states[inliers], states_std[inliers] = q, q_std
-    joint_type = name if inlier.mean() >= params.min_inlier_fraction else "free"
+    joint_type = "free" if free or inlier.mean() < params.min_inlier_fraction else name
     if joint_type == "free":
         direction = point = None
         states[:], states_std[:] = np.nan, np.nan
